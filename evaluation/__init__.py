@@ -1,0 +1,1 @@
+"""Metrics (retrieval, loop closures, trajectory, relations) and benchmark runners."""

@@ -1,0 +1,1 @@
+"""The plugin: scan -> polygon -> descriptors -> place database -> verified loop closures."""

@@ -1,0 +1,1 @@
+"""The host: odometry front ends, the gtsam pose graph, the mapper pipeline, maps and the CLI."""

@@ -1,0 +1,1 @@
+"""The `loopclosure` command line: one module per command family, assembled in `main`."""
