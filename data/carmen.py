@@ -596,11 +596,7 @@ def field_of_view_deg(scan: Scan) -> float:
     for a SICK's 181 beams), except that a scan whose beams close the circle
     (span plus one step reaches 360 degrees) reports 360.
     """
-    if len(scan.angles) < 2:
-        return 0.0
-    span = float(scan.angles[-1] - scan.angles[0])
-    full = scan.fov >= 2.0 * math.pi - 1e-6
-    return 360.0 if full else math.degrees(span)
+    return math.degrees(scan.fov)
 
 
 @dataclass

@@ -54,11 +54,14 @@ class Scan:
 
     @property
     def fov(self) -> float:
-        """Angular span of the scan [rad], beam to beam plus one beam spacing."""
+        """Field of view [rad]: first to last beam (ROS's ``angle_max - angle_min``; pi for a
+        SICK's 181 beams over 180 degrees), or 2 pi when the beams close the circle (the
+        span plus one beam spacing reaches 360 degrees)."""
         if len(self.angles) < 2:
             return 0.0
-        step = (self.angles[-1] - self.angles[0]) / (len(self.angles) - 1)
-        return float(self.angles[-1] - self.angles[0] + abs(step))
+        span = float(self.angles[-1] - self.angles[0])
+        step = span / (len(self.angles) - 1)
+        return 2.0 * np.pi if span + abs(step) >= 2.0 * np.pi - 1e-6 else span
 
     def points(self) -> Array:
         """``(M, 2)`` end points of the valid beams in the sensor frame [m]."""

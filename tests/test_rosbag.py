@@ -241,7 +241,7 @@ def test_odometry_interpolated_to_sensor_pose(tmp_path, kind, odom):
     np.testing.assert_allclose(np.stack([s.odom for s in scans]), EXPECTED_ODOM, atol=1e-6)
     info = bag.info()
     assert (info.scans, info.beams, info.max_range, info.odometry) == (2, 3, 10.0, 3)
-    assert info.fov_deg == pytest.approx(math.degrees(1.5))
+    assert info.fov_deg == pytest.approx(math.degrees(1.0))  # angle_max - angle_min
     assert info.duration_s == pytest.approx(1.0)
     assert info.topics["/scan"] == LASER
     assert info.topics["/tf_static"] == TF
@@ -358,7 +358,7 @@ def test_round_trip_scans_through_ros2_bag(tmp_path, storage, n):
         np.testing.assert_allclose(b.odom, a.odom, atol=1e-12)
     info = bag.info()
     assert (info.scans, info.beams, info.odometry) == (n, 181, n)
-    assert info.fov_deg == pytest.approx(181.0, abs=1e-3)
+    assert info.fov_deg == pytest.approx(180.0, abs=1e-3)  # angle_max - angle_min
     # The header stamp is exact to the nanosecond.
     from rosbags.highlevel import AnyReader
 

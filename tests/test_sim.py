@@ -418,7 +418,7 @@ def test_run_is_deterministic_for_a_seed():
 def test_fov_option_shapes_scans(box_run):
     run = simulate_run("box", seed=0, fov_deg=180.0, beams=181, motion=MotionConfig(laps=0.1))
     s = run.scans[0]
-    assert len(s.ranges) == 181 and s.fov == pytest.approx(np.radians(181.0))
+    assert len(s.ranges) == 181 and s.fov == pytest.approx(np.pi)  # first to last beam
     assert s.angles[0] == pytest.approx(-np.pi / 2) and s.angles[-1] == pytest.approx(np.pi / 2)
     full = box_run.scans[0]
     assert len(full.ranges) == 360 and full.fov == pytest.approx(2 * np.pi)
