@@ -1,0 +1,55 @@
+"""Stripe-based object matching (the stripes paper): extraction, descriptor, matching, database.
+
+Paper: "Stripes-based Object Matching" (``../shared/papers/stripes-object-matching.txt``).
+An object is an ordered list of stripes (2D point paths, one per laser line); each
+stripe becomes ``[l, d, o]`` (Eq. 1-3, `descriptor`); two objects are compared by the
+Bhattacharyya distances of Gaussian fits of each feature after trimming (Eq. 4-6,
+`matching`); `database.StripeDatabase` answers a query against thousands of objects in
+one vectorised pass.
+"""
+
+from loopclosure.stripes.database import StripeDatabase
+from loopclosure.stripes.descriptor import (
+    DescriptorConfig,
+    StripeDescriptor,
+    describe_many,
+    describe_stripes,
+)
+from loopclosure.stripes.extraction import (
+    chain_pixels,
+    stripe_from_binary_image,
+    stripe_from_laser_image,
+    stripes_from_laser_images,
+    stripes_from_points,
+    thin,
+)
+from loopclosure.stripes.matching import (
+    LAMBDA_PAPER,
+    bhattacharyya,
+    feature_distances,
+    search_weights,
+    stratified_split,
+    stripe_distance,
+    trim_range,
+)
+
+__all__ = [
+    "LAMBDA_PAPER",
+    "DescriptorConfig",
+    "StripeDatabase",
+    "StripeDescriptor",
+    "bhattacharyya",
+    "chain_pixels",
+    "describe_many",
+    "describe_stripes",
+    "feature_distances",
+    "search_weights",
+    "stratified_split",
+    "stripe_distance",
+    "stripe_from_binary_image",
+    "stripe_from_laser_image",
+    "stripes_from_laser_images",
+    "stripes_from_points",
+    "thin",
+    "trim_range",
+]
