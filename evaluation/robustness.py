@@ -1,0 +1,168 @@
+"""Robustness of loop-closure kernels to false loop closures.
+
+Protocol (one run per outlier ratio p and kernel):
+
+1. The clean optimum: the graph as given, optimised without a kernel from the
+   LAGO initialisation (2D) or the given vertices (3D).  It is the reference.
+2. False loops are injected so that they make up a fraction p of all loop edges:
+   ``n_false = round(n_true * p / (1 - p))``.  Each joins a random pair of poses
+   more than `min_separation` ids apart and not already joined; its measurement and
+   information are those of a randomly drawn *true* loop edge (so it looks exactly
+   as plausible as a real one: same magnitude, same confidence) — but between the
+   wrong poses.
+3. The corrupted graph is optimised with the kernel from the odometry
+   initialisation (what a mapper has when the loops arrive).  ``gnc`` is
+   gtsam's GNC with the TLS loss; the other names are M-estimators on loop factors.
+4. Reported: ATE of the result against the clean optimum (positions of all poses,
+   after rigid alignment) [m], the count of false loops the result still *obeys*
+   (whitened residual below the chi-square 99% threshold of the loop's dof), the
+   count of true loops it rejects, and the wall time.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from data.errors import UserError
+from evaluation.trajectory_error import umeyama
+from slam.optimize import default_outlier_residual, optimize
+from slam.pose_graph import Constraint, PoseGraph, whitened_residual
+
+Array = NDArray[np.float64]
+ROBUSTNESS_KERNELS = ("none", "huber", "cauchy", "dcs", "gemanmcclure", "gnc")
+
+
+@dataclass(slots=True)
+class RobustnessResult:
+    """One (kernel, outlier ratio) run."""
+
+    kernel: str
+    outlier_ratio: float
+    false_loops: int
+    true_loops: int
+    ate_vs_clean_m: float
+    false_factors_obeyed: int
+    true_factors_rejected: int
+    seconds: float
+
+    def to_json(self) -> dict[str, float | int | str]:
+        return {
+            "kernel": self.kernel,
+            "outlier_ratio": self.outlier_ratio,
+            "false_loops": self.false_loops,
+            "true_loops": self.true_loops,
+            "ate_vs_clean_m": self.ate_vs_clean_m,
+            "false_factors_obeyed": self.false_factors_obeyed,
+            "true_factors_rejected": self.true_factors_rejected,
+            "seconds": self.seconds,
+        }
+
+
+def inject_false_loops(
+    graph: PoseGraph, ratio: float, rng: np.random.Generator, min_separation: int = 10
+) -> tuple[PoseGraph, list[int]]:
+    """A copy of `graph` whose loops are a fraction `ratio` false; returns the false indices."""
+    if not 0.0 <= ratio < 1.0:
+        raise UserError(f"outlier ratio must be in [0, 1), got {ratio}")
+    if not graph.loops:
+        raise UserError("the graph has no loop-closure edges to mix false ones with")
+    n_true = len(graph.loops)
+    n_false = round(n_true * ratio / (1.0 - ratio))
+    keys = np.array(graph.keys)
+    taken = {(min(c.i, c.j), max(c.i, c.j)) for c in graph.odometry + graph.loops}
+    false: list[Constraint] = []
+    while len(false) < n_false:
+        need = 2 * (n_false - len(false)) + 16
+        a = rng.choice(keys, need)
+        b = rng.choice(keys, need)
+        template = rng.integers(0, n_true, need)
+        for i, j, k in zip(a.tolist(), b.tolist(), template.tolist(), strict=True):
+            pair = (min(i, j), max(i, j))
+            if abs(i - j) <= min_separation or pair in taken:
+                continue
+            taken.add(pair)
+            t = graph.loops[k]
+            false.append(Constraint(i, j, t.measurement.copy(), t.information.copy()))
+            if len(false) == n_false:
+                break
+    corrupted = PoseGraph(
+        graph.dim, dict(graph.initial), list(graph.odometry), list(graph.loops), set(graph.fixed)
+    )
+    # Shuffle so false loops are not all at the end (incremental users see them mixed).
+    order = rng.permutation(n_true + n_false)
+    merged = graph.loops + false
+    corrupted.loops = [merged[k] for k in order]
+    position = np.empty_like(order)
+    position[order] = np.arange(len(order))
+    return corrupted, sorted(position[n_true:].tolist())
+
+
+def aligned_position_error(poses: dict[int, Array], reference: dict[int, Array], dim: int) -> float:
+    """RMSE [m] of positions after rigid (Umeyama) alignment of `poses` onto `reference`."""
+    keys = sorted(reference)
+    if dim == 2:
+        p = np.array([poses[k][:2] for k in keys])
+        q = np.array([reference[k][:2] for k in keys])
+    else:
+        p = np.array([poses[k][:3, 3] for k in keys])
+        q = np.array([reference[k][:3, 3] for k in keys])
+    rot, t, _ = umeyama(p, q)
+    return float(np.sqrt(np.mean(np.sum((q - (p @ rot.T + t)) ** 2, axis=1))))
+
+
+def clean_optimum(graph: PoseGraph) -> dict[int, Array]:
+    """The outlier-free reference solution (no kernel; LAGO start in 2D)."""
+    init = "lago" if graph.dim == 2 else "given"
+    return optimize(graph, "none", init=init).poses
+
+
+def run_robustness(
+    graph: PoseGraph,
+    ratios: Sequence[float],
+    kernels: Sequence[str],
+    *,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> list[RobustnessResult]:
+    """The benchmark of the module docstring, every ratio x every kernel."""
+    for k in kernels:
+        if k not in ROBUSTNESS_KERNELS:
+            raise UserError(f"unknown kernel {k!r}; choose from {', '.join(ROBUSTNESS_KERNELS)}")
+    reference = clean_optimum(graph)
+    threshold = default_outlier_residual(graph.dim)
+    results = []
+    for ratio in ratios:
+        corrupted, false_idx = inject_false_loops(graph, ratio, np.random.default_rng(seed))
+        false_set = set(false_idx)
+        for kernel in kernels:
+            if progress:
+                progress(f"{kernel} at {100 * ratio:.0f}% false loops")
+            start = time.perf_counter()
+            if kernel == "gnc":
+                solution = optimize(corrupted, "none", "gnc", init="odometry")
+            else:
+                solution = optimize(corrupted, kernel, "lm", init="odometry")
+            seconds = time.perf_counter() - start
+            residuals = np.array(
+                [whitened_residual(c, solution.poses, graph.dim) for c in corrupted.loops]
+            )
+            obeyed = residuals <= threshold
+            is_false = np.array([n in false_set for n in range(len(corrupted.loops))], dtype=bool)
+            results.append(
+                RobustnessResult(
+                    kernel=kernel,
+                    outlier_ratio=float(ratio),
+                    false_loops=len(false_idx),
+                    true_loops=len(graph.loops),
+                    ate_vs_clean_m=aligned_position_error(solution.poses, reference, graph.dim),
+                    false_factors_obeyed=int((obeyed & is_false).sum()),
+                    true_factors_rejected=int((~obeyed & ~is_false).sum()),
+                    seconds=seconds,
+                )
+            )
+    return results
