@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_file
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -16,6 +15,7 @@ from data import se2
 from data.errors import DataError, DataWarning
 from data.g2o import graph_info, is_g2o, read_g2o, write_g2o
 from data.types import GraphEdge, PoseGraphData
+from tests.conftest import shared_file
 
 SE2_SNIPPET = """\
 # a small SE2 graph

@@ -9,13 +9,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import SHARED_DATA
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data import mpeg7
 from data.errors import DataError, DataWarning
 from data.mpeg7 import contour_from_image, load_silhouettes, mpeg7_classes, parse_name
+from tests.conftest import SHARED_DATA
 
 H, W = 80, 100  # drawn test images: rows, columns
 

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_file
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -21,6 +20,7 @@ from data.relations import (
     write_relations,
 )
 from data.types import Relation
+from tests.conftest import shared_file
 
 SNIPPET = """\
 # t1 t2 x y z roll pitch yaw
