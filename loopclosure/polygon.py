@@ -10,8 +10,8 @@ Rule that turns a `Scan` into a polygon (`polygon_from_scan`):
 2. Beams without a return (reading ``>= max_range``) are open space: their vertex
    is placed along the beam at ``range_cap`` (default: the scan's max range, capped
    by `PolygonConfig.range_cap`).  A place recogniser must see open space as open.
-3. Readings that are NaN, inf, zero or ``<= min_range`` are unknown: dropped, so
-   the polygon edge joins their neighbours.
+3. Readings that are NaN, -inf, zero or ``<= min_range`` are unknown: dropped, so
+   the polygon edge joins their neighbours (``+inf`` is "no return", as in ROS).
 4. A scan that covers less than 360 degrees (the gap between its last and first
    beam is larger than `max_gap_deg`) is closed through the sensor origin: the
    origin becomes a vertex.  For sensors with less than 360 degrees the SLAM
@@ -61,7 +61,13 @@ def signed_area(vertices: Array) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
-def _drop_duplicates(vertices: Array, tol: float = 1e-9) -> Array:
+def _tolerance(vertices: Array) -> float:
+    """Length below which two vertices are the same point, relative to the extent."""
+    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    return 1e-12 * max(1.0, extent, float(np.abs(vertices).max(initial=0.0)) * 1e-3)
+
+
+def _drop_duplicates(vertices: Array, tol: float) -> Array:
     step = np.linalg.norm(vertices - np.roll(vertices, 1, axis=0), axis=1)
     keep = step > tol
     if not keep.any():
@@ -78,9 +84,10 @@ class Polygon:
         v = np.asarray(vertices, dtype=float).reshape(-1, 2)
         if not np.all(np.isfinite(v)):
             v = v[np.all(np.isfinite(v), axis=1)]
-        if len(v) > 1 and np.allclose(v[0], v[-1]):
+        tol = _tolerance(v)
+        if len(v) > 1 and np.linalg.norm(v[0] - v[-1]) <= tol:
             v = v[:-1]
-        v = _drop_duplicates(v)
+        v = _drop_duplicates(v, tol)
         if len(v) < min_vertices:
             raise DegeneratePolygonError(
                 f"polygon has {len(v)} distinct vertices, needs {min_vertices}"
