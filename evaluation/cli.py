@@ -220,5 +220,8 @@ def eval_robustness(
 
 def register(app: typer.Typer) -> None:
     """Add the `eval` and `bench` command groups to `app`."""
+    from evaluation import cli_stripes
+
+    cli_stripes.register(bench_app)
     app.add_typer(eval_app, name="eval")
     app.add_typer(bench_app, name="bench")

@@ -5,6 +5,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+# One BLAS thread: the suite's timings and small matrix products are far slower
+# with a thread pool fighting for two cores.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import pytest
 
 _DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data"

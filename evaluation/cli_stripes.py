@@ -1,0 +1,206 @@
+"""`loopclosure bench stripes` and `loopclosure bench landmarks` (issue 6).
+
+``register(bench)`` adds both commands to the ``bench`` command group (wired in by
+`evaluation.cli`).  Bad input raises `data.errors.UserError` / `DataError`, which the
+entry point prints as one ``error:`` line with exit status 2.  Progress bars go to
+stderr, results to stdout (``--json``: one JSON document).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from data.errors import UserError
+
+
+@contextmanager
+def _progress_bar() -> Iterator[Callable[[str, int, int], None]]:
+    """A rich progress bar on stderr; yields ``update(stage, done, total)``."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    console = Console(stderr=True)
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), console=console, transient=True,
+                   disable=not console.is_terminal)
+    tasks: dict[str, int] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=total)
+        bar.update(tasks[stage], completed=done, total=total)
+
+    with bar:
+        yield update
+
+
+def _names(text: str | None) -> tuple[str, ...] | None:
+    """Comma-separated names (``none`` or empty: no names); None stays None."""
+    if text is None:
+        return None
+    parts = tuple(p.strip() for p in text.split(",") if p.strip())
+    return () if parts in ((), ("none",)) else parts
+
+
+def stripes(
+    dataset: Annotated[
+        str | None, typer.Option("--dataset", help="Built-in data set: daily-sim.")
+    ] = None,
+    meshes: Annotated[
+        Path | None, typer.Option("--meshes", help="Folder of meshes (.ply/.obj/.stl[.gz]).")
+    ] = None,
+    labels: Annotated[
+        Path | None,
+        typer.Option("--labels", help="CSV 'file,class' for --meshes (default: YCB classes)."),
+    ] = None,
+    scans_per_object: Annotated[
+        int, typer.Option("--scans-per-object", help="Independent scans of every object.")
+    ] = 1,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of poses, noise and Daily set.")] = 0,
+    per_class: Annotated[
+        int, typer.Option("--per-class", help="daily-sim: instances per class.")
+    ] = 10,
+    classes: Annotated[
+        str | None, typer.Option("--classes", help="daily-sim: comma-separated classes.")
+    ] = None,
+    step: Annotated[
+        float, typer.Option("--step", help="Laser advance between frames [m].")
+    ] = 0.0008,
+    baselines: Annotated[
+        str,
+        typer.Option("--baselines", help="Comma-separated silhouette matchers ('none': none)."),
+    ] = "shape-context,mrm,fft",
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
+    ] = None,
+    json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """The stripes paper's Table I / II, Bull's eye and timing, with silhouette baselines."""
+    from dataclasses import replace
+
+    from data.stripe_scanner import DAILY_CLASSES, ScannerConfig
+    from evaluation.stripes_benchmark import (
+        PAPER_TABLE_I,
+        StripesBenchmarkConfig,
+        baseline_matcher,
+        daily_objects,
+        mesh_folder_objects,
+        run_stripes_benchmark,
+        write_stripes_report,
+    )
+    from slam.cli.common import print_json
+
+    if (dataset is None) == (meshes is None):
+        raise UserError("give exactly one of --dataset daily-sim or --meshes DIR")
+    if dataset is not None and dataset != "daily-sim":
+        raise UserError(f"unknown --dataset {dataset!r}; available: daily-sim")
+    if labels is not None and meshes is None:
+        raise UserError("--labels needs --meshes")
+    if meshes is not None and classes is not None:
+        raise UserError("--classes is for --dataset daily-sim only")
+    if not step > 0:
+        raise UserError(f"--step must be positive, got {step}")
+    if seed < 0:
+        raise UserError(f"--seed must be non-negative, got {seed}")
+    if scans_per_object < 1:
+        raise UserError(f"--scans-per-object must be at least 1, got {scans_per_object}")
+    if out is not None and out.exists() and not out.is_dir():
+        raise UserError(f"{out}: output path exists and is not a folder")
+    names = _names(baselines) or ()
+    for name in names:
+        try:
+            baseline_matcher(name)  # unknown names fail here, before any work
+        except ImportError:
+            pass  # registered but not importable yet: skipped with a warning later
+    cfg = StripesBenchmarkConfig(
+        seed=seed,
+        scans_per_object=scans_per_object,
+        baselines=names,
+        scanner=replace(ScannerConfig(), step=step),
+    )
+    if meshes is not None:
+        objects = mesh_folder_objects(meshes, labels)
+    else:
+        chosen = _names(classes) or DAILY_CLASSES
+        objects = daily_objects(seed, per_class, chosen)
+    with _progress_bar() as progress:
+        result = run_stripes_benchmark(objects, cfg, progress)
+    paths = write_stripes_report(result, out) if out is not None else {}
+    js = result.to_json()
+    if paths:
+        js["outputs"] = {k: str(v) for k, v in paths.items()}
+    if json:
+        print_json(js)
+        return
+    typer.echo(f"{js['dataset']}: {js['objects']} objects, {js['scans']} scans, "
+               f"{js['classes']} classes")
+    rows = {"stripes": result.stripes, **result.baselines}
+    for name, r in rows.items():
+        counts = " ".join(f"{c:3d}" for c in r.top_counts.tolist())
+        typer.echo(f"  {name:14s} top-10 {counts}   bull's eye {r.bullseye:5.1f} %   "
+                   f"NN {r.nn_precision:.3f} (other objects {r.nn_precision_other:.3f})   "
+                   f"{r.seconds:.2f} s")
+    paper = " ".join(f"{c:3d}" for c in PAPER_TABLE_I["Our"])
+    typer.echo(f"  paper 'Our'    top-10 {paper}   0.0375 h (Matlab)")
+    for name, wl in js["wins_and_losses"].items():
+        typer.echo(f"  stripes vs {name}: better on {', '.join(wl['wins']) or '-'}; "
+                   f"worse on {', '.join(wl['losses']) or '-'}")
+    if paths:
+        typer.echo(f"  report: {paths['report']}")
+
+
+def landmarks(
+    seed: Annotated[int, typer.Option("--seed", help="Seed of world, motion and noise.")] = 0,
+    laps: Annotated[float, typer.Option("--laps", help="Laps of the figure-eight route.")] = 2.0,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
+    ] = None,
+    json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Recognised objects as landmarks: recognition precision and ATE with / without them."""
+    from evaluation.landmarks_benchmark import run_landmarks_benchmark, write_landmarks_report
+    from slam.cli.common import print_json
+    from slam.landmarks import LandmarkRunConfig
+
+    if seed < 0:
+        raise UserError(f"--seed must be non-negative, got {seed}")
+    if not laps > 0:
+        raise UserError(f"--laps must be positive, got {laps}")
+    if out is not None and out.exists() and not out.is_dir():
+        raise UserError(f"{out}: output path exists and is not a folder")
+    cfg = LandmarkRunConfig(laps=laps)
+    with _progress_bar() as progress:
+        result = run_landmarks_benchmark(seed, cfg, progress)
+    paths = write_landmarks_report(result, out) if out is not None else {}
+    js = result.to_json()
+    if paths:
+        js["outputs"] = {k: str(v) for k, v in paths.items()}
+    if json:
+        print_json(js)
+        return
+    typer.echo(
+        f"landmarks (seed {seed}): {js['clusters']} object clusters, {js['recognitions']} "
+        f"recognitions, precision {js['recognition_precision']:.3f}, recall "
+        f"{js['recognition_recall']:.3f}, {js['landmarks']} landmarks"
+    )
+    typer.echo(f"  ATE without landmarks {js['ate_without_m']:.3f} m, with landmarks "
+               f"{js['ate_with_m']:.3f} m")
+    if paths:
+        typer.echo(f"  report: {paths['report']}")
+
+
+def register(bench: typer.Typer) -> None:
+    """Add ``stripes`` and ``landmarks`` to the ``bench`` command group."""
+    bench.command("stripes")(stripes)
+    bench.command("landmarks")(landmarks)
