@@ -1,0 +1,738 @@
+"""2D registration: point-to-line ICP of a source point set onto a target with normals.
+
+Used by the odometry front end (scan to local map, `slam.odometry.icp2d`) and by the
+loop-closure geometric check (keyframe submap to keyframe submap, `register_multi`).
+
+Frames and units
+----------------
+Points are ``(N, 2)`` arrays [m].  The source is given in its own frame S, the
+target in its frame T.  The result `IcpResult.pose` is ``(x, y, theta)`` [m, m,
+rad], the pose of S in T: ``target ~ data.se2.transform_points(pose, source)``.
+
+Target (`RegistrationTarget`)
+-----------------------------
+Built once, used for many sources: a `scipy.spatial.cKDTree` over all target points
+and a unit normal per point from local PCA.  For each point, its `normal_neighbors`
+nearest neighbours within `normal_radius` (itself included) give the covariance
+``C`` (2x2); with ``a = C_xx, b = C_xy, c = C_yy`` its eigenvalues are
+``lambda = (a + c) / 2 -+ sqrt(((a - c) / 2)^2 + b^2)`` and the principal axis has
+angle ``phi = atan2(2 b, a - c) / 2``; the normal is ``(-sin phi, cos phi)``.  A point
+is usable when it has at least `min_normal_neighbors` neighbours and is line-like,
+``lambda_min <= max_normal_ratio * lambda_max``.  Corners, clutter and isolated
+points stay in the tree but a source point whose nearest neighbour is one of them
+gets no correspondence (so a point near a corner is never pulled onto the other
+wall).  All vectorised over points; no loop.
+
+ICP (`register`)
+----------------
+Gauss-Newton on ``x = (t_x, t_y, theta)`` with the point-to-line residual of
+source point ``p_i`` matched to its nearest target point ``q_j`` (normal ``n_j``)::
+
+    r_i(x)  = n_j . (R(theta) p_i + t - q_j)
+    J_i     = [n_x, n_y, n_j . (R'(theta) p_i)],  R'(theta) p = (-(R p)_y, (R p)_x)
+    H       = sum_i w_i J_i^T J_i / s^2 + Lambda          (3x3, closed form)
+    g       = sum_i w_i J_i^T r_i / s^2 + Lambda (x - x_prior)
+    x      <- x - H^-1 g
+
+(``Lambda``: optional prior information, zero unless a prior is given; with
+``(x, y, theta)`` as coordinates the update is additive and exact.)
+
+Outlier rejection, both adaptive:
+
+* Distance gate: a correspondence counts only if the nearest target point is within
+  the gate ``d_max``.  It starts at `max_correspondence_distance` and after each
+  iteration shrinks to ``gate_sigmas * 1.4826 * median(d)`` (robust scale of the
+  point-to-point distances), never below `min_correspondence_distance` and never
+  growing.
+* Robust kernel on the point-to-line residual (iteratively reweighted least
+  squares) with width ``k = kernel_constant * s``, where
+  ``s = max(min_residual_scale, 1.4826 * median|r|)``: Cauchy ``w = 1 / (1 + (r/k)^2)``
+  (constant 2.3849), Huber ``w = min(1, k / |r|)`` (1.345), Tukey
+  ``w = (1 - (r/k)^2)^2`` for ``|r| < k`` else 0 (4.6851), or none (``w = 1``): the
+  usual 95%-efficiency constants for Gaussian noise.
+
+Convergence: an update with ``|dt| < translation_tolerance`` and
+``|dtheta| < rotation_tolerance`` while the gate no longer shrinks, or
+`max_iterations`.  (Medians are upper medians, by `np.partition`.)
+
+Result (`IcpResult`), at the final pose with the correspondences of the last
+iteration (after convergence the pose moved less than the tolerances since they
+were found; otherwise they are searched again at the final pose):
+
+* ``covariance = (H_data / sigma^2 + Lambda)^-1`` with ``H_data = sum w J^T J`` and
+  ``sigma^2 = sum w r^2 / (sum w - 3)`` (the weighted residual variance), never below
+  ``min_residual_scale^2``.  This is the Gauss-Newton (Cramer-Rao) covariance of
+  independent point noise; it ignores correlated errors (map blur, correspondence
+  ambiguity) and is therefore optimistic: callers that feed a pose graph add a floor.
+  It is additive in (x, y, theta) of the target frame; `body_covariance` turns it
+  into the right-perturbation (body frame) covariance a ``BetweenFactorPose2`` takes.
+* ``inlier_ratio``: fraction of source points with a correspondence inside the gate
+  and ``|r| <= fitness_tolerance``.
+* ``rms``: root mean square point-to-line residual of those inliers [m].
+* ``fitness``: the score used to rank hypotheses, in [0, 1]:
+  ``mean_i max(0, 1 - (r_i / fitness_tolerance)^2)`` over all source points, 0 for
+  points without a correspondence within the gate (a truncated-quadratic overlap:
+  rewards both overlap and tight alignment).
+* ``degeneracy``: the smallest eigenvalue of the translational information after
+  marginalising the rotation (Schur complement of ``H_data``), divided by
+  ``sum w`` (the trace of the translational block, since normals are unit): 0 when
+  one direction is unconstrained (a corridor), at most 0.5 (isotropic).
+  ``degenerate_axis`` is the unit vector (target frame) of that direction.
+
+Multi-hypothesis (`register_multi`)
+-----------------------------------
+ICP from several initial guesses (`initial_guesses`: headings, e.g. from
+`heading_hypotheses`, times translation offsets); the best result is the one with
+the highest ``fitness``; ties (within 1e-9) go to the lower ``rms``.  Many guesses
+can first be ranked without ICP by `overlap_scores` (one KD-tree query for all
+guesses) and only the best `keep` refined.
+`heading_hypotheses` proposes headings by circular FFT cross-correlation of the two
+clouds' range functions (nearest return per bearing sector, seen from each frame's
+origin), or of their histograms of normal directions (translation invariant;
+each peak gives two headings, ``phi`` and ``phi + pi``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from data import se2
+
+Array = NDArray[np.float64]
+
+#: Robust kernels and their 95%-efficiency tuning constants (in units of the scale s).
+KERNEL_CONSTANTS: dict[str, float] = {
+    "cauchy": 2.3849,
+    "huber": 1.345,
+    "tukey": 4.6851,
+    "none": 0.0,
+}
+
+#: Variance [m^2, rad^2] put on the diagonal of the covariance of a failed registration.
+FAILED_VARIANCE = 1.0e6
+
+_MAD = 1.4826  # median absolute deviation -> standard deviation (Gaussian)
+
+
+@dataclass(frozen=True, slots=True)
+class IcpConfig:
+    """Parameters of the target normals and of ICP (see module docstring).
+
+    Attributes:
+        max_iterations: Gauss-Newton iterations at most.
+        max_correspondence_distance: initial distance gate [m].
+        min_correspondence_distance: the gate never shrinks below this [m].
+        gate_sigmas: gate = this times the robust scale of point-to-point distances.
+        kernel: ``"cauchy"``, ``"huber"``, ``"tukey"`` or ``"none"``.
+        min_residual_scale: floor of the residual scale s and of sigma [m]
+            (sensor noise plus map blur).
+        translation_tolerance: convergence on the translation update [m].
+        rotation_tolerance: convergence on the rotation update [rad].
+        min_correspondences: fewer correspondences than this is a failure.
+        normal_neighbors: neighbours (itself included) of the PCA normal.
+        normal_radius: neighbours farther than this do not count [m].
+        min_normal_neighbors: fewer neighbours than this: no normal, point dropped.
+        max_normal_ratio: ``lambda_min / lambda_max`` above this: not line-like, dropped.
+        fitness_tolerance: residual scale of `fitness` and of the inlier test [m].
+    """
+
+    max_iterations: int = 30
+    max_correspondence_distance: float = 1.0
+    min_correspondence_distance: float = 0.1
+    gate_sigmas: float = 4.0
+    kernel: str = "cauchy"
+    min_residual_scale: float = 0.01
+    translation_tolerance: float = 1e-4
+    rotation_tolerance: float = 1e-4
+    min_correspondences: int = 10
+    normal_neighbors: int = 8
+    normal_radius: float = 0.5
+    min_normal_neighbors: int = 4
+    max_normal_ratio: float = 0.1
+    fitness_tolerance: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.kernel not in KERNEL_CONSTANTS:
+            raise ValueError(
+                f"unknown ICP kernel {self.kernel!r}: choose one of {', '.join(KERNEL_CONSTANTS)}"
+            )
+        positive = (
+            "max_correspondence_distance",
+            "min_correspondence_distance",
+            "gate_sigmas",
+            "min_residual_scale",
+            "normal_radius",
+            "fitness_tolerance",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"ICP {name} must be a positive number, got {value}")
+        if self.max_iterations < 1 or self.min_correspondences < 3:
+            raise ValueError("ICP needs max_iterations >= 1 and min_correspondences >= 3")
+        if self.normal_neighbors < 3 or not 2 <= self.min_normal_neighbors <= self.normal_neighbors:
+            raise ValueError("ICP normals need normal_neighbors >= 3 and "
+                             "2 <= min_normal_neighbors <= normal_neighbors")
+
+
+@dataclass(slots=True)
+class IcpResult:
+    """Outcome of one ICP run (see module docstring for every figure).
+
+    Attributes:
+        pose: ``(3,)`` pose of the source frame in the target frame (x, y, theta).
+        covariance: ``3x3`` covariance of `pose` (x, y, theta), additive in the target
+            frame; ``FAILED_VARIANCE * I`` when `ok` is False.
+        hessian: ``3x3`` data information ``sum w J^T J`` (without the 1/sigma^2).
+        sigma: residual standard deviation used for the covariance [m].
+        inlier_ratio: inliers / source points.
+        rms: RMS point-to-line residual of the inliers [m] (0 without inliers).
+        fitness: overlap score in [0, 1] (ranking of hypotheses).
+        degeneracy: normalised smallest translational eigenvalue in [0, 0.5].
+        degenerate_axis: ``(2,)`` unit direction of that eigenvalue (target frame).
+        iterations: Gauss-Newton iterations run.
+        converged: the update fell below the tolerances before `max_iterations`.
+        correspondences: matched source points at the final pose.
+        ok: enough correspondences for a solution (False: `pose` is the initial guess).
+        initial: ``(3,)`` the initial guess it started from.
+    """
+
+    pose: Array
+    covariance: Array
+    hessian: Array
+    sigma: float
+    inlier_ratio: float
+    rms: float
+    fitness: float
+    degeneracy: float
+    degenerate_axis: Array
+    iterations: int
+    converged: bool
+    correspondences: int
+    ok: bool
+    initial: Array = field(default_factory=lambda: np.zeros(3))
+
+
+def _as_points(points: ArrayLike, what: str) -> Array:
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{what} must be an (N, 2) array of points, got shape {pts.shape}")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError(f"{what} holds non-finite coordinates")
+    return pts
+
+
+def voxel_downsample(points: ArrayLike, voxel: float) -> Array:
+    """Centroid of the points in each ``voxel x voxel`` cell [m]; order of first occurrence.
+
+    ``voxel <= 0`` returns the points unchanged (as a float copy).
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    if voxel <= 0 or len(pts) == 0:
+        return pts.copy()
+    cells = np.floor(pts / voxel).astype(np.int64)
+    key = (cells[:, 0] << 32) ^ (cells[:, 1] & 0xFFFFFFFF)
+    _, first, inverse, counts = np.unique(
+        key, return_index=True, return_inverse=True, return_counts=True
+    )
+    sums = np.zeros((len(first), 2))
+    np.add.at(sums, inverse.reshape(-1), pts)
+    centroids = sums / counts[:, None]
+    return centroids[np.argsort(first, kind="stable")]
+
+
+def estimate_normals(
+    points: Array, tree: cKDTree, config: IcpConfig
+) -> tuple[Array, NDArray[np.bool_], Array]:
+    """Unit normals ``(N, 2)``, a line-like mask ``(N,)`` and ``lambda_min / lambda_max``.
+
+    Local PCA over each point's neighbours (module docstring), vectorised over points.
+    """
+    n = len(points)
+    k = min(config.normal_neighbors, n)
+    if n < config.min_normal_neighbors:
+        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.ones(n)
+    dist, idx = tree.query(points, k=k, distance_upper_bound=config.normal_radius)
+    dist = dist.reshape(n, k)
+    idx = idx.reshape(n, k)
+    found = np.isfinite(dist)
+    padded = np.vstack([points, np.zeros((1, 2))])
+    neigh = padded[np.where(found, idx, n)]  # (n, k, 2); missing -> zero, weight 0
+    w = found.astype(float)
+    count = w.sum(axis=1)
+    mean = (neigh * w[..., None]).sum(axis=1) / count[:, None]
+    centred = (neigh - mean[:, None, :]) * w[..., None]
+    a = (centred[..., 0] ** 2).sum(axis=1) / count
+    b = (centred[..., 0] * centred[..., 1]).sum(axis=1) / count
+    c = (centred[..., 1] ** 2).sum(axis=1) / count
+    half_diff = 0.5 * (a - c)
+    root = np.sqrt(half_diff**2 + b**2)
+    lam_max = 0.5 * (a + c) + root
+    lam_min = 0.5 * (a + c) - root
+    phi = 0.5 * np.arctan2(2.0 * b, a - c)
+    normals = np.column_stack([-np.sin(phi), np.cos(phi)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(lam_max > 0, np.maximum(lam_min, 0.0) / lam_max, 1.0)
+    line_like = (count >= config.min_normal_neighbors) & (ratio <= config.max_normal_ratio)
+    return normals, line_like, ratio
+
+
+class RegistrationTarget:
+    """A target point set prepared once: KD-tree, normals and which points are line-like.
+
+    Attributes:
+        points: ``(M, 2)`` the points in the target frame [m].
+        normals: ``(M, 2)`` their unit normals (meaningless where not `usable`).
+        usable: ``(M,)`` line-like points with a normal (the only ones matched).
+        config: the `IcpConfig` the normals were made with (and the default for
+            `register`).
+    """
+
+    __slots__ = ("config", "normals", "points", "tree", "usable")
+
+    def __init__(self, points: ArrayLike, config: IcpConfig | None = None) -> None:
+        self.config = config or IcpConfig()
+        pts = _as_points(points, "target points")
+        self.points = pts
+        self.tree = cKDTree(pts) if len(pts) else None
+        if self.tree is not None and len(pts) >= self.config.min_normal_neighbors:
+            self.normals, self.usable, _ = estimate_normals(pts, self.tree, self.config)
+        else:
+            self.normals, self.usable = np.zeros((len(pts), 2)), np.zeros(len(pts), dtype=bool)
+        if not self.usable.any():
+            self.tree = None
+
+    def __len__(self) -> int:
+        """Number of usable (line-like) target points."""
+        return int(self.usable.sum())
+
+
+def _weights(r: Array, scale: float, kernel: str) -> Array:
+    if kernel == "none":
+        return np.ones_like(r)
+    k = KERNEL_CONSTANTS[kernel] * scale
+    u = r / k
+    if kernel == "cauchy":
+        return 1.0 / (1.0 + u * u)
+    if kernel == "huber":
+        a = np.abs(u)
+        return np.where(a <= 1.0, 1.0, 1.0 / np.maximum(a, 1e-300))
+    # tukey
+    return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+
+
+@dataclass(slots=True)
+class _Matches:
+    """Correspondences of the source at one pose (indices into the source)."""
+
+    sel: NDArray[np.intp]  # (K,) matched source points
+    dist: Array  # (K,) point-to-point distances
+    q: Array  # (K, 2) target points
+    n: Array  # (K, 2) target normals
+
+
+def _rotated(src: Array, theta: float) -> Array:
+    """``R(theta) p`` for every source point."""
+    c, s = np.cos(theta), np.sin(theta)
+    return src @ np.array([[c, s], [-s, c]])
+
+
+def _match(target: RegistrationTarget, moved: Array, gate: float) -> _Matches:
+    dist, idx = target.tree.query(moved, k=1, distance_upper_bound=gate)
+    ok = np.isfinite(dist)
+    ok[ok] = target.usable[idx[ok]]
+    sel = np.flatnonzero(ok)
+    j = idx[sel]
+    return _Matches(sel, dist[sel], target.points[j], target.normals[j])
+
+
+def _normal_equations(
+    rp: Array, moved: Array, m: _Matches, scale_floor: float, kernel: str
+) -> tuple[Array, Array, Array, Array, float]:
+    """Residuals, weights, ``J^T W J`` and ``J^T W r`` (unscaled) and the scale s."""
+    n = m.n
+    r = np.einsum("ij,ij->i", n, moved[m.sel] - m.q)
+    s = _robust_scale(r, scale_floor)
+    w = _weights(r, s, kernel)
+    rps = rp[m.sel]
+    jac = np.empty((len(r), 3))
+    jac[:, :2] = n
+    jac[:, 2] = n[:, 1] * rps[:, 0] - n[:, 0] * rps[:, 1]
+    jw = jac * w[:, None]
+    return r, w, jw.T @ jac, jw.T @ r, s
+
+
+_DAMP = 1e-12 * np.eye(3)
+
+
+def _solve(h: Array, g: Array) -> Array:
+    return np.linalg.solve(h + _DAMP * max(float(np.trace(h)), 1e-12), g)
+
+
+def _failed(initial: Array, iterations: int, count: int, prior_cov: Array | None) -> IcpResult:
+    cov = FAILED_VARIANCE * np.eye(3) if prior_cov is None else prior_cov.copy()
+    return IcpResult(
+        pose=initial.copy(), covariance=cov, hessian=np.zeros((3, 3)), sigma=0.0,
+        inlier_ratio=0.0, rms=0.0, fitness=0.0, degeneracy=0.0,
+        degenerate_axis=np.array([1.0, 0.0]), iterations=iterations, converged=False,
+        correspondences=count, ok=False, initial=initial.copy(),
+    )
+
+
+def _median_abs(values: Array) -> float:
+    """Median of ``|values|`` (upper median for even counts; `np.partition`, no sort)."""
+    a = np.abs(values)
+    k = len(a) // 2
+    return float(np.partition(a, k)[k])
+
+
+def _robust_scale(values: Array, floor: float) -> float:
+    return max(floor, _MAD * _median_abs(values)) if len(values) else floor
+
+
+def register(
+    source: ArrayLike,
+    target: RegistrationTarget,
+    initial: ArrayLike = (0.0, 0.0, 0.0),
+    *,
+    config: IcpConfig | None = None,
+    prior: ArrayLike | None = None,
+    prior_covariance: ArrayLike | None = None,
+) -> IcpResult:
+    """Point-to-line ICP of `source` (``(N, 2)``, source frame) onto `target`.
+
+    Args:
+        source: source points [m] in the source frame.
+        target: the prepared target.
+        initial: ``(3,)`` initial pose of the source frame in the target frame.
+        config: ICP parameters (default: the target's).
+        prior: ``(3,)`` optional prior pose (target frame) with `prior_covariance`
+            (``3x3``, additive x, y, theta in the target frame); it enters the normal
+            equations as ``Lambda = prior_covariance^-1`` and keeps directions the
+            data does not constrain (e.g. along a corridor) at the prior.
+
+    Returns:
+        An `IcpResult` (module docstring); ``ok`` is False, with the initial pose,
+        when fewer than `min_correspondences` points match (the covariance is then
+        the prior's, or ``FAILED_VARIANCE * I``).
+    """
+    cfg = config or target.config
+    src = _as_points(source, "source points")
+    x = np.asarray(initial, dtype=float).reshape(3).copy()
+    x0 = x.copy()
+    lam = np.zeros((3, 3))
+    x_prior = None
+    prior_cov = None
+    if prior is not None:
+        if prior_covariance is None:
+            raise ValueError("a prior needs its prior_covariance")
+        x_prior = np.asarray(prior, dtype=float).reshape(3)
+        prior_cov = np.asarray(prior_covariance, dtype=float).reshape(3, 3)
+        lam = np.linalg.inv(prior_cov)
+    if target.tree is None or len(src) < cfg.min_correspondences:
+        return _failed(x0, 0, 0, prior_cov)
+
+    gate = cfg.max_correspondence_distance
+    iterations = 0
+    converged = False
+    for iterations in range(1, cfg.max_iterations + 1):
+        rp = _rotated(src, x[2])
+        moved = rp + x[:2]
+        m = _match(target, moved, gate)
+        if len(m.sel) < cfg.min_correspondences:
+            return _failed(x0, iterations, len(m.sel), prior_cov)
+        _, _, h, g, s = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
+        h = h / s**2 + lam
+        g = g / s**2
+        if x_prior is not None:
+            diff = x - x_prior
+            diff[2] = se2.wrap_angle(diff[2])
+            g = g + lam @ diff
+        step = -_solve(h, g)
+        x = x + step
+        x[2] = float(se2.wrap_angle(x[2]))
+        new_gate = min(gate, max(cfg.min_correspondence_distance,
+                                 cfg.gate_sigmas * _robust_scale(m.dist, 0.0)))
+        small = (float(np.hypot(step[0], step[1])) < cfg.translation_tolerance
+                 and abs(step[2]) < cfg.rotation_tolerance)
+        gate_settled = new_gate >= gate * (1.0 - 1e-6)
+        gate = new_gate
+        if small and gate_settled:
+            converged = True
+            break
+    # After convergence the last correspondences still hold (the pose moved < tolerance).
+    last = m if converged else None
+    return _evaluate(src, target, x, x0, gate, cfg, lam, prior_cov, iterations, converged, last)
+
+
+def _evaluate(
+    src: Array,
+    target: RegistrationTarget,
+    x: Array,
+    x0: Array,
+    gate: float,
+    cfg: IcpConfig,
+    lam: Array,
+    prior_cov: Array | None,
+    iterations: int,
+    converged: bool,
+    matches: _Matches | None = None,
+) -> IcpResult:
+    """The figures of the result at the final pose (module docstring).
+
+    `matches`: correspondences to reuse (those of the converged last iteration);
+    None searches them at the final pose.
+    """
+    rp = _rotated(src, x[2])
+    moved = rp + x[:2]
+    m = matches if matches is not None else _match(target, moved, gate)
+    if len(m.sel) < cfg.min_correspondences:
+        return _failed(x0, iterations, len(m.sel), prior_cov)
+    r, w, h_data, _, _ = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
+    wsum = float(w.sum())
+    sigma2 = max(float(w @ r**2) / max(wsum - 3.0, 1.0), cfg.min_residual_scale**2)
+    info = h_data / sigma2 + lam
+    cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
+    cov = 0.5 * (cov + cov.T)
+    inlier = np.abs(r) <= cfg.fitness_tolerance
+    n_src = len(src)
+    rms = float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else 0.0
+    fitness = float(np.clip(1.0 - (r / cfg.fitness_tolerance) ** 2, 0.0, None).sum() / n_src)
+    # Schur complement of the rotation: translational information with theta marginalised.
+    h_tt = h_data[:2, :2]
+    if h_data[2, 2] > 1e-12:
+        h_tt = h_tt - np.outer(h_data[:2, 2], h_data[2, :2]) / h_data[2, 2]
+    evals, evecs = np.linalg.eigh(h_tt)
+    degeneracy = float(np.clip(evals[0] / wsum, 0.0, 0.5)) if wsum > 0 else 0.0
+    return IcpResult(
+        pose=x.copy(), covariance=cov, hessian=h_data, sigma=float(np.sqrt(sigma2)),
+        inlier_ratio=float(inlier.sum()) / n_src, rms=rms, fitness=fitness,
+        degeneracy=degeneracy, degenerate_axis=evecs[:, 0].copy(), iterations=iterations,
+        converged=converged, correspondences=len(m.sel), ok=True, initial=x0.copy(),
+    )
+
+
+def body_covariance(pose: ArrayLike, covariance: ArrayLike) -> Array:
+    """`IcpResult.covariance` (additive in the target frame) as a right perturbation.
+
+    ``pose_true = pose ⊕ eps`` with ``eps`` in the source (body) frame, the convention of
+    gtsam's ``BetweenFactorPose2``: ``B^T C B`` with ``B = blockdiag(R(theta), 1)``.
+    """
+    th = float(np.asarray(pose, dtype=float).reshape(3)[2])
+    c, s = np.cos(th), np.sin(th)
+    b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out = b.T @ np.asarray(covariance, dtype=float).reshape(3, 3) @ b
+    return 0.5 * (out + out.T)
+
+
+# --------------------------------------------------------------------------------------
+# Multi-hypothesis registration
+# --------------------------------------------------------------------------------------
+
+
+def range_function(points: ArrayLike, bins: int) -> Array:
+    """``(bins,)`` nearest range per bearing sector seen from the origin [m]; 0 if empty.
+
+    Sector ``k`` covers bearings ``[-pi + k * 2 pi / bins, -pi + (k + 1) * 2 pi / bins)``.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    out = np.full(bins, np.inf)
+    if len(pts):
+        bearing = np.arctan2(pts[:, 1], pts[:, 0])
+        sector = np.clip(((bearing + np.pi) / (2 * np.pi) * bins).astype(int), 0, bins - 1)
+        np.minimum.at(out, sector, np.hypot(pts[:, 0], pts[:, 1]))
+    out[~np.isfinite(out)] = 0.0
+    return out
+
+
+def direction_histogram(normals: Array, bins: int) -> Array:
+    """``(bins,)`` histogram of normal directions modulo pi (sign-free), unit-sum.
+
+    Bin ``k`` covers ``[k pi / bins, (k + 1) pi / bins)``.
+    """
+    ang = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), np.pi)
+    hist = np.bincount(np.clip((ang / np.pi * bins).astype(int), 0, bins - 1), minlength=bins)
+    hist = hist.astype(float)
+    total = hist.sum()
+    return hist / total if total > 0 else hist
+
+
+def _circular_correlation(f: Array, g: Array) -> Array:
+    """``c[k] = sum_i f[i] g[i + k]`` (circular), by FFT, after removing the means."""
+    f = f - f.mean()
+    g = g - g.mean()
+    return np.fft.irfft(np.conj(np.fft.rfft(f)) * np.fft.rfft(g), n=len(f))
+
+
+def _peaks(corr: Array, count: int, separation: int) -> NDArray[np.intp]:
+    """Indices of up to `count` highest circular local maxima, `separation` bins apart."""
+    n = len(corr)
+    order = np.argsort(-corr, kind="stable")
+    chosen: list[int] = []
+    for k in order[: max(4 * count * separation, count)]:  # a few candidates only
+        if all(min(abs(k - c), n - abs(k - c)) >= separation for c in chosen):
+            chosen.append(int(k))
+            if len(chosen) == count:
+                break
+    return np.array(chosen, dtype=np.intp)
+
+
+def heading_hypotheses(
+    source: ArrayLike,
+    target: ArrayLike,
+    *,
+    count: int = 4,
+    bins: int = 360,
+    method: str = "range",
+    config: IcpConfig | None = None,
+) -> Array:
+    """Candidate headings [rad] of the source frame in the target frame, best first.
+
+    ``method="range"``: peaks of the circular cross-correlation of the range
+    functions (`range_function`) of the source and the target, each seen from its
+    frame's origin: a source scanned at heading theta sees at bearing phi what the
+    target sees at ``phi + theta``.  Good when the two origins are close (keyframes
+    of a loop closure).  ``method="normals"``: peaks of the correlation of the
+    direction histograms of the PCA normals (`direction_histogram`, modulo pi;
+    translation invariant); each peak phi yields ``phi`` and ``phi + pi``.
+    Peaks are at least 10 degrees apart; the result is wrapped to ``[-pi, pi)``.
+    """
+    src = _as_points(source, "source points")
+    tgt = _as_points(target, "target points")
+    if method == "range":
+        corr = _circular_correlation(range_function(src, bins), range_function(tgt, bins))
+        sep = max(1, round(bins / 36))
+        idx = _peaks(corr, count, sep)
+        return se2.wrap_angle(idx * 2.0 * np.pi / bins)
+    if method == "normals":
+        cfg = config or IcpConfig()
+        heads: list[float] = []
+        hists = []
+        for pts in (src, tgt):
+            normals, ok, _ = estimate_normals(pts, cKDTree(pts), cfg)
+            hists.append(direction_histogram(normals[ok], bins // 2))
+        corr = _circular_correlation(hists[0], hists[1])
+        sep = max(1, round(bins / 36))
+        for k in _peaks(corr, max(1, (count + 1) // 2), sep):
+            phi = k * np.pi / (bins // 2)
+            heads.extend([phi, phi + np.pi])
+        return se2.wrap_angle(np.array(heads[:count]))
+    raise ValueError(f"unknown heading method {method!r}: choose 'range' or 'normals'")
+
+
+def initial_guesses(
+    initial: ArrayLike = (0.0, 0.0, 0.0),
+    headings: ArrayLike | None = None,
+    offsets: ArrayLike | None = None,
+) -> Array:
+    """``(K, 3)`` start poses: every heading times every translation offset.
+
+    Args:
+        initial: ``(3,)`` base guess; its heading is used when `headings` is None.
+        headings: ``(H,)`` absolute headings [rad] to try (the base heading is
+            always tried first).
+        offsets: ``(T, 2)`` translation offsets [m] added to the base translation
+            (``(0, 0)`` is always tried first).
+    """
+    base = np.asarray(initial, dtype=float).reshape(3)
+    heads = [float(base[2])]
+    if headings is not None:
+        heads += [float(h) for h in np.atleast_1d(np.asarray(headings, dtype=float))]
+    offs = np.zeros((1, 2))
+    if offsets is not None:
+        offs = np.vstack([offs, np.asarray(offsets, dtype=float).reshape(-1, 2)])
+    hh, oo = np.meshgrid(np.arange(len(heads)), np.arange(len(offs)), indexing="ij")
+    guesses = np.column_stack(
+        [base[0] + offs[oo.ravel(), 0], base[1] + offs[oo.ravel(), 1],
+         np.asarray(heads)[hh.ravel()]]
+    )
+    # Drop duplicates (same heading twice).
+    key = np.round(np.column_stack([guesses[:, :2], se2.wrap_angle(guesses[:, 2])]), 9)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return guesses[np.sort(first)]
+
+
+@dataclass(slots=True)
+class MultiResult:
+    """Best of several ICP runs (`register_multi`).
+
+    Attributes:
+        best: the winning `IcpResult` (highest fitness, then lowest rms).
+        results: every run, in the order of the guesses.
+        guesses: ``(K, 3)`` the initial guesses.
+    """
+
+    best: IcpResult
+    results: list[IcpResult]
+    guesses: Array
+
+
+def _better(a: IcpResult, b: IcpResult) -> bool:
+    """True if `a` ranks above `b` (ok first, then fitness, then rms)."""
+    if a.ok != b.ok:
+        return a.ok
+    if abs(a.fitness - b.fitness) > 1e-9:
+        return a.fitness > b.fitness
+    return a.rms < b.rms
+
+
+def overlap_scores(
+    source: ArrayLike, target: RegistrationTarget, guesses: ArrayLike, tolerance: float
+) -> Array:
+    """``(K,)`` coarse score of each guess without ICP (for pre-screening many guesses).
+
+    ``mean_i max(0, 1 - (d_i / tolerance)^2)`` with ``d_i`` the distance of source
+    point i, moved by the guess, to its nearest usable target point (0 beyond
+    `tolerance`).  One KD-tree query for all guesses together (vectorised over
+    guesses and points).
+    """
+    g = np.asarray(guesses, dtype=float).reshape(-1, 3)
+    src = _as_points(source, "source points")
+    if target.tree is None or len(src) == 0 or len(g) == 0:
+        return np.zeros(len(g))
+    c, s = np.cos(g[:, 2]), np.sin(g[:, 2])
+    x = c[:, None] * src[None, :, 0] - s[:, None] * src[None, :, 1] + g[:, 0, None]
+    y = s[:, None] * src[None, :, 0] + c[:, None] * src[None, :, 1] + g[:, 1, None]
+    moved = np.stack([x, y], axis=-1).reshape(-1, 2)
+    dist, idx = target.tree.query(moved, k=1, distance_upper_bound=tolerance)
+    found = np.isfinite(dist)
+    found[found] = target.usable[idx[found]]
+    score = np.where(found, 1.0 - (np.where(found, dist, 0.0) / tolerance) ** 2, 0.0)
+    return score.reshape(len(g), len(src)).mean(axis=1)
+
+
+def register_multi(
+    source: ArrayLike,
+    target: RegistrationTarget,
+    guesses: ArrayLike,
+    *,
+    config: IcpConfig | None = None,
+    keep: int | None = None,
+    prescreen_tolerance: float = 0.2,
+) -> MultiResult:
+    """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
+
+    Ranking (documented score): `IcpResult.fitness` (truncated-quadratic overlap at
+    a fixed tolerance, comparable between runs), ties broken by the lower `rms`;
+    failed runs rank last.  With `keep`, the guesses are first ranked by
+    `overlap_scores` (tolerance `prescreen_tolerance` [m]) and ICP runs from the
+    best `keep` only (`MultiResult.results` and `guesses` then hold those).  One
+    Python loop over the hypotheses that run ICP (not over points).
+    """
+    g = np.asarray(guesses, dtype=float).reshape(-1, 3)
+    if len(g) == 0:
+        raise ValueError("register_multi needs at least one initial guess")
+    src = _as_points(source, "source points")
+    if keep is not None and keep < len(g):
+        scores = overlap_scores(src, target, g, prescreen_tolerance)
+        g = g[np.sort(np.argsort(-scores, kind="stable")[: max(keep, 1)])]
+    results = [register(src, target, guess, config=config) for guess in g]
+    best = results[0]
+    for res in results[1:]:
+        if _better(res, best):
+            best = res
+    return MultiResult(best=best, results=results, guesses=g)

@@ -1,0 +1,473 @@
+"""Scan-to-map 2D ICP odometry (the ``icp2d`` front end).
+
+Each scan's valid end points (sensor frame, beams within ``[min_range, max_range]``,
+voxel-downsampled to `source_voxel`) are registered by point-to-line ICP
+(`loopclosure.registration.register`) onto a local map: the points of the last
+`map_keyframes` map keyframes, in the odometry frame, merged and voxel-downsampled
+to `map_voxel`, cropped to `map_radius` around the newest keyframe.  A scan becomes
+a map keyframe when the pose has moved `keyframe_distance` or turned
+`keyframe_rotation` since the last one; only then is the map (normals and KD-tree,
+`RegistrationTarget`) rebuilt, so most scans cost one ICP and nothing else.
+
+Prediction (initial guess and prior of ICP)
+-------------------------------------------
+* With odometry (``scan.odom``): the odometry increment since the previous scan,
+  ``u = between(odom_prev, odom)``, with covariance `odometry_noise` (a
+  `MotionNoise`).
+* Without: constant velocity per scan step (the previous estimated increment;
+  per step rather than per second because stamps can run backwards), covariance
+  ``diag(velocity_sigma^2)``.
+
+The prediction ``pose_prev ⊕ u`` starts ICP and, with `use_prior`, enters the
+normal equations as a prior (``Lambda`` of `register`): directions the map does
+not constrain (a corridor's axis) stay at the prediction instead of drifting.
+
+Outputs (see `slam.odometry` for frames)
+----------------------------------------
+``covariance`` of the increment is the ICP covariance (``(H / sigma^2 + Lambda)^-1``,
+see `loopclosure.registration`) rotated into the right-perturbation frame of the
+new pose, plus ``diag(covariance_floor^2)``.  Treating the scan-to-map covariance
+as the covariance of the increment ignores the map's own uncertainty; the floor
+stands for it and for the optimism of the Gauss-Newton covariance.
+
+Search (when the prediction is poor)
+------------------------------------
+If ICP from the prediction fails or its fitness is below `search_below_fitness`,
+a multi-hypothesis search runs (`_search`): headings {prediction, previous,
+prediction + `search_turns_deg`, `search_headings` hypotheses from the normal
+directions of scan and map} times positions {prediction + a grid of
+`search_offsets` along and across the heading, previous position}, pre-screened
+by `loopclosure.registration.overlap_scores`, ICP from the best `search_keep`,
+ranked by ``fitness * exp(-m^2 / 2)`` with ``m`` the deviation from the
+prediction in units of `search_sigma` (a broad motion prior, so a symmetric
+flip far from the prediction loses).  It matters for logs without odometry or
+with large steps between scans; with dense odometry it almost never runs.
+
+Graceful handling (status of `OdometryEstimate`)
+------------------------------------------------
+* ``no_points``: fewer than `min_points` usable points (all beams invalid, robot in
+  open space): pose = prediction, covariance = prediction covariance times
+  `fallback_inflation`; the map is not touched.
+* ``failed``: ICP and search without a good match (inlier ratio below
+  `min_inlier_ratio`, or RMS residual above `max_rms`): as ``no_points``, but the
+  scan still becomes a map keyframe by the usual rule (at the predicted pose), so
+  the map follows the robot into new areas.
+* ``degenerate``: ICP solved but `IcpResult.degeneracy` is below
+  `min_degeneracy`; the pose is kept (the prior fixed the weak direction, and the
+  covariance is large along it).
+* ``odometry_jump``: the odometry increment is implausible: longer than both
+  `max_step` [m] and `jump_ratio` times the median step of the last
+  `jump_history` increments, or turning more than both `max_step_rotation` [rad]
+  and `jump_ratio` times their median turn (relative, so logs recorded at one scan
+  per metre are not flagged all the time).  Kidnap, or a glitch of the log: ICP
+  without prior is tried from the odometry prediction and from the previous pose
+  (zero motion), then the search.  A match that is good and has at least
+  `jump_fitness_ratio` times the median fitness of the last `jump_history`
+  registered scans (a jump needs more evidence than a step) gives the pose
+  (``extra["kidnap"] = False``).  Otherwise the robot was carried away
+  (``extra["kidnap"] = True``): the pose follows the odometry, the covariance is
+  ``diag(kidnap_sigma^2)`` (the increment is as good as unknown) and the map
+  restarts from this scan.
+
+Every estimate carries ``extra``: points, map_points, keyframe (a map keyframe was
+added), and after ICP inlier_ratio, rms, iterations, degeneracy, converged, search
+(number of guesses, if it ran) and search_won.
+
+Motion distortion (the robot moving during one sweep) is ignored: at Intel's speeds
+(< 0.5 m/s, 75 Hz sweeps) it stays below 1 cm.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from data import se2
+from data.errors import UserError
+from data.types import Scan
+from loopclosure.registration import (
+    IcpConfig,
+    IcpResult,
+    RegistrationTarget,
+    body_covariance,
+    heading_hypotheses,
+    initial_guesses,
+    register,
+    register_multi,
+    voxel_downsample,
+)
+from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class Icp2dConfig:
+    """Parameters of the scan-to-map ICP odometry (module docstring).
+
+    Attributes:
+        icp: ICP and normal parameters (`loopclosure.registration.IcpConfig`).
+        min_range: beams shorter than this are not used [m] (robot body).
+        max_range: beams longer than this are not used [m] (sparse, noisy far walls).
+        source_voxel: voxel of the scan's points [m] (0: all points).
+        map_voxel: voxel of the local map [m].
+        map_keyframes: number of recent map keyframes in the local map.
+        map_radius: map points farther than this from the newest keyframe are
+            dropped [m].
+        keyframe_distance: travel that makes a new map keyframe [m].
+        keyframe_rotation: rotation that makes a new map keyframe [rad].
+        min_points: fewer usable points: status ``no_points``.
+        min_inlier_ratio: fewer inliers: status ``failed``.
+        max_rms: larger RMS point-to-line residual: status ``failed`` [m].
+        min_degeneracy: smaller normalised translational eigenvalue: ``degenerate``.
+        use_prior: the prediction is a prior of ICP.
+        odometry_noise: covariance model of odometry increments.
+        velocity_sigma: per-step standard deviations of the constant-velocity
+            prediction (x [m], y [m], theta [rad]).
+        covariance_floor: standard deviations added to every increment's covariance
+            (x [m], y [m], theta [rad]).
+        fallback_inflation: covariance multiplier of fallback estimates.
+        max_step: odometry increments longer than this (and than `jump_ratio`
+            times the recent median) are jumps [m].
+        max_step_rotation: the same for the rotation [rad].
+        jump_ratio: a jump is also this many times longer than the recent median.
+        jump_history: number of recent increments (and fitness values) of the medians.
+        jump_fitness_ratio: a match after a jump needs this fraction of the median
+            recent fitness.
+        kidnap_sigma: standard deviations of a kidnapped increment (x, y, theta).
+        search: run a multi-hypothesis search when the prediction registers badly.
+        search_below_fitness: ICP fitness below this also triggers the search.
+        search_headings: heading hypotheses of the search (besides prediction and
+            previous heading).
+        search_turns_deg: heading offsets from the prediction tried by the search [deg].
+        search_offsets: position offsets of the search along and across the
+            predicted heading (their grid) [m].
+        search_keep: guesses that run ICP after pre-screening.
+        search_sigma: broad prior of the search ranking: deviation from the
+            prediction (translation [m], rotation [rad]).
+    """
+
+    icp: IcpConfig = field(default_factory=IcpConfig)
+    min_range: float = 0.05
+    max_range: float = 40.0
+    source_voxel: float = 0.05
+    map_voxel: float = 0.05
+    map_keyframes: int = 30
+    map_radius: float = 40.0
+    keyframe_distance: float = 0.3
+    keyframe_rotation: float = 0.2
+    min_points: int = 20
+    min_inlier_ratio: float = 0.25
+    max_rms: float = 0.1
+    min_degeneracy: float = 0.01
+    use_prior: bool = True
+    odometry_noise: MotionNoise = field(default_factory=MotionNoise)
+    velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
+    covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
+    fallback_inflation: float = 10.0
+    max_step: float = 1.0
+    max_step_rotation: float = 1.0
+    jump_ratio: float = 10.0
+    jump_history: int = 20
+    jump_fitness_ratio: float = 0.75
+    kidnap_sigma: tuple[float, float, float] = (10.0, 10.0, np.pi)
+    search: bool = True
+    search_below_fitness: float = 0.3
+    search_headings: int = 4
+    search_turns_deg: tuple[float, ...] = (-45.0, -30.0, -15.0, 15.0, 30.0, 45.0)
+    search_offsets: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
+    search_keep: int = 12
+    search_sigma: tuple[float, float] = (1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        positive = ("max_range", "map_voxel", "map_radius", "keyframe_distance",
+                    "keyframe_rotation", "fallback_inflation", "max_step",
+                    "max_step_rotation")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise UserError(f"icp2d {name} must be a positive number, got {value}")
+        if self.map_keyframes < 1 or self.min_points < 3 or self.jump_history < 1:
+            raise UserError("icp2d needs map_keyframes, jump_history >= 1 and min_points >= 3")
+        for name in ("velocity_sigma", "covariance_floor", "kidnap_sigma"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise UserError(f"icp2d {name} must be three numbers >= 0, got {value}")
+
+
+def _frame_rotation(theta: float) -> Array:
+    """``blockdiag(R(theta), 1)``: right perturbation at heading theta -> additive."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+class Icp2dOdometry:
+    """``process(scan)``: scan-to-map ICP odometry (module docstring)."""
+
+    name = "icp2d"
+
+    def __init__(self, config: Icp2dConfig | None = None) -> None:
+        self.config = config or Icp2dConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the map and the motion: the next scan starts a new odometry frame."""
+        cfg = self.config
+        self._pose: Array | None = None
+        self._odom: Array | None = None
+        self._velocity = np.zeros(3)
+        self._recent_steps: deque[tuple[float, float]] = deque(maxlen=cfg.jump_history)
+        self._recent_fitness: deque[float] = deque(maxlen=cfg.jump_history)
+        self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
+        self._keyframe_pose: Array | None = None
+        self._target: RegistrationTarget | None = None
+        self.map_rebuilds = 0
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def map_points(self) -> Array:
+        """``(M, 2)`` points of the current local map (odometry frame) [m]."""
+        if self._target is None:
+            return np.zeros((0, 2))
+        return self._target.points
+
+    def process(self, scan: Scan) -> OdometryEstimate:
+        """Estimate for the next scan (in source order)."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        if not isinstance(scan, Scan):
+            raise UserError(
+                f"icp2d odometry needs planar laser scans, got {type(scan).__name__}; "
+                "use kiss-icp for point clouds"
+            )
+        points = self._scan_points(scan)
+        odom = scan_odometry(scan)
+        extra: dict[str, Any] = {"points": len(points)}
+        if self._pose is None:
+            pose = odom.copy() if odom is not None else np.zeros(3)
+            self._odom = odom
+            self._accept(pose, np.zeros(3), points, extra, force_keyframe=True)
+            return self._estimate(scan, pose, np.zeros(3), self._floor(), 0.0, "first", t0, extra)
+
+        prev = self._pose
+        u, u_cov, jump = self._prediction(odom)
+        if odom is not None:
+            self._odom = odom
+        pred = se2.compose(prev, u)
+        if jump:
+            extra["odometry_step"] = u.copy()
+        if len(points) < cfg.min_points or self._target is None:
+            if jump:
+                return self._kidnap(scan, pred, u, points, extra, t0)
+            # No usable scan, or no map yet (every earlier scan was empty): predict.
+            cov = u_cov * cfg.fallback_inflation
+            enough = len(points) >= cfg.min_points
+            status = "failed" if enough else "no_points"
+            if enough:
+                extra["reason"] = "no map yet"
+            self._accept(pred, u, points, extra, force_keyframe=enough)
+            return self._estimate(scan, pred, u, cov, 0.0, status, t0, extra)
+
+        if jump:  # the odometry may lie: no prior, try the prediction and standing still
+            res = register_multi(points, self._target, np.vstack([pred, prev]),
+                                 config=cfg.icp).best
+        else:
+            res = self._register(points, pred, u_cov)
+        if cfg.search and (not self._good(res) or res.fitness < cfg.search_below_fitness):
+            res = self._search(points, prev, pred, res, extra)
+        self._describe(res, extra)
+        if jump and self._good(res) and self._recent_fitness:
+            # A jump needs a match as good as the recent ones, not just a passable one.
+            usual = float(np.median(np.asarray(self._recent_fitness)))
+            if res.fitness < cfg.jump_fitness_ratio * usual:
+                extra["rejected_fitness"] = res.fitness
+                return self._kidnap(scan, pred, u, points, extra, t0)
+        if not self._good(res):
+            if jump:
+                return self._kidnap(scan, pred, u, points, extra, t0)
+            cov = u_cov * cfg.fallback_inflation
+            self._accept(pred, u, points, extra)
+            return self._estimate(scan, pred, u, cov, res.fitness, "failed", t0, extra)
+        pose = res.pose
+        delta = se2.between(prev, pose)
+        if jump:
+            status = "odometry_jump"
+            extra["kidnap"] = False
+        else:
+            status = "degenerate" if res.degeneracy < cfg.min_degeneracy else "ok"
+            self._recent_fitness.append(res.fitness)
+        self._accept(pose, delta, points, extra)
+        cov = self._increment_covariance(res, pose)
+        return self._estimate(scan, pose, delta, cov, res.fitness, status, t0, extra)
+
+    # ----------------------------------------------------------------- private
+
+    def _scan_points(self, scan: Scan) -> Array:
+        cfg = self.config
+        valid = scan.valid
+        r = scan.ranges
+        with np.errstate(invalid="ignore"):
+            keep = valid & (r >= cfg.min_range) & (r <= cfg.max_range)
+        pts = np.column_stack([r[keep] * np.cos(scan.angles[keep]),
+                               r[keep] * np.sin(scan.angles[keep])])
+        return voxel_downsample(pts, cfg.source_voxel)
+
+    def _prediction(self, odom: Array | None) -> tuple[Array, Array, bool]:
+        """Increment ``u``, its covariance and whether it is an odometry jump."""
+        cfg = self.config
+        if odom is not None and self._odom is not None:
+            u = se2.between(self._odom, odom)
+            step, turn = float(np.hypot(u[0], u[1])), float(abs(u[2]))
+            if self._recent_steps:
+                med_step, med_turn = np.median(np.asarray(self._recent_steps), axis=0)
+            else:
+                med_step = med_turn = 0.0
+            jump = bool(step > max(cfg.max_step, cfg.jump_ratio * med_step)
+                        or turn > max(cfg.max_step_rotation, cfg.jump_ratio * med_turn))
+            self._recent_steps.append((step, turn))  # a lone jump hardly moves the median
+            return u, cfg.odometry_noise.covariance(u), jump
+        u = self._velocity.copy()
+        return u, np.diag(np.square(cfg.velocity_sigma)), False
+
+    def _register(self, points: Array, pred: Array, u_cov: Array) -> IcpResult:
+        assert self._target is not None
+        cfg = self.config
+        if not cfg.use_prior:
+            return register(points, self._target, pred, config=cfg.icp)
+        rot = _frame_rotation(float(pred[2]))
+        prior_cov = rot @ u_cov @ rot.T
+        return register(points, self._target, pred, config=cfg.icp, prior=pred,
+                        prior_covariance=prior_cov)
+
+    def _search(
+        self, points: Array, prev: Array, pred: Array, res: IcpResult, extra: dict[str, Any]
+    ) -> IcpResult:
+        """Multi-hypothesis ICP when the prediction did not register well (module doc).
+
+        Ranking: ``fitness * exp(-m^2 / 2)``, ``m^2 = (|dt| / search_sigma[0])^2 +
+        (dtheta / search_sigma[1])^2``, ``(dt, dtheta)`` the deviation from the
+        prediction.  The best replaces `res` if it is good and ranks higher.
+        """
+        assert self._target is not None
+        cfg = self.config
+        heads = heading_hypotheses(points, self._target.points, count=cfg.search_headings,
+                                   method="normals", config=cfg.icp)
+        turns = np.radians(np.asarray(cfg.search_turns_deg, dtype=float))
+        heads = np.concatenate([[pred[2], prev[2]], pred[2] + turns, heads])
+        steps = np.asarray(cfg.search_offsets, dtype=float)
+        along, across = np.meshgrid(steps, steps, indexing="ij")
+        c, s = np.cos(pred[2]), np.sin(pred[2])
+        offs = np.column_stack([c * along.ravel() - s * across.ravel(),
+                                s * along.ravel() + c * across.ravel()])
+        offs = np.vstack([offs, prev[:2] - pred[:2]])
+        guesses = initial_guesses(pred, heads, offs)
+        multi = register_multi(points, self._target, guesses, config=cfg.icp,
+                               keep=cfg.search_keep)
+        extra["search"] = len(guesses)
+        best, best_rank = res, self._rank(res, pred) if res.ok else -1.0
+        for cand in multi.results:
+            rank = self._rank(cand, pred)
+            if self._good(cand) and rank > best_rank:
+                best, best_rank = cand, rank
+        extra["search_won"] = best is not res
+        return best
+
+    def _rank(self, res: IcpResult, pred: Array) -> float:
+        dev = se2.between(pred, res.pose)
+        sig = self.config.search_sigma
+        m2 = (np.hypot(dev[0], dev[1]) / sig[0]) ** 2 + (dev[2] / sig[1]) ** 2
+        return float(res.fitness * np.exp(-0.5 * m2))
+
+    def _good(self, res: IcpResult) -> bool:
+        cfg = self.config
+        return bool(res.ok and res.inlier_ratio >= cfg.min_inlier_ratio
+                    and res.rms <= cfg.max_rms)
+
+    def _kidnap(
+        self, scan: Scan, pred: Array, u: Array, points: Array, extra: dict[str, Any], t0: float
+    ) -> OdometryEstimate:
+        """The odometry jumped and the map does not confirm any motion: restart the map."""
+        cfg = self.config
+        extra["kidnap"] = True
+        self._keyframes.clear()
+        self._target = None
+        self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
+        self._velocity = np.zeros(3)
+        cov = np.diag(np.square(cfg.kidnap_sigma))
+        return self._estimate(scan, pred, u, cov, 0.0, "odometry_jump", t0, extra)
+
+    def _accept(
+        self,
+        pose: Array,
+        delta: Array,
+        points: Array,
+        extra: dict[str, Any],
+        force_keyframe: bool = False,
+    ) -> None:
+        """Take `pose` as the new estimate; add a map keyframe if due."""
+        cfg = self.config
+        self._pose = np.asarray(pose, dtype=float).copy()
+        self._velocity = np.asarray(delta, dtype=float).copy()
+        due = force_keyframe
+        if not due and self._keyframe_pose is not None and len(points) >= cfg.min_points:
+            step = se2.between(self._keyframe_pose, self._pose)
+            due = bool(np.hypot(step[0], step[1]) >= cfg.keyframe_distance
+                       or abs(step[2]) >= cfg.keyframe_rotation)
+        extra["keyframe"] = due
+        if due:
+            self._keyframe_pose = self._pose.copy()
+            self._keyframes.append(se2.transform_points(self._pose, points))
+            self._rebuild_map()
+
+    def _rebuild_map(self) -> None:
+        cfg = self.config
+        pts = voxel_downsample(np.vstack(list(self._keyframes)), cfg.map_voxel)
+        assert self._keyframe_pose is not None
+        near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
+        self._target = RegistrationTarget(pts[near], cfg.icp)
+        if self._target.tree is None:
+            self._target = None
+        self.map_rebuilds += 1
+
+    def _increment_covariance(self, res: IcpResult, pose: Array) -> Array:
+        return body_covariance(pose, res.covariance) + self._floor()
+
+    def _floor(self) -> Array:
+        return np.diag(np.square(self.config.covariance_floor)) + 1e-12 * np.eye(3)
+
+    @staticmethod
+    def _describe(res: IcpResult, extra: dict[str, Any]) -> None:
+        extra.update(
+            inlier_ratio=res.inlier_ratio, rms=res.rms, iterations=res.iterations,
+            degeneracy=res.degeneracy, converged=res.converged,
+        )
+
+    def _estimate(
+        self,
+        scan: Scan,
+        pose: Array,
+        delta: Array,
+        cov: Array,
+        fitness: float,
+        status: str,
+        t0: float,
+        extra: dict[str, Any],
+    ) -> OdometryEstimate:
+        extra["map_points"] = 0 if self._target is None else len(self._target.points)
+        return OdometryEstimate(
+            stamp=float(scan.stamp),
+            index=int(scan.index),
+            pose=np.asarray(pose, dtype=float).copy(),
+            delta=np.asarray(delta, dtype=float).copy(),
+            covariance=cov,
+            fitness=float(fitness),
+            seconds=time.perf_counter() - t0,
+            status=status,
+            extra=extra,
+        )
