@@ -235,7 +235,9 @@ def test_old_laser_geometry_rules() -> None:
     )
     assert step == pytest.approx(0.5 * DEG)
     # documented default: 180 degrees in steps of pi / (n - 1)
-    assert old_laser_geometry(180, {}) == pytest.approx((-math.pi / 2, math.pi / 179))
+    # CARMEN's readlog convention: 1-degree steps for 180 and 181 beams.
+    assert old_laser_geometry(180, {}) == pytest.approx((-math.pi / 2, math.pi / 180))
+    assert old_laser_geometry(181, {}) == pytest.approx((-math.pi / 2, math.pi / 180))
 
 
 def test_no_return_band_rule(tmp_path: Path) -> None:
@@ -541,7 +543,7 @@ def test_intel_real_log() -> None:
     assert "beam_counts" not in info.extra  # every scan has 180 beams
     assert info.extra["messages"] == {"FLASER": 13631, "ODOM": 26915, "PARAM": 2}
     assert info.extra["stamps_backwards"] == 631  # file order kept, never sorted
-    assert info.fov_deg == pytest.approx(180.0) and info.max_range == 80.0
+    assert info.fov_deg == pytest.approx(179.0) and info.max_range == 80.0  # -90..+89 deg
     assert info.duration_s == pytest.approx(2691.2, abs=0.5)
     it = iter(CarmenLog(path))
     first, second = next(it), next(it)
@@ -553,7 +555,7 @@ def test_intel_real_log() -> None:
     np.testing.assert_allclose(first.odom, [0.0, 0.0, -0.002458])
     assert first.max_range == 80.0
     assert first.angles[0] == pytest.approx(-math.pi / 2)
-    assert np.diff(first.angles) == pytest.approx(math.pi / 179)
+    assert np.diff(first.angles) == pytest.approx(math.pi / 180)
 
 
 @pytest.mark.parametrize(
@@ -562,7 +564,7 @@ def test_intel_real_log() -> None:
         ("belgioioso", 395, 361, 80.99, 90.0),
         ("freiburg-101", 292, 360, 80.99, 89.5),
         ("freiburg-campus", 2008, 360, 80.99, 89.5),
-        ("intel", 910, 180, 80.0, 90.0),
+        ("intel", 910, 180, 80.0, 89.0),
         ("orebro", 237, 181, 32.7545, 90.0),
         ("seattle", 241, 361, 80.0, 90.0),
     ],
