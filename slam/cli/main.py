@@ -20,7 +20,7 @@ from types import ModuleType
 import typer
 
 from data.errors import DataWarning, UserError
-from slam.cli import data_commands, graph_commands
+from slam.cli import data_commands, graph_commands, run_command
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -44,7 +44,7 @@ def build_app() -> typer.Typer:
 
 
 def _own_command_modules() -> list[ModuleType]:
-    return [data_commands, graph_commands]
+    return [data_commands, graph_commands, run_command]
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

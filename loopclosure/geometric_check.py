@@ -1,0 +1,199 @@
+"""Geometric verification of a loop-closure candidate: ICP between two local submaps.
+
+A candidate says "keyframe b (the query) is at the place of keyframe a".  The
+check registers b's local submap (points in b's sensor frame) onto a's local
+submap (points in a's sensor frame) from several initial guesses — the relative
+pose predicted by the current pose estimates, headings from the FFT
+cross-correlation of the two places' range functions, each with a few
+translation offsets — and keeps the best run (`loopclosure.registration.register_multi`).
+
+It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
+
+- ``fitness >= min_fitness``: the truncated-quadratic overlap of the two submaps;
+- ``inlier_ratio >= min_inlier_ratio`` and ``rms <= max_rms`` [m];
+- ``degeneracy >= min_degeneracy``: no direction left unconstrained (a corridor
+  seen twice matches anywhere along its axis);
+- when a prior relative pose with covariance is given (a pose-gated, local
+  search), the result lies within `max_prior_mahalanobis` of it;
+- the best hypothesis beats the runner-up that lands at a *different* pose
+  (more than `ambiguity_distance` m or `ambiguity_angle_deg` away) by at least
+  `min_fitness_margin`: a symmetric room that fits two ways is ambiguous.
+
+The result carries the relative pose (pose of b in a's frame) and its covariance:
+ICP's Gauss-Newton covariance, which is optimistic, never below `covariance_floor`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from data import se2
+from loopclosure.registration import (
+    IcpConfig,
+    IcpResult,
+    RegistrationTarget,
+    initial_guesses,
+    register_multi,
+    voxel_downsample,
+)
+
+Array = NDArray[np.float64]
+
+
+@dataclass(slots=True)
+class GeometricCheckConfig:
+    """Acceptance rule and search of the geometric check (module docstring).
+
+    Attributes:
+        min_fitness: overlap score threshold in [0, 1].
+        min_inlier_ratio: inliers / source points.
+        max_rms: RMS point-to-line residual of the inliers [m].
+        min_degeneracy: smallest normalised translational information, 0..0.5.
+        max_prior_mahalanobis: gate around a prior relative pose (local searches).
+        min_fitness_margin: best minus best-at-another-pose fitness.
+        ambiguity_distance: hypotheses closer than this are the same answer [m].
+        ambiguity_angle_deg: ... or closer than this in heading [deg].
+        offsets: translation offsets tried around each heading [m].
+        source_voxel: voxel of the query submap before ICP [m] (the candidate's submap
+            keeps its own resolution).
+        keep: guesses refined by ICP after the coarse overlap prescreen.
+        covariance_floor: standard deviations (x [m], y [m], theta [deg]) below which
+            the loop constraint's covariance never goes.
+        icp: ICP parameters (wider gate than odometry: the guesses are coarser).
+    """
+
+    min_fitness: float = 0.55
+    min_inlier_ratio: float = 0.6
+    max_rms: float = 0.04
+    min_degeneracy: float = 0.04
+    max_prior_mahalanobis: float = 5.0
+    min_fitness_margin: float = 0.1
+    ambiguity_distance: float = 0.5
+    ambiguity_angle_deg: float = 10.0
+    offsets: float = 0.5
+    source_voxel: float = 0.1
+    keep: int = 6
+    covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
+    icp: IcpConfig = field(
+        default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
+    )
+
+
+@dataclass(slots=True)
+class LoopVerification:
+    """Outcome of one geometric check.
+
+    Attributes:
+        accepted: all acceptance tests passed.
+        reason: ``"accepted"`` or the first test that failed.
+        relative: ``(3,)`` pose of the query keyframe in the candidate's frame.
+        covariance: ``3x3`` covariance of `relative` (floored).
+        fitness, inlier_ratio, rms, degeneracy: of the best ICP run.
+        margin: fitness of the best minus the best run at a different pose.
+        hypotheses: number of ICP runs.
+    """
+
+    accepted: bool
+    reason: str
+    relative: Array
+    covariance: Array
+    fitness: float
+    inlier_ratio: float
+    rms: float
+    degeneracy: float
+    margin: float
+    hypotheses: int
+
+
+def _offset_grid(step: float) -> Array:
+    if step <= 0:
+        return np.zeros((0, 2))
+    g = np.array([[step, 0], [-step, 0], [0, step], [0, -step]], dtype=float)
+    return g
+
+
+def _floored(cov: Array, floor: tuple[float, float, float]) -> Array:
+    sig = np.array([floor[0], floor[1], np.radians(floor[2])])
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    floored = vecs @ np.diag(np.maximum(vals, 0.0)) @ vecs.T
+    return floored + np.diag(sig**2)
+
+
+def _different(a: Array, b: Array, cfg: GeometricCheckConfig) -> bool:
+    d = se2.between(a, b)
+    return bool(
+        np.hypot(d[0], d[1]) > cfg.ambiguity_distance
+        or abs(np.degrees(d[2])) > cfg.ambiguity_angle_deg
+    )
+
+
+def verify(
+    query_points: ArrayLike,
+    candidate: RegistrationTarget,
+    *,
+    prior: ArrayLike | None = None,
+    prior_covariance: ArrayLike | None = None,
+    headings: ArrayLike | None = None,
+    translation: ArrayLike | None = None,
+    offsets: float | None = None,
+    config: GeometricCheckConfig | None = None,
+) -> LoopVerification:
+    """Check that the query submap (its frame) fits the candidate's submap (see module doc).
+
+    Args:
+        query_points: ``(N, 2)`` submap of the query keyframe, in its sensor frame [m].
+        candidate: the candidate keyframe's submap as a registration target.
+        prior: ``(3,)`` predicted pose of the query in the candidate's frame (from the
+            current estimates), or None for a purely appearance-based candidate.
+        prior_covariance: ``3x3`` uncertainty of `prior`; enables the prior gate.
+        headings: extra absolute headings [rad] to try (e.g. FFT cross-correlation).
+        translation: ``(2,)`` translation used with the extra headings when there is
+            no prior (e.g. from aligning the two places' centroids).
+        offsets: translation offset of the extra guesses [m] (None: the config's;
+            0: none, e.g. when the prior is already good to a few centimetres).
+    """
+    cfg = config or GeometricCheckConfig()
+    base = np.zeros(3) if prior is None else np.asarray(prior, dtype=float).reshape(3)
+    if prior is None and translation is not None:
+        base[:2] = np.asarray(translation, dtype=float).reshape(2)
+    step = cfg.offsets if offsets is None else offsets
+    guesses = initial_guesses(base, headings, _offset_grid(step))
+    source = voxel_downsample(np.asarray(query_points, dtype=float), cfg.source_voxel)
+    multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep)
+    best: IcpResult = multi.best
+    others = [r.fitness for r in multi.results if r.ok and _different(r.pose, best.pose, cfg)]
+    margin = best.fitness - (max(others) if others else 0.0)
+    reason = "accepted"
+    if not best.ok:
+        reason = "registration failed"
+    elif best.fitness < cfg.min_fitness:
+        reason = f"fitness {best.fitness:.2f} < {cfg.min_fitness}"
+    elif best.inlier_ratio < cfg.min_inlier_ratio:
+        reason = f"inlier ratio {best.inlier_ratio:.2f} < {cfg.min_inlier_ratio}"
+    elif best.rms > cfg.max_rms:
+        reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"
+    elif best.degeneracy < cfg.min_degeneracy:
+        reason = f"degenerate (corridor-like, {best.degeneracy:.3f})"
+    elif margin < cfg.min_fitness_margin:
+        reason = f"ambiguous (fitness margin {margin:.2f})"
+    elif prior is not None and prior_covariance is not None:
+        d = se2.between(base, best.pose)
+        cov = np.asarray(prior_covariance, dtype=float) + best.covariance
+        m2 = float(d @ np.linalg.solve(cov + np.eye(3) * 1e-12, d))
+        if np.sqrt(max(m2, 0.0)) > cfg.max_prior_mahalanobis:
+            reason = f"far from the predicted pose ({np.sqrt(m2):.1f} sigma)"
+    return LoopVerification(
+        accepted=reason == "accepted",
+        reason=reason,
+        relative=np.asarray(best.pose, dtype=float),
+        covariance=_floored(np.asarray(best.covariance, dtype=float), cfg.covariance_floor),
+        fitness=float(best.fitness),
+        inlier_ratio=float(best.inlier_ratio),
+        rms=float(best.rms),
+        degeneracy=float(best.degeneracy),
+        margin=float(margin),
+        hypotheses=len(multi.results),
+    )

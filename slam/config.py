@@ -1,0 +1,91 @@
+"""Every parameter of `loopclosure run`, in one tree with defaults that work.
+
+The tree is plain dataclasses: YAML files (``--config FILE``) and ``--set
+section.key=value`` overrides go through `slam.config_io`, and every run writes
+the tree it used to ``config.yaml`` beside its results.
+
+The defaults are the ones measured on the embedded demo, the Intel log and the
+corrected Radish logs together (not tuned to one of them); each section's class
+documents its fields and units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from loopclosure.loop_detector import LoopClosureConfig
+from slam.keyframes import KeyframeConfig
+from slam.occupancy_map import MapConfig
+from slam.odometry.icp2d import Icp2dConfig
+from slam.odometry.kiss import KissConfig
+from slam.odometry.wheel import WheelConfig
+
+
+@dataclass(slots=True)
+class SubmapConfig:
+    """Local maps around keyframes (place description and loop verification).
+
+    Attributes:
+        neighbours: keyframes on each side of a keyframe that form its submap.
+        voxel: voxel size of submap points [m].
+        max_range: submap points farther than this from the keyframe are dropped [m].
+    """
+
+    neighbours: int = 10
+    voxel: float = 0.05
+    max_range: float = 20.0
+
+
+@dataclass(slots=True)
+class BackendConfig:
+    """The pose graph and its optimisation.
+
+    Attributes:
+        kernel: robust kernel of loop factors while mapping (see `slam.pose_graph`).
+        kernel_scale: its scale in whitened units (None: the kernel's default).
+        final_gnc: after the last scan, re-solve the whole graph with GNC-TLS and drop
+            the loops it classifies as outliers (reported, marked in loops.csv).
+        gnc_probability: chi-square quantile of the GNC inlier threshold.
+        odometry_floor: standard deviations added to each keyframe-to-keyframe odometry
+            constraint (x [m], y [m], theta [deg]): scan-matching covariances ignore
+            correlated errors, this keeps them honest.
+        relinearize_threshold: iSAM2 relinearisation threshold.
+    """
+
+    kernel: str = "cauchy"
+    kernel_scale: float | None = None
+    final_gnc: bool = True
+    gnc_probability: float = 0.99
+    odometry_floor: tuple[float, float, float] = (0.002, 0.002, 0.05)
+    relinearize_threshold: float = 0.01
+
+
+@dataclass(slots=True)
+class PipelineConfig:
+    """`loopclosure run`: front end, keyframes, loop closure, back end, map.
+
+    Attributes:
+        odometry: front end, ``icp2d``, ``kiss-icp`` or ``wheel``.
+        icp2d, kiss_icp, wheel: the front ends' parameters.
+        keyframes: keyframe selection.
+        submap: local maps of keyframes.
+        loops: the loop-closure plugin (place database, geometric check, search).
+        backend: pose graph and optimisation.
+        map: occupancy grid written at the end.
+    """
+
+    odometry: str = "icp2d"
+    icp2d: Icp2dConfig = field(default_factory=Icp2dConfig)
+    kiss_icp: KissConfig = field(default_factory=KissConfig)
+    wheel: WheelConfig = field(default_factory=WheelConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    submap: SubmapConfig = field(default_factory=SubmapConfig)
+    loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    backend: BackendConfig = field(default_factory=BackendConfig)
+    map: MapConfig = field(default_factory=MapConfig)
+
+    def front_end_config(self) -> Icp2dConfig | KissConfig | WheelConfig:
+        """The parameters of the selected front end."""
+        return {"icp2d": self.icp2d, "kiss-icp": self.kiss_icp, "wheel": self.wheel}.get(
+            self.odometry, self.icp2d
+        )

@@ -1,0 +1,164 @@
+"""Keyframe selection: which scans become nodes of the pose graph.
+
+A scan becomes a keyframe when the odometry has moved at least `distance` metres
+or turned at least `rotation_deg` degrees since the last keyframe, or when
+`max_interval` seconds have passed (so a robot standing still still gets a node
+now and then); the first usable scan is always one.  Between two keyframes the
+per-scan increments are chained (`slam.odometry.accumulate`) into the odometry
+constraint of the graph, covariance included.
+
+Every scan remembers the keyframe before it and its pose relative to that
+keyframe, so after optimisation each scan gets a pose (see
+`scan_poses_from_keyframes`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from data import se2
+from data.types import Scan
+from slam.odometry import OdometryEstimate, accumulate
+
+Array = NDArray[np.float64]
+
+
+@dataclass(slots=True)
+class KeyframeConfig:
+    """When a scan becomes a keyframe.
+
+    Attributes:
+        distance: travelled distance since the last keyframe [m].
+        rotation_deg: rotation since the last keyframe [deg].
+        max_interval: time since the last keyframe [s] (<= 0: never by time).
+        min_valid_beams: scans with fewer valid beams never become keyframes.
+    """
+
+    distance: float = 0.3
+    rotation_deg: float = 15.0
+    max_interval: float = 10.0
+    min_valid_beams: int = 20
+
+
+@dataclass(slots=True)
+class Keyframe:
+    """A node of the graph.
+
+    Attributes:
+        id: consecutive from 0.
+        stamp: the scan's stamp [s].
+        scan_index: the scan's index in the source.
+        odom_pose: ``(3,)`` front-end pose of the sensor (odometry frame).
+        scan: the scan itself (its points describe the place and build the map).
+        points: ``(M, 2)`` valid end points in the sensor frame [m].
+        delta: odometry increment from the previous keyframe (``(3,)``, zero for the first).
+        covariance: its ``3x3`` covariance (right perturbation, x, y, theta).
+    """
+
+    id: int
+    stamp: float
+    scan_index: int
+    odom_pose: Array
+    scan: Scan
+    points: Array
+    delta: Array = field(default_factory=lambda: np.zeros(3))
+    covariance: Array = field(default_factory=lambda: np.eye(3) * 1e-6)
+
+
+class KeyframeSelector:
+    """Turns the stream of (scan, odometry estimate) into keyframes (module docstring)."""
+
+    def __init__(self, config: KeyframeConfig | None = None) -> None:
+        self.config = config or KeyframeConfig()
+        self.keyframes: list[Keyframe] = []
+        # Per scan, in source order: keyframe before it and the pose relative to it.
+        self.scan_stamps: list[float] = []
+        self.scan_keyframe: list[int] = []
+        self.scan_offset: list[Array] = []
+        self._delta = np.zeros(3)
+        self._cov = np.zeros((3, 3))
+
+    def push(self, scan: Scan, estimate: OdometryEstimate) -> Keyframe | None:
+        """Account for one scan; returns the new keyframe if this scan became one."""
+        cfg = self.config
+        if self.keyframes:
+            self._delta, self._cov = accumulate(
+                self._delta, self._cov, estimate.delta, estimate.covariance
+            )
+        usable = int(scan.valid.sum()) >= cfg.min_valid_beams
+        last = self.keyframes[-1] if self.keyframes else None
+        new = None
+        if usable and (last is None or self._due(last, estimate)):
+            new = Keyframe(
+                id=len(self.keyframes),
+                stamp=float(scan.stamp),
+                scan_index=int(scan.index),
+                odom_pose=np.asarray(estimate.pose, dtype=float).copy(),
+                scan=scan,
+                points=scan.points(),
+                delta=self._delta.copy() if last is not None else np.zeros(3),
+                covariance=self._cov.copy() if last is not None else np.eye(3) * 1e-6,
+            )
+            self.keyframes.append(new)
+            self._delta, self._cov = np.zeros(3), np.zeros((3, 3))
+        self.scan_stamps.append(float(scan.stamp))
+        if self.keyframes:
+            self.scan_keyframe.append(self.keyframes[-1].id)
+            self.scan_offset.append(se2.between(self.keyframes[-1].odom_pose, estimate.pose))
+        else:  # scans before the first usable one hang off keyframe 0 once it exists
+            self.scan_keyframe.append(-1)
+            self.scan_offset.append(np.asarray(estimate.pose, dtype=float).copy())
+        return new
+
+    def _due(self, last: Keyframe, estimate: OdometryEstimate) -> bool:
+        cfg = self.config
+        moved = se2.between(last.odom_pose, estimate.pose)
+        if np.hypot(moved[0], moved[1]) >= cfg.distance:
+            return True
+        if abs(np.degrees(moved[2])) >= cfg.rotation_deg:
+            return True
+        return cfg.max_interval > 0 and abs(estimate.stamp - last.stamp) >= cfg.max_interval
+
+
+def scan_poses_from_keyframes(
+    selector: KeyframeSelector, keyframe_poses: dict[int, Array]
+) -> Array:
+    """``(N, 3)`` pose of every scan pushed so far, in the map frame.
+
+    A scan between keyframes k and k+1 is placed from both ends: ``p_a = K_k ⊕ o_k``
+    (its odometry offset from k) and ``p_b = K_{k+1} ⊕ (odometry from k+1 to the scan)``,
+    blended linearly by the fraction of the k -> k+1 odometry travelled, so the
+    correction a loop closure makes is spread smoothly instead of jumping at keyframes.
+    Scans before the first keyframe are placed from keyframe 0 by their odometry.
+    """
+    kfs = selector.keyframes
+    n = len(selector.scan_stamps)
+    if not kfs:
+        return np.zeros((n, 3))
+    kf_of = np.array(selector.scan_keyframe)
+    offsets = np.array(selector.scan_offset).reshape(n, 3)
+    opt = np.array([keyframe_poses[k.id] for k in kfs])
+    odom = np.array([k.odom_pose for k in kfs])
+    out = np.zeros((n, 3))
+    before = kf_of < 0
+    if before.any():
+        rel = se2.between(odom[0], offsets[before])
+        out[before] = se2.compose(opt[0], rel)
+    idx = np.flatnonzero(~before)
+    k = kf_of[idx]
+    p_a = se2.compose(opt[k], offsets[idx])
+    nxt = np.minimum(k + 1, len(kfs) - 1)
+    has_next = nxt > k
+    scan_odom = se2.compose(odom[k], offsets[idx])
+    p_b = se2.compose(opt[nxt], se2.between(odom[nxt], scan_odom))
+    step = se2.between(odom[k], odom[nxt])
+    travel = np.hypot(step[:, 0], step[:, 1]) + np.abs(step[:, 2])
+    done = np.hypot(offsets[idx, 0], offsets[idx, 1]) + np.abs(offsets[idx, 2])
+    w = np.where(has_next & (travel > 1e-9), np.clip(done / np.maximum(travel, 1e-9), 0, 1), 0.0)
+    dtheta = se2.wrap_angle(p_b[:, 2] - p_a[:, 2])
+    out[idx, :2] = (1 - w)[:, None] * p_a[:, :2] + w[:, None] * p_b[:, :2]
+    out[idx, 2] = se2.wrap_angle(p_a[:, 2] + w * dtheta)
+    return out

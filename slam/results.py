@@ -1,0 +1,123 @@
+"""Writing a `MappingResult` into the output folder (see `slam.outputs` for the formats)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from data.g2o import write_g2o
+from slam.occupancy_map import MapConfig, build_occupancy_grid
+from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
+from slam.pipeline import MappingResult, peak_rss_mb
+
+
+def loop_records(result: MappingResult) -> list[LoopRecord]:
+    """One `LoopRecord` per candidate the run tried."""
+    records = []
+    for e in result.loops:
+        c = e.candidate
+        v = c.verification
+        records.append(
+            LoopRecord(
+                keyframe_a=c.match,
+                keyframe_b=c.query,
+                stamp_a=e.stamp_match,
+                stamp_b=e.stamp_query,
+                stage=c.source,
+                accepted=c.accepted and not e.rejected_by_gnc,
+                reason="rejected by GNC" if e.rejected_by_gnc else c.reason,
+                prefilter_distance=c.scores.get("prefilter", float("nan")),
+                prefilter_rank=int(c.scores.get("prefilter_rank", -1)),
+                verifier_distance=min(
+                    (val for k, val in c.scores.items() if k in ("mrm", "flirt", "shape-context")),
+                    default=float("nan"),
+                ),
+                score=c.scores.get("fused", float("nan")),
+                fitness=v.fitness if v else float("nan"),
+                rms=v.rms if v else float("nan"),
+                inlier_ratio=v.inlier_ratio if v else float("nan"),
+                relative=c.relative,
+                rejected_by_gnc=e.rejected_by_gnc,
+            )
+        )
+    return records
+
+
+def write_results(
+    out: Path,
+    result: MappingResult,
+    source: str,
+    *,
+    wall_s: float,
+    write_map: bool = True,
+    map_config: MapConfig | None = None,
+) -> dict[str, Any]:
+    """Write every output file of a run; returns the summary (also in summary.json)."""
+    from slam.cli.common import write_json
+
+    start = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    stamps, stamp_rule = output_stamps(result.scan_stamps, source)
+    files: dict[str, str] = {}
+    if len(stamps):
+        files.update({k: str(v) for k, v in write_trajectories(
+            out, stamps, result.scan_poses).items()})
+        write_trajectories_odometry = out / "odometry.tum"
+        from data.trajectory_io import write_tum
+        from data.types import Trajectory
+
+        order = np.argsort(stamps, kind="stable")
+        write_tum(write_trajectories_odometry,
+                  Trajectory.from_xytheta(stamps[order], result.odometry_poses[order]))
+        files["odometry_tum"] = str(write_trajectories_odometry)
+    graph = result.smoother.graph
+    if graph.initial:
+        kept = [e.factor for e in result.loops if e.factor is not None and not e.rejected_by_gnc]
+        g = graph.to_g2o(result.keyframe_poses)
+        kept_pairs = {(graph.loops[i].i, graph.loops[i].j) for i in kept}
+        g.edges = [
+            edge for edge in g.edges
+            if edge.j == edge.i + 1 or (edge.i, edge.j) in kept_pairs
+        ]
+        write_g2o(out / "graph.g2o", g)
+        files["g2o"] = str(out / "graph.g2o")
+    write_loops_csv(out / "loops.csv", loop_records(result))
+    files["loops"] = str(out / "loops.csv")
+    if write_map and result.keyframes:
+        poses = np.array([result.keyframe_poses[k.id] for k in result.keyframes])
+        grid = build_occupancy_grid([k.scan for k in result.keyframes], poses, config=map_config)
+        loops = np.array([
+            np.r_[result.keyframe_poses[e.candidate.match][:2],
+                  result.keyframe_poses[e.candidate.query][:2]]
+            for e in result.accepted_loops
+        ]).reshape(-1, 4)
+        paths = grid.write_map(out, trajectory_xy=result.scan_poses[:, :2], loops=loops)
+        files.update({f"map_{k}": str(v) for k, v in paths.items()})
+    accepted = [e for e in result.loops if e.candidate.accepted]
+    timings = dict(result.timings)
+    timings["output"] = time.perf_counter() - start
+    summary: dict[str, Any] = {
+        "source": source,
+        "scans": len(result.scan_stamps),
+        "keyframes": len(result.keyframes),
+        "loops_proposed": len(result.loops),
+        "loops_accepted": len(accepted) - sum(e.rejected_by_gnc for e in accepted),
+        "loops_rejected_by_check": len(result.loops) - len(accepted),
+        "loops_rejected_by_gnc": sum(e.rejected_by_gnc for e in accepted),
+        "loops_by_stage": {
+            s: sum(1 for e in accepted if e.candidate.source == s and not e.rejected_by_gnc)
+            for s in ("local", "global")
+        },
+        "wall_s": wall_s + timings["output"],
+        "peak_rss_mb": peak_rss_mb(),
+        "timings_s": timings,
+        "odometry_status": result.odometry_status,
+        "trajectory_stamps": stamp_rule,
+        "interrupted": result.interrupted,
+        "files": files,
+    }
+    write_json(out / "summary.json", summary)
+    return summary
