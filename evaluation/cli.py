@@ -220,8 +220,9 @@ def eval_robustness(
 
 def register(app: typer.Typer) -> None:
     """Add the `eval` and `bench` command groups to `app`."""
-    from evaluation import cli_stripes
+    from evaluation import cli_places, cli_stripes
 
+    cli_places.register(bench_app)
     cli_stripes.register(bench_app)
     app.add_typer(eval_app, name="eval")
     app.add_typer(bench_app, name="bench")

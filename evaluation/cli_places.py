@@ -1,0 +1,127 @@
+"""`loopclosure bench places`: the place-recognition paper's Tables I-III on one or more sets.
+
+``register(bench)`` adds the ``places`` command to the ``bench`` command group (wired in
+by `evaluation.cli`).  Contract::
+
+    loopclosure bench places --dataset box|surface|mpeg7:DIR|robot:DIR
+        --methods fft,integral,ring,shape-context,tangent,scanline,mrm,flirt,cascade|all
+        [--workers N] [--seed N] [--out DIR] [--json]
+
+``--dataset`` may be given several times (one column per data set in the report's
+tables).  ``--json`` prints one JSON object ``{"dataset", "shapes", "classes",
+"methods": {NAME: {"bullseye", "auc", "fscore", "ms_per_pair", "ms_describe",
+"ms_compare", ...}}, "unavailable": [...], ...}`` (several data sets:
+``{"datasets": [...]}``).  ``--out DIR`` writes ``report.md``, ``roc_<set>.png``,
+``pr_<set>.png`` and ``results.json``.  A progress bar goes to stderr.  Bad input
+(unknown method or data set, empty or missing folder, workers < 1) raises
+`data.errors.UserError`, which the entry point prints as one ``error:`` line (exit 2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from data.errors import UserError
+
+
+@contextmanager
+def _progress() -> Iterator[Callable[[str, int, int], None]]:
+    """A rich progress bar on stderr (shown on a terminal only); yields ``update``."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    console = Console(stderr=True)
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                   TimeElapsedColumn(), console=console, transient=True,
+                   disable=not console.is_terminal)
+    tasks: dict[str, int] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=total)
+        bar.update(tasks[stage], completed=done, total=total)
+
+    with bar:
+        yield update
+
+
+def places(
+    dataset: Annotated[
+        list[str],
+        typer.Option("--dataset", help="box, surface, mpeg7:DIR or robot:DIR (repeatable)."),
+    ],
+    methods: Annotated[
+        str,
+        typer.Option("--methods", help="Comma-separated: fft,integral,ring,shape-context,"
+                     "tangent,scanline,mrm,flirt,cascade; or all."),
+    ] = "all",
+    workers: Annotated[
+        int, typer.Option("--workers", help="Processes for the all-pairs distance matrix.")
+    ] = 1,
+    seed: Annotated[
+        int, typer.Option("--seed", help="Seed of the simulated worlds and robot scan caps.")
+    ] = 0,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Folder for report.md, results.json, ROC/P-R plots."),
+    ] = None,
+    json: Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")] = False,
+) -> None:
+    """Every shape matcher on place data sets: Bull's eye, ROC AUC, F-score, time (Tables I-III)."""
+    from evaluation.place_datasets import dataset_kind, load_dataset
+    from evaluation.places_benchmark import (
+        json_document,
+        parse_methods,
+        run_places,
+        summary_lines,
+        write_places_report,
+    )
+    from slam.cli.common import print_json
+
+    names = parse_methods(methods)
+    if workers < 1:
+        raise UserError(f"--workers must be at least 1, got {workers}")
+    if seed < 0:
+        raise UserError(f"--seed must be >= 0, got {seed}")
+    if not dataset:
+        raise UserError("--dataset is required: box, surface, mpeg7:DIR or robot:DIR")
+    for spec in dataset:  # check every spec before the (slow) loading starts
+        dataset_kind(spec)
+    if out is not None and out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} exists and is not a folder")
+    results = []
+    with _progress() as update:
+        for spec in dataset:
+            update(f"loading {spec}", 0, 1)
+            place_set = load_dataset(spec, seed=seed)
+            update(f"loading {spec}", 1, 1)
+            results.append(run_places(place_set, names, workers=workers, seed=seed,
+                                      progress=update))
+    paths = write_places_report(out, results) if out is not None else {}
+    if json:
+        doc = json_document(results)
+        if paths:
+            doc["outputs"] = {k: str(v) for k, v in paths.items()}
+        print_json(doc)
+        return
+    for r in results:
+        for line in summary_lines(r):
+            typer.echo(line)
+    if paths:
+        typer.echo(f"report: {paths['report']}")
+
+
+def register(bench: typer.Typer) -> None:
+    """Add ``places`` to the ``bench`` command group."""
+    bench.command("places")(places)
