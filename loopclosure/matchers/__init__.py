@@ -1,8 +1,9 @@
 """The eight shape matchers of the place-recognition paper behind one interface.
 
 `get_matcher(name)` builds one by its CLI name; `MATCHER_NAMES` lists them in the
-paper's order.  Modules are imported lazily so a user of one matcher does not pay
-for the others.
+paper's order, followed by ``cascade`` (`loopclosure.cascade`: prefilter, verifiers
+and score fusion behind the same interface).  Modules are imported lazily so a user
+of one matcher does not pay for the others.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ _REGISTRY: dict[str, tuple[str, str]] = {
     "mrm": ("loopclosure.matchers.mrm", "MRMMatcher"),
     "tangent": ("loopclosure.matchers.tangent_space", "TangentSpaceMatcher"),
     "flirt": ("loopclosure.matchers.flirt", "FlirtMatcher"),
+    "cascade": ("loopclosure.cascade", "CascadeMatcher"),
 }
 
 MATCHER_NAMES: tuple[str, ...] = tuple(_REGISTRY)

@@ -70,10 +70,10 @@ Departures from the paper
   polygon's range function around its centroid (rotation invariance about a point
   that does not move with the robot's displacement) on B uniform bins, which also
   handles scans with irregular or missing beams.
-- Database comparison uses float32 and ||q||^2 + ||x||^2 - 2 q.x (one BLAS
-  matrix-vector product); entries whose squared distance is within 1e-4 of the
-  norms (near-duplicates, where float32 cancellation matters) are recomputed exactly
-  in float64, so identical shapes give exactly 0.
+- Database comparison (`loopclosure.matchers.vector_search`) uses float32 and
+  ||q||^2 + ||x||^2 - 2 q.x (one BLAS matrix-vector product); entries whose squared
+  distance is within 1e-4 of the norms (near-duplicates, where float32 cancellation
+  matters) are recomputed exactly in float64, so identical shapes give exactly 0.
 """
 
 from __future__ import annotations
@@ -88,12 +88,12 @@ import scipy.fft
 from numpy.typing import NDArray
 
 from loopclosure.matchers.base import Matcher
+from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
 
 _TWO_PI = 2.0 * np.pi
-_RECOMPUTE_REL = 1e-4
 
 
 @dataclass(slots=True, frozen=True)
@@ -138,20 +138,9 @@ class FFTDescriptor:
     centre: Array
 
 
-@dataclass(slots=True, frozen=True)
-class FFTStack:
-    """Many FFT descriptors packed for `FFTMatcher.distances`.
-
-    Attributes:
-        matrix: ``(M, K)`` float32 amplitudes, C-contiguous.
-        sqnorms: ``(M,)`` float32 squared norms of the rows.
-    """
-
-    matrix: NDArray[np.float32]
-    sqnorms: NDArray[np.float32]
-
-    def __len__(self) -> int:
-        return len(self.matrix)
+FFTStack = VectorStack
+"""Many FFT descriptors packed for `FFTMatcher.distances`: ``matrix`` ``(M, K)`` float32
+amplitudes and ``sqnorms`` ``(M,)`` their squared norms (`vector_search.VectorStack`)."""
 
 
 def _centroid(closed: Array) -> Array:
@@ -281,25 +270,11 @@ class FFTMatcher(Matcher):
 
     def stack(self, descriptors: Sequence[FFTDescriptor]) -> FFTStack:
         """``(M, K)`` float32 matrix of amplitudes and its row norms."""
-        k = self.config.n_harmonics
-        if len(descriptors) == 0:
-            return FFTStack(np.zeros((0, k), np.float32), np.zeros(0, np.float32))
-        m = np.ascontiguousarray(np.stack([d.amplitudes for d in descriptors]), np.float32)
-        return FFTStack(m, np.einsum("ij,ij->i", m, m))
+        return stack_vectors([d.amplitudes for d in descriptors], self.config.n_harmonics)
 
     def distances(self, query: FFTDescriptor, stacked: FFTStack) -> Array:
         """``(M,)`` Euclidean distances of the query amplitudes to every stacked row."""
-        q = query.amplitudes
-        qq = np.float32(q @ q)
-        d2 = stacked.matrix @ (-2.0 * q).astype(np.float32)
-        d2 += stacked.sqnorms
-        d2 += qq
-        near = np.flatnonzero(d2 <= _RECOMPUTE_REL * (stacked.sqnorms + qq))
-        if len(near):
-            diff = stacked.matrix[near].astype(np.float64) - q.astype(np.float64)
-            d2[near] = np.einsum("ij,ij->i", diff, diff)
-        np.maximum(d2, 0.0, out=d2)
-        return np.sqrt(d2, dtype=np.float64)
+        return stack_distances(query.amplitudes, stacked)
 
     def distance(self, a: FFTDescriptor, b: FFTDescriptor) -> float:
         """Euclidean distance of two descriptors (same arithmetic as `distances`)."""

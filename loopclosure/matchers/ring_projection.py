@@ -84,12 +84,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from loopclosure.matchers.base import Matcher
+from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
 
 _TWO_PI = 2.0 * np.pi
-_RECOMPUTE_REL = 1e-4
 
 
 @dataclass(slots=True, frozen=True)
@@ -119,20 +119,9 @@ class RingConfig:
             raise ValueError(f"max_radius must be a positive length [m], got {self.max_radius}")
 
 
-@dataclass(slots=True, frozen=True)
-class RingStack:
-    """Ring profiles packed for `RingProjectionMatcher.distances`.
-
-    Attributes:
-        matrix: ``(M, R)`` float32 profiles.
-        sqnorms: ``(M,)`` float32 squared row norms.
-    """
-
-    matrix: NDArray[np.float32]
-    sqnorms: NDArray[np.float32]
-
-    def __len__(self) -> int:
-        return len(self.matrix)
+RingStack = VectorStack
+"""Ring profiles packed for `RingProjectionMatcher.distances`: ``matrix`` ``(M, R)``
+float32 profiles and ``sqnorms`` ``(M,)`` their squared norms (`vector_search.VectorStack`)."""
 
 
 def ring_profile(vertices: Array, centre: Array, radii_step: float, n_rings: int) -> Array:
@@ -231,11 +220,7 @@ class RingProjectionMatcher(Matcher):
 
     def stack(self, descriptors: Sequence[NDArray[np.float32]]) -> RingStack:
         """``(M, R)`` float32 matrix of profiles and its row norms."""
-        if len(descriptors) == 0:
-            r = self.config.n_rings
-            return RingStack(np.zeros((0, r), np.float32), np.zeros(0, np.float32))
-        m = np.ascontiguousarray(np.stack(descriptors), np.float32)
-        return RingStack(m, np.einsum("ij,ij->i", m, m))
+        return stack_vectors(descriptors, self.config.n_rings)
 
     def distances(self, query: NDArray[np.float32], stacked: RingStack) -> Array:
         """``(M,)`` Euclidean (or L1) distances of the query profile to every stacked profile."""
@@ -244,16 +229,7 @@ class RingProjectionMatcher(Matcher):
             diff = stacked.matrix.astype(np.float64)
             diff -= q
             return np.abs(diff, out=diff).sum(axis=1)
-        qq = np.float32(q @ q)
-        d2 = stacked.matrix @ (-2.0 * q).astype(np.float32)
-        d2 += stacked.sqnorms
-        d2 += qq
-        near = np.flatnonzero(d2 <= _RECOMPUTE_REL * (stacked.sqnorms + qq))
-        if len(near):
-            diff = stacked.matrix[near].astype(np.float64) - q.astype(np.float64)
-            d2[near] = np.einsum("ij,ij->i", diff, diff)
-        np.maximum(d2, 0.0, out=d2)
-        return np.sqrt(d2, dtype=np.float64)
+        return stack_distances(q, stacked)
 
     def distance(self, a: NDArray[np.float32], b: NDArray[np.float32]) -> float:
         """Distance of two profiles (same arithmetic as `distances`)."""
