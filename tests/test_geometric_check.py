@@ -1,0 +1,89 @@
+"""Geometric verification of loop candidates on hand-made geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data import se2
+from loopclosure.geometric_check import GeometricCheckConfig, verify
+from loopclosure.registration import RegistrationTarget
+
+
+def _walls(segments: list[tuple[tuple[float, float], tuple[float, float]]], step=0.02):
+    pts = []
+    for (x0, y0), (x1, y1) in segments:
+        n = max(2, int(np.hypot(x1 - x0, y1 - y0) / step))
+        t = np.linspace(0, 1, n)
+        pts.append(np.column_stack([x0 + t * (x1 - x0), y0 + t * (y1 - y0)]))
+    return np.vstack(pts)
+
+
+# An L-shaped room with a pillar: no symmetry, corners in every direction.
+ROOM = _walls([((0, 0), (6, 0)), ((6, 0), (6, 3)), ((6, 3), (3, 3)), ((3, 3), (3, 5)),
+               ((3, 5), (0, 5)), ((0, 5), (0, 0)), ((1.5, 1.5), (2.0, 1.5)),
+               ((2.0, 1.5), (2.0, 2.0)), ((2.0, 2.0), (1.5, 2.0)), ((1.5, 2.0), (1.5, 1.5))])
+
+
+def _seen_from(world_points: np.ndarray, pose: np.ndarray, rng=None, noise=0.0) -> np.ndarray:
+    pts = se2.transform_points(se2.inverse(pose), world_points)
+    if rng is not None:
+        pts = pts + rng.normal(0, noise, pts.shape)
+    return pts
+
+
+def test_accepts_a_true_revisit_and_recovers_the_relative_pose() -> None:
+    rng = np.random.default_rng(0)
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    target = RegistrationTarget(_seen_from(ROOM, a, rng, 0.005))
+    truth = se2.between(a, b)
+    prior = se2.compose(truth, np.array([0.15, -0.1, 0.05]))  # a drifted estimate
+    result = verify(_seen_from(ROOM, b, rng, 0.005), target, prior=prior,
+                    prior_covariance=np.diag([0.1, 0.1, 0.02]) ** 2 * 4)
+    assert result.accepted, result.reason
+    np.testing.assert_allclose(result.relative[:2], truth[:2], atol=0.01)
+    assert abs(se2.wrap_angle(result.relative[2] - truth[2])) < np.radians(0.5)
+    # The covariance never drops below the configured floor.
+    floor = GeometricCheckConfig().covariance_floor
+    assert result.covariance[0, 0] >= floor[0] ** 2 - 1e-15
+
+
+def test_headings_let_it_find_a_large_rotation_without_prior() -> None:
+    a, b = np.array([1.0, 1.0, 0.0]), np.array([1.2, 1.1, np.radians(170)])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    truth = se2.between(a, b)
+    result = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.05],
+                    translation=truth[:2] + 0.1)
+    assert result.accepted, result.reason
+    np.testing.assert_allclose(result.relative[:2], truth[:2], atol=0.01)
+
+
+def test_rejects_a_different_place() -> None:
+    other = _walls([((0, 0), (4, 0)), ((4, 0), (4, 4)), ((4, 4), (0, 4)), ((0, 4), (0, 0)),
+                    ((2.5, 1.0), (3.0, 2.5))])
+    target = RegistrationTarget(_seen_from(ROOM, np.array([1.0, 1.0, 0.0])))
+    result = verify(_seen_from(other, np.array([1.0, 1.0, 0.0])), target, prior=np.zeros(3))
+    assert not result.accepted
+
+
+def test_rejects_a_corridor_as_degenerate() -> None:
+    corridor = _walls([((-10, 0), (10, 0)), ((-10, 2), (10, 2))])
+    a, b = np.array([0.0, 1.0, 0.0]), np.array([0.5, 1.0, 0.0])
+    target = RegistrationTarget(_seen_from(corridor, a))
+    prior = se2.between(a, b) + np.array([0.3, 0, 0])
+    result = verify(_seen_from(corridor, b), target, prior=prior)
+    assert not result.accepted
+    assert "degenerate" in result.reason
+
+
+@pytest.mark.parametrize("offset", [np.array([2.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.8])])
+def test_prior_gate_rejects_a_match_far_from_the_prediction(offset: np.ndarray) -> None:
+    a, b = np.array([1.0, 1.0, 0.0]), np.array([1.5, 1.0, 0.2])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    truth = se2.between(a, b)
+    # A prior that claims (with a tight covariance) a different relative pose.
+    cfg = GeometricCheckConfig(offsets=0.0)
+    result = verify(_seen_from(ROOM, b), target, prior=se2.compose(truth, offset),
+                    prior_covariance=np.diag([0.05, 0.05, 0.01]) ** 2, headings=[truth[2]],
+                    config=cfg)
+    assert not result.accepted

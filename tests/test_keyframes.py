@@ -1,0 +1,90 @@
+"""Keyframe selection and per-scan poses blended between keyframes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from data import se2
+from data.types import Scan
+from slam.keyframes import KeyframeConfig, KeyframeSelector, scan_poses_from_keyframes
+from slam.odometry import OdometryEstimate
+
+ANGLES = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+
+
+def _scan(stamp: float, index: int, valid: bool = True) -> Scan:
+    ranges = np.full(90, 3.0 if valid else 0.0)
+    return Scan(stamp, ranges, ANGLES, 10.0, 0.0, None, index)
+
+
+def _estimate(stamp: float, index: int, pose: np.ndarray, prev: np.ndarray) -> OdometryEstimate:
+    return OdometryEstimate(
+        stamp, index, pose, se2.between(prev, pose), np.eye(3) * 1e-4, 1.0, 0.0, "ok"
+    )
+
+
+def _drive(poses: np.ndarray, config: KeyframeConfig, valid=None) -> KeyframeSelector:
+    sel = KeyframeSelector(config)
+    prev = poses[0]
+    for i, p in enumerate(poses):
+        ok = True if valid is None else valid[i]
+        sel.push(_scan(float(i), i, ok), _estimate(float(i), i, p, prev))
+        prev = p
+    return sel
+
+
+def test_keyframes_by_distance_rotation_and_time() -> None:
+    # 0.1 m steps along x: a keyframe every 3 steps (>= 0.29 m), the first scan always.
+    poses = np.column_stack([0.1 * np.arange(10), np.zeros(10), np.zeros(10)])
+    sel = _drive(poses, KeyframeConfig(distance=0.29, rotation_deg=90, max_interval=0))
+    assert [k.scan_index for k in sel.keyframes] == [0, 3, 6, 9]
+    np.testing.assert_allclose(sel.keyframes[1].delta, [0.3, 0.0, 0.0], atol=1e-12)
+    # Three increments of 0.1 m, each with covariance 1e-4 I: x and theta add up; the
+    # heading errors of the first two also swing y by their lever arms (0.2 m, 0.1 m).
+    expected = np.array([[3e-4, 0, 0], [0, 3e-4 + 1e-4 * (0.2**2 + 0.1**2), 1e-4 * 0.3],
+                         [0, 1e-4 * 0.3, 3e-4]])
+    np.testing.assert_allclose(sel.keyframes[1].covariance, expected, atol=1e-12)
+    turning = np.column_stack([np.zeros(5), np.zeros(5), np.radians(10.0) * np.arange(5)])
+    sel = _drive(turning, KeyframeConfig(distance=1.0, rotation_deg=15, max_interval=0))
+    assert [k.scan_index for k in sel.keyframes] == [0, 2, 4]
+    still = np.zeros((25, 3))
+    sel = _drive(still, KeyframeConfig(distance=1.0, rotation_deg=90, max_interval=10.0))
+    assert [k.scan_index for k in sel.keyframes] == [0, 10, 20]
+
+
+def test_scans_without_enough_beams_never_become_keyframes() -> None:
+    poses = np.column_stack([0.5 * np.arange(4), np.zeros(4), np.zeros(4)])
+    sel = _drive(poses, KeyframeConfig(distance=0.3), valid=[False, True, False, True])
+    assert [k.scan_index for k in sel.keyframes] == [1, 3]
+    out = scan_poses_from_keyframes(sel, {0: np.array([0.5, 0, 0]), 1: np.array([1.5, 0, 0])})
+    np.testing.assert_allclose(out[:, 0], [0.0, 0.5, 1.0, 1.5], atol=1e-12)
+
+
+def test_scan_poses_spread_a_correction_between_keyframes() -> None:
+    poses = np.column_stack([0.1 * np.arange(7), np.zeros(7), np.zeros(7)])
+    sel = _drive(poses, KeyframeConfig(distance=0.29, max_interval=0))
+    # Optimisation moves keyframe 1 (at x = 0.3) up by 0.3 m and keyframe 2 by 0.6 m.
+    opt = {0: np.array([0.0, 0.0, 0.0]), 1: np.array([0.3, 0.3, 0.0]), 2: np.array([0.6, 0.6, 0])}
+    out = scan_poses_from_keyframes(sel, opt)
+    # Scan 1 is a third of the way from keyframe 0 to 1: its y is a third of the shift.
+    np.testing.assert_allclose(out[1], [0.1, 0.1, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out[3], [0.3, 0.3, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out[5], [0.5, 0.5, 0.0], atol=1e-12)
+    # After the last keyframe, scans follow it rigidly.
+    np.testing.assert_allclose(out[6], [0.6, 0.6, 0.0], atol=1e-12)
+
+
+def test_unchanged_keyframes_give_the_odometry_back() -> None:
+    rng = np.random.default_rng(0)
+    steps = np.column_stack([rng.uniform(0, 0.2, 40), rng.normal(0, 0.02, 40),
+                             rng.normal(0, 0.1, 40)])
+    poses = [np.zeros(3)]
+    for s in steps:
+        poses.append(se2.compose(poses[-1], s))
+    poses = np.array(poses)
+    sel = _drive(poses, KeyframeConfig(distance=0.3, rotation_deg=15))
+    opt = {k.id: k.odom_pose for k in sel.keyframes}
+    out = scan_poses_from_keyframes(sel, opt)
+    np.testing.assert_allclose(out[:, :2], poses[:, :2], atol=1e-9)
+    assert np.abs(se2.wrap_angle(out[:, 2] - poses[:, 2])).max() == pytest.approx(0, abs=1e-9)
