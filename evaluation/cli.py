@@ -43,7 +43,7 @@ def eval_relations(
         Path, typer.Option("--relations", help="Relations file (t1 t2 x y z roll pitch yaw).")
     ],
     tolerance: Annotated[
-        float, typer.Option("--tolerance", help="Stamp match tolerance [s].")
+        float, typer.Option("--tolerance", help="Stamp match tolerance, seconds.")
     ] = 1e-3,
     json: JsonOption = False,
     out: OutOption = None,
@@ -96,7 +96,7 @@ def eval_ate(
     trajectory: Annotated[Path, typer.Option("--trajectory", help="Estimated trajectory (TUM).")],
     reference: Annotated[Path, typer.Option("--reference", help="Reference trajectory (TUM).")],
     max_diff: Annotated[
-        float, typer.Option("--max-diff", help="Stamp association tolerance [s].")
+        float, typer.Option("--max-diff", help="Stamp association tolerance, seconds.")
     ] = 0.01,
     delta: Annotated[float, typer.Option("--delta", help="RPE step.")] = 1.0,
     delta_unit: Annotated[
@@ -220,9 +220,10 @@ def eval_robustness(
 
 def register(app: typer.Typer) -> None:
     """Add the `eval` and `bench` command groups to `app`."""
-    from evaluation import cli_places, cli_stripes
+    from evaluation import cli_places, cli_slam, cli_stripes
 
     cli_places.register(bench_app)
     cli_stripes.register(bench_app)
+    cli_slam.register(bench_app)
     app.add_typer(eval_app, name="eval")
     app.add_typer(bench_app, name="bench")

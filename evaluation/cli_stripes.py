@@ -75,7 +75,7 @@ def stripes(
         str | None, typer.Option("--classes", help="daily-sim: comma-separated classes.")
     ] = None,
     step: Annotated[
-        float, typer.Option("--step", help="Laser advance between frames [m].")
+        float, typer.Option("--step", help="Laser advance between frames, metres.")
     ] = 0.0008,
     baselines: Annotated[
         str,

@@ -16,8 +16,10 @@
      ``local_radius + local_sigmas * sigma`` of the query (sigma: the largest
      standard deviation of the query's position from `covariance`), nearest first,
      at most `local_max`, each from the predicted relative pose;
-   - **global** (appearance, every `global_every` keyframes, or whenever the pose
-     uncertainty exceeds `global_sigma`): the place database's cascade (prefilter
+   - **global** (appearance; every `global_every` keyframes unless a loop was
+     accepted within the last `global_every` keyframes (the pose is then anchored to
+     the map and the local search covers it), and at every keyframe while the pose
+     uncertainty exceeds `global_sigma` when that is set): the place database's cascade (prefilter
      over every older keyframe, verifier on the top K, fused score) — candidates
      with a fused score of at least `min_score`, the best `global_verify` of them —
      each from the FFT heading hypotheses and a centroid-aligned translation, with no
@@ -65,8 +67,11 @@ class LoopClosureConfig:
         local_radius: base search radius of the pose-gated search [m].
         local_sigmas: radius grows by this many position standard deviations.
         local_max: candidates verified per query by the local search.
-        global_every: run the appearance search every this many keyframes (0: never).
-        global_sigma: ... and always when the position sigma exceeds this [m].
+        global_every: run the appearance search every this many keyframes without an
+            accepted loop (0: never).
+        global_sigma: ... and at every keyframe while the position sigma exceeds this
+            [m] (0: never by uncertainty; with the pipeline's since-last-loop
+            uncertainty this would fire all through every exploration phase).
         min_score: fused place-recognition score a global candidate needs, in [0, 1].
         global_verify: global candidates verified geometrically per query.
         max_loops: accepted loops per query at most.
@@ -85,8 +90,8 @@ class LoopClosureConfig:
     local_radius: float = 1.5
     local_sigmas: float = 3.0
     local_max: int = 3
-    global_every: int = 5
-    global_sigma: float = 1.0
+    global_every: int = 10
+    global_sigma: float = 0.0
     min_score: float = 0.5
     global_verify: int = 2
     max_loops: int = 2
@@ -140,6 +145,7 @@ class LoopClosureDetector:
         self._described: list[bool] = []
         self._targets: OrderedDict[int, RegistrationTarget] = OrderedDict()
         self._since_global = 0
+        self._since_loop = 0
         self._query: tuple[int, dict] | None = None  # descriptors of the newest keyframe
 
     # -- keyframes -------------------------------------------------------------------
@@ -226,24 +232,29 @@ class LoopClosureDetector:
         accepted = 0
         query_points = self._submap_points(key)
         tried: set[int] = set()
+        self._since_global += 1
+        self._since_loop += 1
         for cand in self._local(key, poses, eligible, sigma):
             lc = self._check_local(key, cand, poses, cov, sigma, query_points)
             out.append(lc)
             tried.add(cand)
             accepted += lc.accepted
             if accepted >= cfg.max_loops:
-                return out
-        self._since_global += 1
-        run_global = cfg.global_every > 0 and (
-            self._since_global >= cfg.global_every or sigma > cfg.global_sigma
-        )
-        if run_global:
+                break
+        if accepted:
+            self._since_loop = 0
+            return out
+        due = min(self._since_global, self._since_loop) >= cfg.global_every
+        uncertain = 0.0 < cfg.global_sigma < sigma
+        if cfg.global_every > 0 and (due or uncertain):
             self._since_global = 0
             for lc in self._global(key, eligible, tried, query_points):
                 out.append(lc)
                 accepted += lc.accepted
                 if accepted >= cfg.max_loops:
                     break
+            if accepted:
+                self._since_loop = 0
         return out
 
     def _local(

@@ -26,12 +26,15 @@ class SubmapConfig:
     """Local maps around keyframes (place description and loop verification).
 
     Attributes:
-        neighbours: keyframes on each side of a keyframe that form its submap.
+        neighbours: keyframes on each side of a keyframe that form its submap (None:
+            10 after a scan-matching front end, whose poses are locally accurate; 2
+            after wheel odometry, whose drift blurs a submap a few metres long
+            beyond what the geometric check accepts).
         voxel: voxel size of submap points [m].
         max_range: submap points farther than this from the keyframe are dropped [m].
     """
 
-    neighbours: int = 10
+    neighbours: int | None = None
     voxel: float = 0.05
     max_range: float = 20.0
 
@@ -72,6 +75,10 @@ class PipelineConfig:
         loops: the loop-closure plugin (place database, geometric check, search).
         backend: pose graph and optimisation.
         map: occupancy grid written at the end.
+        uncertainty: what gates the loop search: ``since-loop`` (odometry covariance
+            accumulated since the last accepted loop closure; cheap) or ``marginal``
+            (iSAM2's marginal covariance of the newest keyframe; grows with the
+            distance from the first pose and costs a marginal per keyframe).
     """
 
     odometry: str = "icp2d"
@@ -83,6 +90,13 @@ class PipelineConfig:
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     map: MapConfig = field(default_factory=MapConfig)
+    uncertainty: str = "since-loop"
+
+    def submap_neighbours(self) -> int:
+        """Keyframes on each side of a keyframe in its submap (`SubmapConfig.neighbours`)."""
+        if self.submap.neighbours is not None:
+            return self.submap.neighbours
+        return 2 if self.odometry == "wheel" else 10
 
     def front_end_config(self) -> Icp2dConfig | KissConfig | WheelConfig:
         """The parameters of the selected front end."""

@@ -108,6 +108,10 @@ class Mapper:
             from slam.pose_graph import RobustKernel
 
             self.smoother.kernel = RobustKernel(cfg.backend.kernel, cfg.backend.kernel_scale)
+        if cfg.uncertainty not in ("since-loop", "marginal"):
+            raise UserError(
+                f"unknown uncertainty {cfg.uncertainty!r}; choose since-loop or marginal"
+            )
         self.detector = LoopClosureDetector(cfg.loops, submap=self.submap)
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
@@ -115,6 +119,9 @@ class Mapper:
         self.timings = {"odometry": 0.0, "keyframes": 0.0, "loop_detection": 0.0,
                         "optimisation": 0.0, "final_optimisation": 0.0}
         self._estimate = np.zeros((0, 3))
+        # Covariance of the newest keyframe's pose relative to the last loop closure,
+        # in the map frame (see `_propagate_drift`).
+        self._drift = np.zeros((3, 3))
         self._submaps: dict[int, tuple[int, Array]] = {}
         self._floor = np.diag(
             np.array([cfg.backend.odometry_floor[0], cfg.backend.odometry_floor[1],
@@ -164,13 +171,16 @@ class Mapper:
         if kf.id > 0:
             cov = kf.covariance + self._floor
             self.smoother.add_odometry(kf.id - 1, kf.id, kf.delta, np.linalg.inv(cov))
+            self._drift = _propagate_drift(self._drift, self._estimate[kf.id - 1], kf.delta, cov)
         self.timings["keyframes"] += time.perf_counter() - start
         start = time.perf_counter()
         self.detector.add_keyframe(kf.id, kf.stamp, kf.scan, self.submap(kf.id))
         self.timings["loop_detection"] += time.perf_counter() - start
         self._update()
         start = time.perf_counter()
-        covariance = self._marginal(kf.id)
+        covariance = (
+            self._marginal(kf.id) if self.config.uncertainty == "marginal" else self._drift
+        )
         candidates = self.detector.detect(kf.id, self._estimate, covariance)
         self.timings["loop_detection"] += time.perf_counter() - start
         added = False
@@ -180,6 +190,8 @@ class Mapper:
                 event.factor = self.smoother.add_loop(
                     c.match, c.query, c.relative, np.linalg.inv(c.covariance)
                 )
+                if not added:  # the pose is now known relative to an older one
+                    self._drift = _rotate_covariance(c.covariance, self._estimate[c.match, 2])
                 added = True
             self.loops.append(event)
         if added:
@@ -206,7 +218,7 @@ class Mapper:
     def submap(self, key: int) -> Array:
         """Local map of keyframe `key` in its sensor frame (module docstring), cached."""
         kfs = self.keyframes.keyframes
-        n = self.config.submap.neighbours
+        n = self.config.submap_neighbours()
         hi = min(key + n, len(kfs) - 1)
         cached = self._submaps.get(key)
         if cached is not None and cached[0] == hi:
@@ -263,6 +275,29 @@ class Mapper:
             interrupted=interrupted,
             odometry_status=dict(self.status),
         )
+
+
+def _rotate_covariance(cov: Array, theta: float) -> Array:
+    """A ``(x, y, theta)`` covariance given in a frame at heading `theta`, in the map frame."""
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot @ cov @ rot.T
+
+
+def _propagate_drift(drift: Array, pose: Array, delta: Array, cov: Array) -> Array:
+    """First-order covariance of ``pose (+) delta`` in the map frame.
+
+    `drift` is the covariance of `pose` (map frame, x y theta), `cov` that of `delta`
+    (body frame of `pose`).  This is the uncertainty a search gate needs: how far the
+    pose may have drifted since the last loop closure, without the cost of iSAM2
+    marginals (which also measure drift from the *first* pose, and so grow without
+    bound on a long run even where the map is locally consistent).
+    """
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    dx, dy = delta[0], delta[1]
+    jac_pose = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy],
+                         [0.0, 0.0, 1.0]])
+    return jac_pose @ drift @ jac_pose.T + _rotate_covariance(cov, pose[2])
 
 
 def _planar_scan(cloud: PointCloud) -> Scan:

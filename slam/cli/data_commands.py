@@ -71,7 +71,7 @@ def simulate(
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     world: Annotated[str, typer.Option("--world", help="box or surface.")] = "box",
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
-    fov: Annotated[float, typer.Option("--fov", help="Laser field of view [deg].")] = 360.0,
+    fov: Annotated[float, typer.Option("--fov", help="Laser field of view, degrees.")] = 360.0,
     json: JsonOption = False,
 ) -> None:
     """Simulate a robot run with loops: a CARMEN log plus groundtruth.tum and world.json."""

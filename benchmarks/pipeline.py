@@ -1,0 +1,109 @@
+"""Benchmark: the SLAM pipeline's speed and accuracy under configuration variants, in one run.
+
+Run from the repository root::
+
+    python benchmarks/pipeline.py [--data DIR] [--limit N] \
+        [--variant NAME:key=value,key=value ...]
+
+Every variant maps the same first `--limit` scans of the Intel log
+(``carmen/intel.clf.bz2``; all of it with ``--limit 0``) with `slam.pipeline.Mapper`
+and the defaults of `slam.config.PipelineConfig` changed by its ``key=value``
+overrides (the syntax of ``loopclosure run --set``).  The scans are read once,
+before any timing.  For each variant the script prints wall-clock seconds per stage
+(odometry, keyframes, loop detection, iSAM2 updates, final GNC), loop counts, and
+the relations metric (Kümmerle et al. 2009) of the per-scan trajectory against
+``carmen/intel.relations`` (relations whose both stamps were mapped), and then the
+ratio of each variant's times to the first variant's.
+
+Without ``--variant`` it compares the defaults with the gate of the previous
+release (iSAM2 marginals, an appearance search every 5 keyframes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from data.carmen import CarmenLog
+from data.relations import read_relations
+from data.types import Trajectory
+from evaluation.relations_metric import relations_metric
+from slam.config import PipelineConfig
+from slam.config_io import apply_overrides
+from slam.pipeline import Mapper
+
+DEFAULT_VARIANTS = (
+    "marginal-gate:uncertainty=marginal,loops.global_every=5",
+    "defaults:",
+)
+
+
+def run_variant(scans: list, overrides: list[str], relations: list) -> dict[str, float]:
+    """Map `scans` with the overridden defaults; timings, loop counts and relations error."""
+    cfg = apply_overrides(PipelineConfig(), overrides)
+    start = time.perf_counter()
+    cpu = time.process_time()
+    result = Mapper(cfg).run(scans)
+    wall = time.perf_counter() - start
+    row: dict[str, float] = {"wall_s": wall, "cpu_s": time.process_time() - cpu}
+    row.update({f"{k}_s": v for k, v in result.timings.items()})
+    row["keyframes"] = len(result.keyframes)
+    row["candidates"] = len(result.loops)
+    row["global"] = sum(e.candidate.source == "global" for e in result.loops)
+    row["accepted"] = len(result.accepted_loops)
+    row["gnc_rejected"] = sum(e.rejected_by_gnc for e in result.loops)
+    stamps = result.scan_stamps
+    order = np.argsort(stamps, kind="stable")
+    traj = Trajectory.from_xytheta(stamps[order], result.scan_poses[order])
+    lo, hi = stamps.min(), stamps.max()
+    inside = [r for r in relations if lo <= min(r.t1, r.t2) and max(r.t1, r.t2) <= hi]
+    if inside:
+        metric = relations_metric(traj, inside)
+        row["rel_trans_m"] = metric.trans_abs_mean
+        row["rel_rot_deg"] = metric.rot_abs_mean_deg
+        row["relations"] = metric.relations_used
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2]
+                        / "shared" / "data")
+    parser.add_argument("--limit", type=int, default=4000, help="scans (0: the whole log)")
+    parser.add_argument("--variant", action="append", default=None,
+                        help="NAME:key=value,key=value (repeatable)")
+    args = parser.parse_args()
+    log = args.data / "carmen" / "intel.clf.bz2"
+    if not log.exists():
+        sys.exit(f"{log} not found: pass --data with the shared data folder")
+    scans = []
+    for scan in CarmenLog(log):
+        scans.append(scan)
+        if args.limit and len(scans) >= args.limit:
+            break
+    relations = read_relations(args.data / "carmen" / "intel.relations")
+    print(f"Intel, {len(scans)} scans")
+    rows: dict[str, dict[str, float]] = {}
+    for spec in args.variant or DEFAULT_VARIANTS:
+        name, _, sets = spec.partition(":")
+        overrides = [s for s in sets.split(",") if s]
+        rows[name] = run_variant(scans, overrides, relations)
+        r = rows[name]
+        print(f"\n{name} ({', '.join(overrides) or 'defaults'})")
+        print("  " + "  ".join(f"{k} {v:.4g}" for k, v in r.items()))
+    first = next(iter(rows.values()))
+    print("\ntime ratios against the first variant (lower is faster)")
+    keys = [k for k in first if k.endswith("_s") and first[k] > 0]
+    print(f"{'variant':<20}" + "".join(f"{k:>22}" for k in keys))
+    for name, r in rows.items():
+        print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" for k in keys))
+
+
+if __name__ == "__main__":
+    main()
