@@ -18,7 +18,10 @@
   sensor pose), written once before the first scan with transient-local QoS so late
   subscribers receive it.
 
-Every message is recorded at its header stamp.  The bag is built in a hidden
+Every message is recorded at its header stamp, except where the input's stamps go
+backwards (the Intel log's do, 631 times, while its file order is the order of
+motion): a scan and its odometry are then recorded 1 ns after the previous scan, so
+a player replays the bag in input order; header stamps stay exact.  The bag is built in a hidden
 sibling folder and renamed into place only when complete: an existing output is
 never overwritten, and a failed or interrupted conversion leaves nothing behind.
 """
@@ -95,6 +98,7 @@ class _BagWriter:
                            QosDurability.TRANSIENT_LOCAL, zero, zero, QosLiveliness.AUTOMATIC,
                            zero, False)  # what ROS2 tf_static publishers offer
         self.count = 0
+        self.last_ns = -1  # record time of the previous scan [ns]
 
     # -- message builders
     def _header(self, sec: int, nsec: int, frame: str) -> Any:
@@ -139,7 +143,8 @@ class _BagWriter:
             raise DataError(out, f"scan {index} has stamp {stamp!r}, outside the ROS time "
                                  "range [0, 2^31) s")
         sec, nsec = split_stamp(stamp)
-        ns = sec * 10**9 + nsec
+        ns = max(sec * 10**9 + nsec, self.last_ns + 1)  # record time: input order
+        self.last_ns = ns
         ranges = np.asarray(scan.ranges, dtype=np.float64).reshape(-1)
         angles = np.asarray(scan.angles, dtype=np.float64).reshape(-1)
         if len(ranges) == 0 or len(ranges) != len(angles) or not np.all(np.isfinite(angles)):

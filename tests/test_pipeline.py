@@ -157,3 +157,31 @@ def test_drift_propagation_matches_a_hand_computed_case() -> None:
                            np.array([1.0, 0.0, 0.0]), step)
     assert out[0, 0] == pytest.approx(0.002)
     assert out[1, 1] == pytest.approx(0.001)
+
+
+@pytest.mark.slow
+def test_real_intel_slice_through_a_ros2_bag_reads_back_identical_and_maps(tmp_path) -> None:
+    from data.carmen import CarmenLog, write_log
+    from data.sources import open_source
+
+    scans = []
+    for scan in CarmenLog(shared_file("carmen/intel.clf.bz2")):
+        scans.append(scan)
+        if len(scans) == 600:
+            break
+    log = tmp_path / "intel-slice.log"
+    write_log(log, scans)
+    bag = tmp_path / "intel-slice-bag"
+    assert main(["convert", str(log), str(bag), "--format", "mcap"]) == 0
+    back = list(open_source(bag))
+    assert len(back) == len(scans)
+    for a, b in zip(scans, back, strict=True):
+        assert b.stamp == pytest.approx(a.stamp, abs=1e-6)
+        np.testing.assert_array_equal(b.ranges, a.ranges.astype(np.float32))
+        np.testing.assert_allclose(b.odom, a.odom, atol=1e-6)
+    out = tmp_path / "out"
+    assert main(["run", str(bag), "--out", str(out), "--no-map"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scans"] == 600 and summary["keyframes"] > 50
+    rows = [r for r in (out / "trajectory.tum").read_text().splitlines() if r[:1].isdigit()]
+    assert len(rows) == 600
