@@ -26,7 +26,9 @@
      pose prior: this is what closes loops after large drift or a kidnap.
 
    Keyframes newer than `exclude_recent` keyframes or `exclude_recent_s` seconds are
-   never candidates (they are odometry's business).  A loop closure is a revisit: a
+   never candidates (they are odometry's business); the time rule is dropped for the
+   rest of the run once two keyframes share a stamp (logs whose stamps are all 0, as
+   some corrected Radish logs, would otherwise never close a loop).  A loop closure is a revisit: a
    verified relative pose longer than `max_distance` is rejected.  At most
    `max_loops` are accepted per query, local and global alike.
 
@@ -141,6 +143,7 @@ class LoopClosureDetector:
         self.database = PlaceDatabase(self.config.database)
         self._submap = submap
         self._stamps: list[float] = []
+        self._clock = True  # stamps tell time (see `eligible`)
         self._centroids: list[Array] = []
         self._described: list[bool] = []
         self._targets: OrderedDict[int, RegistrationTarget] = OrderedDict()
@@ -161,6 +164,8 @@ class LoopClosureDetector:
         if key != len(self._stamps):
             raise ValueError(f"keyframes must be added in order: expected {len(self._stamps)}")
         cfg = self.config
+        if self._stamps and float(stamp) == self._stamps[-1]:
+            self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._stamps.append(float(stamp))
         try:
             if np.degrees(scan.fov) >= cfg.full_circle_deg or place_points is None:
@@ -206,9 +211,9 @@ class LoopClosureDetector:
         cfg = self.config
         stamps = np.asarray(self._stamps[:key])
         ids = np.arange(key)
-        ok = (ids < key - cfg.exclude_recent) & (
-            np.abs(stamps - self._stamps[key]) >= cfg.exclude_recent_s
-        )
+        ok = ids < key - cfg.exclude_recent
+        if self._clock:
+            ok &= np.abs(stamps - self._stamps[key]) >= cfg.exclude_recent_s
         return ok & np.asarray(self._described[:key], dtype=bool)
 
     def detect(

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from data.errors import UserError
+from data.errors import UserError, warn
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -416,6 +416,12 @@ class IncrementalSmoother(Smoother):
         relinearize_threshold: iSAM2 relinearisation threshold (tangent units).
         extra_iterations: further ``update()`` calls without new factors after a loop
             closure, so iSAM2's single Gauss-Newton step converges on large corrections.
+
+    Factorisation: Cholesky, the fast one.  When it gives up on an ill-conditioned
+    system (gtsam's "indeterminate linear system": e.g. an odometry step whose
+    covariance says the front end is lost, 10 m and pi rad, next to millimetre-level
+    steps), iSAM2 is rebuilt once from the whole graph with QR factorisation, about
+    1.4x slower but stable, for the rest of the run (one warning).
     """
 
     def __init__(
@@ -426,10 +432,9 @@ class IncrementalSmoother(Smoother):
         extra_iterations: int = 2,
     ) -> None:
         super().__init__(dim, kernel)
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(relinearize_threshold)
-        params.relinearizeSkip = 1
-        self._isam = gtsam.ISAM2(params)
+        self._relinearize_threshold = relinearize_threshold
+        self._factorization = "CHOLESKY"
+        self._isam = self._new_isam()
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._anchored = False
@@ -447,10 +452,35 @@ class IncrementalSmoother(Smoother):
         self._new_factors.add(factor)
         self._loop_pending |= is_loop
 
+    def _new_isam(self) -> gtsam.ISAM2:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self._relinearize_threshold)
+        params.relinearizeSkip = 1
+        params.setFactorization(self._factorization)
+        return gtsam.ISAM2(params)
+
+    def _restart_with_qr(self) -> None:
+        """Rebuild iSAM2 with QR from every factor and the latest estimate (class doc)."""
+        warn("iSAM2: Cholesky found the pose graph ill-conditioned; continuing with QR "
+             "factorisation (slower)")
+        self._factorization = "QR"
+        self._isam = self._new_isam()
+        factors, _ = self.graph.factor_graph(self.kernel)
+        current = self.estimate()
+        values = gtsam.Values()
+        for key, guess in self.graph.initial.items():
+            values.insert(key, to_gtsam_pose(current.get(key, guess), self.dim))
+        self._isam.update(factors, values)
+
     def update(self) -> None:
         if self._new_factors.size() == 0 and self._new_values.size() == 0:
             return
-        self._isam.update(self._new_factors, self._new_values)
+        try:
+            self._isam.update(self._new_factors, self._new_values)
+        except RuntimeError:
+            if self._factorization == "QR":
+                raise
+            self._restart_with_qr()
         if self._loop_pending:
             for _ in range(self._extra_iterations):
                 self._isam.update()
