@@ -131,13 +131,23 @@ class Polygon:
 
     def resample(self, n: int) -> Array:
         """``(n, 2)`` points equally spaced by arc length along the boundary, from vertex 0."""
+        # Hot path of every matcher's `describe`: the same arithmetic as
+        # ``interp(linspace(0, L, n, endpoint=False), cumsum(edge_lengths), closed)`` with
+        # fewer numpy calls (results are bit-identical).
         v = self.vertices
-        closed = np.vstack([v, v[:1]])
-        cum = np.concatenate([[0.0], np.cumsum(self.edge_lengths())])
-        s = np.linspace(0.0, cum[-1], n, endpoint=False)
-        x = np.interp(s, cum, closed[:, 0])
-        y = np.interp(s, cum, closed[:, 1])
-        return np.column_stack([x, y])
+        closed = np.concatenate((v, v[:1]))
+        xs = np.ascontiguousarray(closed.T)  # (2, N + 1): x row, y row
+        d = xs[:, 1:] - xs[:, :-1]
+        d *= d
+        cum = np.empty(len(v) + 1)
+        cum[0] = 0.0
+        np.cumsum(np.sqrt(d[0] + d[1]), out=cum[1:])
+        s = np.arange(n, dtype=float)
+        s *= cum[-1] / n
+        out = np.empty((n, 2))
+        out[:, 0] = np.interp(s, cum, xs[0])
+        out[:, 1] = np.interp(s, cum, xs[1])
+        return out
 
     def contains(self, points: Array) -> NDArray[np.bool_]:
         """Even-odd point-in-polygon test of ``(M, 2)`` points (vectorised over points, edges)."""

@@ -241,3 +241,20 @@ def test_square_far_from_origin_keeps_its_four_vertices() -> None:
     p = Polygon(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]) + 1e6)
     assert len(p) == 4
     assert p.area == pytest.approx(1.0)
+
+
+@given(st.integers(0, 10_000), st.integers(3, 300))
+@settings(max_examples=40, deadline=None)
+def test_resample_equals_interp_of_linspace_exactly(seed: int, n: int) -> None:
+    # The fast resample must be bit-identical to the plain formulation every matcher
+    # relied on: interp(linspace(0, L, n, endpoint=False), cumulative arc length, closed).
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, 40))
+    r = rng.uniform(0.5, 20.0, 40)
+    p = Polygon(np.column_stack([r * np.cos(ang), r * np.sin(ang)]))
+    v = p.vertices
+    closed = np.vstack([v, v[:1]])
+    cum = np.concatenate([[0.0], np.cumsum(p.edge_lengths())])
+    s = np.linspace(0.0, cum[-1], n, endpoint=False)
+    ref = np.column_stack([np.interp(s, cum, closed[:, 0]), np.interp(s, cum, closed[:, 1])])
+    np.testing.assert_array_equal(p.resample(n), ref)

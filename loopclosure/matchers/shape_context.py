@@ -182,6 +182,11 @@ class ShapeContextMatcher(Matcher):
             cfg = replace(cfg, **overrides)  # type: ignore[arg-type]
         self.config = cfg
         self._edges = np.geomspace(cfg.r_inner, cfg.r_outer, cfg.n_radial)
+        n = cfg.n_points
+        self._diag = np.eye(n, dtype=bool)
+        self._off = ~self._diag
+        # Flat histogram index of row i starts at i * bins (constant grid of `describe`).
+        self._row_offsets = np.repeat(np.arange(n, dtype=np.intp) * self.n_bins, n).reshape(n, n)
         v, w = _harmonic_factors(cfg.n_points - 1)
         self._basis = v.astype(np.float32)  # (n, rank): count -> factor features
         self._weighted = (v * w).astype(np.float32)
@@ -202,21 +207,31 @@ class ShapeContextMatcher(Matcher):
         z = p[:, 0] + 1j * p[:, 1]
         dz = z[None, :] - z[:, None]  # [i, j] = p_j - p_i
         r = np.abs(dz)
-        off = ~np.eye(n, dtype=bool)
-        r0 = float(r[off].mean()) if cfg.scale_invariant else cfg.mean_distance
-        r = r / max(r0, np.finfo(float).tiny)
-        tangent = np.roll(z, -cfg.tangent_span) - np.roll(z, cfg.tangent_span)
+        r0 = float(r[self._off].mean()) if cfg.scale_invariant else cfg.mean_distance
+        r /= max(r0, np.finfo(float).tiny)
+        s = cfg.tangent_span
+        zz = np.concatenate((z[-s:], z, z[:s]))  # zz[i + s] = z[i], cyclic
+        tangent = zz[2 * s :] - zz[: -2 * s]  # p_{i+s} - p_{i-s}
         unit = np.exp(-1j * np.angle(tangent))  # rotates the tangent at p_i onto +x
-        theta = np.angle(dz * unit[:, None]) % (2 * np.pi)  # angle from the tangent
+        dz *= unit[:, None]
+        theta = np.angle(dz)  # angle from the tangent, in [-pi, pi]
+        # theta % 2 pi, exactly: angles in [-pi, 0) get 2 pi added (as np.remainder does).
+        np.add(theta, 2 * np.pi, out=theta, where=theta < 0)
+        theta *= cfg.n_angular / (2 * np.pi)
+        ab = theta.astype(np.intp)
+        np.minimum(ab, cfg.n_angular - 1, out=ab)
         # Radial bins [0, e_0), [e_0, e_1), ..., [e_{R-2}, e_{R-1}); beyond e_{R-1} left out.
-        rb = np.searchsorted(self._edges, r, side="right")
-        inside = off & (r < self._edges[-1])
-        ab = np.minimum((theta * (cfg.n_angular / (2 * np.pi))).astype(int), cfg.n_angular - 1)
-        bins = rb * cfg.n_angular + ab
-        rows = np.broadcast_to(np.arange(n)[:, None], (n, n))
-        flat = (rows * self.n_bins + bins)[inside]
-        counts = np.bincount(flat, minlength=n * self.n_bins).reshape(n, self.n_bins)
-        return counts.astype(np.uint16)
+        # The bin index (searchsorted, side="right") is the number of edges <= r; points
+        # beyond the outer edge go to a discarded overflow slot.
+        edges = self._edges
+        flat = self._row_offsets + ab
+        for e in edges[:-1]:
+            flat += (r >= e) * cfg.n_angular
+        outside = r >= edges[-1]
+        outside |= self._diag
+        flat[outside] = n * self.n_bins
+        counts = np.bincount(flat.ravel(), minlength=n * self.n_bins + 1)[:-1]
+        return counts.reshape(n, self.n_bins).astype(np.uint16)
 
     def _features(self, counts: NDArray[np.uint16], table: NDArray[np.float32]) -> NDArray:
         """``(..., n, bins * rank)`` factor features of count histograms."""
