@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from data.errors import UserError
 from data.sim import place_dataset
 from evaluation.retrieval import best_fscore, bullseye, roc_auc
 from loopclosure.cascade import (
@@ -20,11 +21,13 @@ from loopclosure.cascade import (
     candidate_pairs,
 )
 from loopclosure.fusion import LogisticFusion
+from loopclosure.matchers import get_matcher
 from loopclosure.place_database import DEFAULT_LOGISTIC, PlaceDatabaseConfig
 from loopclosure.polygon import Polygon, polygon_from_scan
 from tests.conftest import shared_file
 
-QUICK = dict(prefilter=("fft", "ring"), verifiers=("integral",), top_k=20)
+# verify_all_up_to=0: the top K only, even in these tiny databases.
+QUICK = dict(prefilter=("fft", "ring"), verifiers=("integral",), top_k=20, verify_all_up_to=0)
 
 
 @pytest.fixture(scope="module")
@@ -145,3 +148,67 @@ def test_cascade_on_mpeg7_beats_its_prefilter() -> None:
                           polys)
     assert np.isfinite(d).all()
     assert bullseye(d, labels) >= bullseye(prefilter, labels)
+
+
+def test_k_is_the_whole_database_when_small_and_config_is_checked() -> None:
+    cfg = CascadeConfig(top_k=10, verify_all_up_to=50)
+    assert [cfg.k_for(m) for m in (0, 7, 50, 51, 1000)] == [0, 7, 50, 10, 10]
+    assert CascadeConfig(top_k=10, verify_all_up_to=0).k_for(5) == 5  # K <= M
+    assert CascadeConfig().anchored and not CascadeConfig(scale_invariant=True).anchored
+    assert not CascadeConfig(fusion="logistic").anchored
+    assert not CascadeConfig(anchor=None).anchored
+    assert not CascadeConfig(verifiers=("mrm",), fusion="rank").anchored  # anchor not verified
+    assert not CascadeConfig(verifiers=("mrm",), anchor="mrm", fusion="rank").anchored
+    with pytest.raises(UserError, match="verify_all_up_to"):
+        CascadeConfig(verify_all_up_to=-1)
+
+
+def test_anchored_cascade_orders_by_the_anchor_with_calibrated_values(box) -> None:
+    polys, labels = box
+    m = CascadeMatcher(verifiers=("integral", "flirt"), fusion="auto", anchor="flirt",
+                       logistic=LogisticFusion(("fft", "ring", "integral", "flirt"),
+                                               (-1.0, -1.0, -1.0, -1.0), 0.0))
+    descs = [m.describe(p) for p in polys]
+    stacked = m.stack(descs)
+    flirt = get_matcher("flirt")
+    fd = [flirt.describe(p) for p in polys]
+    raw = flirt.distances(fd[3], flirt.stack(fd))
+    d = m.distances(descs[3], stacked)
+    # M = 48 <= verify_all_up_to: every entry is verified, D = 1 - exp(-d_flirt / scale).
+    scale = stacked.database.scales["flirt"]
+    np.testing.assert_allclose(d, 1.0 - np.exp(-raw / scale), atol=1e-11)
+    assert (d < 1.0).all() and (d >= 0).all()
+    # The anchor's Bull's eye is reached exactly (the fusion cannot fall below it).
+    full = np.array([m.distances(q, stacked) for q in descs])
+    flirt_all = flirt.pairwise(fd)
+    assert bullseye(full, labels) == bullseye(flirt_all, labels)
+    assert roc_auc(full, labels) == pytest.approx(roc_auc(flirt_all, labels), abs=1e-3)
+
+
+def test_anchored_top_k_keeps_unverified_entries_after_verified_ones(box) -> None:
+    polys, _ = box
+    m = CascadeMatcher(verifiers=("integral", "flirt"), top_k=10, verify_all_up_to=0,
+                       logistic=LogisticFusion(("fft", "ring", "integral", "flirt"),
+                                               (-1.0, -1.0, -1.0, -1.0), 0.0))
+    descs = [m.describe(p) for p in polys]
+    stacked = m.stack(descs)
+    d = m.distances(descs[0], stacked)
+    verified = d < 1.0
+    assert verified.sum() == 10
+    assert d[verified].max() < 1.0 < d[~verified].min()
+
+
+@pytest.mark.slow
+def test_cascade_reaches_flirt_on_real_robot_places() -> None:
+    """Real scans (Intel lab, 5 places): the default cascade is not below FLIRT."""
+    from evaluation.place_datasets import load_dataset
+
+    log = shared_file("carmen-corrected/intel-corrected.log.gz")
+    polys, labels, _ = load_dataset(f"robot:{log}", seed=0)
+    keep = np.isin(labels, np.unique(labels)[:5])
+    idx = np.flatnonzero(keep)[::2]  # about 30 scans: a few seconds of MRM / shape context
+    polys, labels = [polys[i] for i in idx], labels[idx]
+    cascade = all_pairs(CascadeMatcher(scale_pairs=16), polys)
+    flirt = get_matcher("flirt")
+    f = flirt.pairwise([flirt.describe(p) for p in polys])
+    assert bullseye(cascade, labels) >= bullseye(f, labels)
