@@ -91,7 +91,7 @@ class LoopClosureConfig:
     max_distance: float = 2.0
     local_radius: float = 1.5
     local_sigmas: float = 3.0
-    local_max: int = 3
+    local_max: int = 2
     global_every: int = 10
     global_sigma: float = 0.0
     min_score: float = 0.5
