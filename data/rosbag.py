@@ -178,6 +178,9 @@ class _Ros2Backend(_Backend):
         from rosbags.typesys import Stores, get_typestore
 
         self.path, self.shown = path, shown
+        for db in [path] if path.is_file() else sorted(path.glob("*.db3")):
+            if db.suffix == ".db3":
+                _check_sqlite_complete(db, shown)
         self._default = get_typestore(Stores.ROS2_HUMBLE)
         # Opening costs rosbags a metadata parse and type compilation, so the reader
         # opened here is kept for the first pass over the messages.
@@ -217,6 +220,32 @@ class _Ros2Backend(_Backend):
 
     def decode(self, raw: bytes | memoryview, msgtype: str) -> Any:
         return self.typestore.deserialize_cdr(raw, msgtype)
+
+
+def _check_sqlite_complete(db: Path, shown: Path) -> None:
+    """Refuse a truncated sqlite3 file: sqlite reads its missing pages as zeros, which
+    would pass silently altered messages on.
+
+    The file header (sqlite.org/fileformat.html) holds the page size (offset 16, 2
+    bytes big-endian, 1 meaning 65536) and the database size in pages (offset 28, 4
+    bytes, valid when the change counter at 24 equals the version-valid-for number
+    at 92); the file must be at least that long.
+    """
+    try:
+        size = db.stat().st_size
+        with db.open("rb") as f:
+            header = f.read(100)
+    except OSError as exc:
+        raise DataError(shown, f"cannot open {db.name}: {exc.strerror or exc}") from None
+    if len(header) < 100:
+        raise DataError(shown, f"{db.name}: truncated sqlite3 database ({size} bytes)")
+    page = int.from_bytes(header[16:18], "big")
+    page = 65536 if page == 1 else page
+    pages = int.from_bytes(header[28:32], "big")
+    if header[24:28] == header[92:96] and size < page * pages:
+        raise DataError(
+            shown, f"{db.name}: truncated sqlite3 database ({size} of {page * pages} bytes)"
+        )
 
 
 def _close_quietly(reader: Any) -> None:
