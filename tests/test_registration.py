@@ -131,7 +131,10 @@ def test_room_recovered_exactly_and_figures() -> None:
 
 @settings(max_examples=25, deadline=None)
 @given(
-    x=st.floats(-0.3, 0.3), y=st.floats(-0.3, 0.3), th=st.floats(-0.25, 0.25),
+    # Offsets inside this room's basin: at exactly 0.3 m along x the pillar's edges
+    # (0.4 m apart) pair up wrongly and ICP stops at 0.16 m with fitness 0.55, a
+    # local minimum the geometric check's fitness test would reject.
+    x=st.floats(-0.25, 0.25), y=st.floats(-0.25, 0.25), th=st.floats(-0.25, 0.25),
     frame=st.tuples(st.floats(-5, 5), st.floats(-5, 5), st.floats(-np.pi, np.pi)),
 )
 def test_recovery_is_invariant_to_the_frame(
