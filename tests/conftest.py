@@ -10,6 +10,14 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run, so CI on a fresh checkout
+# (no hypothesis example database) is reproducible; HYPOTHESIS_PROFILE=explore
+# draws new examples to hunt for failures.
+settings.register_profile("ci", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 _DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data"
 SHARED_DATA = Path(os.environ.get("LOOPCLOSURE_SHARED_DATA", _DEFAULT))
