@@ -1,0 +1,476 @@
+"""Time-ordered admission of loop closures under the truncated-least-squares loss.
+
+The truncated-least-squares (TLS) objective of a pose graph with loop constraints
+``k`` is (gtsam error units, ``e = 0.5 r^T I r``)::
+
+    J(x, w) = sum_odometry e(x) + sum_k [ w_k e_k(x) + (1 - w_k) c ],   w_k in {0, 1}
+
+with ``c = 0.5 chi2_dof^-1(p)`` (`tls_threshold`): a loop is worth keeping when it
+costs less than ``c``.  Graduated non-convexity (Yang, Antonante, Tzoumas &
+Carlone, "Graduated Non-Convexity for Robust Spatial Perception", RA-L 2020)
+approaches this optimum through a convex surrogate; at small ``mu`` that
+surrogate is close to an L1 loss, in which every loop pulls with the same force
+whatever its residual.  With half the loops false (plausible measurements between
+random poses) those pulls fold a graph such as M3500 before the surrogate turns
+robust: measured, GNC fails on M3500 at 50% false loops from every start tried,
+including the outlier-free optimum itself (ATE 28 m).
+
+This module reaches the TLS optimum the way a mapper meets its loops: in time
+order.  Poses are added in blocks of `block` ids (odometry composed onto the
+solved prefix); every loop whose later end falls in the block is then decided
+against the solved prefix, which earlier decisions already made consistent:
+
+1. *Residual admission*: a loop whose error at the current solution is at most
+   ``c`` is an inlier (the GNC-TLS weight rule in its limit ``mu -> inf``); the
+   prefix is re-solved and the rule re-applied until nothing changes.
+2. *Innovation admission* for the rest.  Adding loop ``k`` (whitened Jacobian ``B``,
+   whitened residual ``b`` at the solution ``x*`` of the accepted graph, whose
+   information is ``H = A^T A``) raises the least-squares cost, to first order, by
+   the innovation (Schur complement) form::
+
+       delta_k = 0.5 b^T (I + B H^-1 B^T)^-1 b
+
+   the individual-compatibility test of Neira & Tardós (IEEE T-RA 2001), here the
+   exact linearised TLS criterion: admitting ``k`` lowers ``J`` iff ``delta_k < c``.
+   Candidates are admitted greedily, smallest ``delta`` first; after each
+   admission the others' ``delta`` are updated exactly by the rank-``dof``
+   (Sherman-Morrison-Woodbury) update of ``H^-1``, so two loops that contradict
+   each other are never both admitted on the strength of the same slack.
+   ``H`` is factorised once per round (sparse LU of the whitened normal equations).
+3. Decisions are final for the incremental pass; `refine_tls` then re-decides every
+   loop on the whole graph by the residual rule until the weights are stable.
+
+The innovation gate is where the noise model matters.  ``delta`` measures a loop
+against the uncertainty the graph's own covariances claim; when they are far
+more pessimistic than the data (M3500: the a-posteriori variance factor of the
+outlier-free solution is 0.024), a stretch of trajectory tied to the map only
+by a long odometry chain can be bent onto any false loop at a cost below ``c``.
+`admit_incrementally` therefore has two gates: ``"stated"`` (``c``) and
+``"calibrated"``, ``c`` times the a-posteriori variance factor of the accepted
+prefix, ``s0^2 = 2 J_accepted / (m - n)`` (the estimated variance of unit weight
+of least-squares adjustment, e.g. Förstner & Wrobel, *Photogrammetric Computer
+Vision*, 2016), capped at 1 and used once the prefix has a redundancy ``m - n`` of
+at least `MIN_REDUNDANCY_LOOPS` loops' worth.  Heavy-tailed graphs (Intel: a few
+true loops with innovations near ``c`` although ``s0^2 = 0.2``) need the stated
+gate; `incremental_tls` runs both and keeps the solution with the lower TLS
+objective `tls_cost` (under the stated covariances), a plain two-start local
+search.  Limitation: judged by the stated covariances, bending a loose tail onto
+a lone false loop can be cheaper than rejecting it; when the stated run makes
+no other mistake it then wins the comparison and keeps that loop (see
+``test_calibrated_gate_refuses_a_false_loop_on_a_loose_tail``).
+
+Related: pairwise consistency maximisation (PCM, Mangelson, Dominic, Eustice &
+Vasudevan, ICRA 2018) tests pairs of loops through odometry chains; with
+covariances as pessimistic as M3500's those chains are uninformative, which is
+why the test here is against the solved prefix, as incremental robust back ends
+do (riSAM, McGann, Rogers & Kaess, ICRA 2023; IPC, arXiv 2405.08503), here in
+batch form.
+
+Cost: a factorisation and ``dof`` sparse solves per candidate and round, and a
+prefix solve per admission round.  Measured (2 shared cores): Intel (1228 poses)
+10-20 s, M3500 (3500 poses) 50-280 s from 10% to 80% false loops.
+
+Requirements: the smallest pose id is an anchor and every later pose is reached by
+odometry from an earlier one (the odometry spine of a mapper or a g2o file);
+`incremental_tls` raises `UserError` otherwise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.linalg import splu
+from scipy.stats import chi2
+
+from data import se2
+from data.errors import UserError
+from slam.pose_graph import PoseGraph, RobustKernel, poses_from_values, to_gtsam_pose
+
+Array = NDArray[np.float64]
+GATES = ("stated", "calibrated")
+MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
+
+
+def tls_threshold(dim: int, probability: float = 0.99) -> float:
+    """TLS cost ``c`` of a rejected loop: 0.5 * chi2 quantile of its dof (3 in 2D, 6 in 3D)."""
+    return 0.5 * float(chi2.ppf(probability, 3 if dim == 2 else 6))
+
+
+def _dof(dim: int) -> int:
+    return 3 if dim == 2 else 6
+
+
+class _Solver:
+    """Least squares for a sequence of related graphs: LM with sparse Cholesky, and
+    Powell's dogleg with QR once LM has failed on one of them (graphs such as Intel
+    with information entries of 1e12: see `slam.optimize._solve`); every later call
+    then goes straight to dogleg instead of first spending LM's iterations."""
+
+    def __init__(self, max_iterations: int = 100) -> None:
+        self.max_iterations = max_iterations
+        self.dogleg = False
+
+    def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
+        from slam.optimize import _solve  # local: slam.optimize imports this module lazily
+
+        if not self.dogleg:
+            result, _, used = _solve(factors, values, self.max_iterations)
+            self.dogleg = used == "dogleg-qr"
+            return result
+        params = gtsam.DoglegParams()
+        params.setMaxIterations(self.max_iterations)
+        params.setRelativeErrorTol(1e-6)
+        params.setLinearSolverType("MULTIFRONTAL_QR")
+        return gtsam.DoglegOptimizer(factors, values, params).optimize()
+
+
+# -- the innovation test ---------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _Gains:
+    """Linearised candidates: whitened residuals ``b`` (m, d), Jacobian blocks ``Bi``, ``Bj``
+    (m, d, d) at variable rows ``ri``, ``rj`` (m, d), ``Y = H^-1 B^T`` (m, n, d) and
+    ``M = B H^-1 B^T`` (m, d, d)."""
+
+    b: Array
+    Bi: Array
+    Bj: Array
+    ri: NDArray[np.int64]
+    rj: NDArray[np.int64]
+    Y: Array
+    M: Array
+
+    def cross(self, y: Array) -> Array:
+        """``B_q y`` for every candidate ``q``, for one ``y`` of shape (n, d): (m, d, d)."""
+        return np.einsum("mab,mbc->mac", self.Bi, y[self.ri]) + np.einsum(
+            "mab,mbc->mac", self.Bj, y[self.rj]
+        )
+
+
+class InnovationTest:
+    """First-order cost of adding factors to a solved graph.
+
+    `factors` (the accepted graph, whose optimum is `values`) is linearised at
+    `values`; its whitened Jacobian ``A`` gives the information ``H = A^T A`` over the
+    poses `keys` (tangent coordinates, gtsam order), factorised once with a sparse LU.
+    """
+
+    def __init__(
+        self,
+        factors: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        keys: Sequence[int],
+        dof: int,
+    ) -> None:
+        triplets = factors.linearize(values).sparseJacobian_()
+        rows = triplets[0].astype(np.int64) - 1  # 1-based, columns in sorted-key order
+        cols = triplets[1].astype(np.int64) - 1
+        n = len(keys) * dof
+        keep = cols < n  # the last column is the right-hand side
+        jac = coo_matrix(
+            (triplets[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n)
+        ).tocsc()
+        self._lu = splu((jac.T @ jac).tocsc(), permc_spec="MMD_AT_PLUS_A")
+        self._values = values
+        self._column = {k: n_ * dof for n_, k in enumerate(sorted(keys))}
+        self.dof = dof
+        self.n = n
+
+    def covariance(self, rhs: Array) -> Array:
+        """``H^-1 rhs`` for ``rhs`` of shape (n, d)."""
+        return self._lu.solve(rhs)
+
+    def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
+        """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""
+        d, m = self.dof, len(candidates)
+        b = np.empty((m, d))
+        bi, bj = np.empty((m, d, d)), np.empty((m, d, d))
+        ci, cj = np.empty(m, np.int64), np.empty(m, np.int64)
+        y = np.empty((m, self.n, d))
+        for q, factor in enumerate(candidates):
+            linear = factor.linearize(self._values)
+            a, b[q] = linear.jacobian()
+            k1, k2 = list(linear.keys())
+            bi[q], bj[q] = a[:, :d], a[:, d:]
+            ci[q], cj[q] = self._column[k1], self._column[k2]
+            rhs = np.zeros((self.n, d))
+            rhs[ci[q] : ci[q] + d] += bi[q].T
+            rhs[cj[q] : cj[q] + d] += bj[q].T
+            y[q] = self.covariance(rhs)
+        span = np.arange(d)
+        gains = _Gains(b, bi, bj, ci[:, None] + span, cj[:, None] + span, y, np.empty((m, d, d)))
+        for q in range(m):
+            gains.M[q] = gains.cross(y[q])[q]
+        return gains
+
+
+def admission_costs(gains: _Gains) -> Array:
+    """``delta_q = 0.5 b^T (I + M)^-1 b`` of every candidate (gtsam error units)."""
+    s = np.eye(gains.b.shape[1]) + gains.M
+    return 0.5 * np.einsum("ma,ma->m", gains.b, np.linalg.solve(s, gains.b[..., None])[..., 0])
+
+
+def greedy_admission(gains: _Gains, gate: float) -> tuple[list[int], Array]:
+    """Admit candidates smallest ``delta`` first while ``delta < gate``.
+
+    After each admission the remaining candidates' ``b``, ``M`` and ``Y`` are updated
+    for the admitted factor (rank-``dof`` Woodbury update of ``H^-1`` and the
+    Gauss-Newton step it causes), so every later ``delta`` is conditioned on the
+    admissions before it.  Returns the admitted indices in order and the final
+    ``delta`` of every candidate.  `gains` is consumed.
+    """
+    m = len(gains.b)
+    open_ = np.ones(m, dtype=bool)
+    admitted: list[int] = []
+    eye = np.eye(gains.b.shape[1])
+    while open_.any():
+        delta = admission_costs(gains)
+        delta[~open_] = np.inf
+        k = int(np.argmin(delta))
+        if not delta[k] < gate:
+            break
+        admitted.append(k)
+        open_[k] = False
+        gain = np.linalg.inv(eye + gains.M[k])
+        c = gains.cross(gains.Y[k])  # B_q H^-1 B_k^T
+        gains.b = gains.b - np.einsum("mab,bc,c->ma", c, gain, gains.b[k])
+        gains.M = gains.M - np.einsum("mab,bc,mdc->mad", c, gain, c)
+        gains.Y = gains.Y - np.einsum("nb,bc,mdc->mnd", gains.Y[k], gain, c)
+    return admitted, admission_costs(gains)
+
+
+# -- the incremental pass --------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class Admission:
+    """Result of a TLS solve by time-ordered admission.
+
+    Attributes:
+        values: solution (gtsam Values of every pose).
+        weights: 1 for loops kept, 0 for loops rejected (order of `graph.loops`).
+        tls_cost: `tls_cost` of the solution under the graph's stated covariances.
+        blocks: prefix solves of the incremental pass.
+        gate: ``"stated"`` or ``"calibrated"`` (see the module docstring).
+    """
+
+    values: gtsam.Values
+    weights: Array
+    tls_cost: float
+    blocks: int
+    gate: str
+
+
+def tls_cost(graph: PoseGraph, values: gtsam.Values, probability: float = 0.99) -> float:
+    """TLS objective at `values`: odometry and prior error plus ``min(e_k, c)`` per loop."""
+    base, loop_index = graph.factor_graph(RobustKernel("none"))
+    c = tls_threshold(graph.dim, probability)
+    n_fixed = base.size() - len(loop_index)
+    fixed = sum(base.at(k).error(values) for k in range(n_fixed))
+    loops = sum(min(base.at(k).error(values), c) for k in loop_index)
+    return float(fixed + loops)
+
+
+def _check_spine(graph: PoseGraph) -> list[int]:
+    """Pose ids in order, after checking the anchor and the odometry spine."""
+    keys = graph.keys
+    if keys[0] not in graph.anchor_keys():
+        raise UserError(f"time-ordered admission needs the first pose ({keys[0]}) anchored")
+    reached = {max(o.i, o.j) for o in graph.odometry if o.i != o.j}
+    missing = len(set(keys[1:]) - reached)
+    if missing:
+        raise UserError(
+            f"time-ordered admission needs odometry from an earlier pose to every pose; "
+            f"{missing} poses have none"
+        )
+    return keys
+
+
+def _extend(
+    solved: dict[int, Array], given: dict[int, Array], ref: int | None, new: list[int], dim: int
+) -> None:
+    """New poses keep their given pose relative to `ref`, which moved to its solved pose."""
+    if ref is None:
+        solved.update((k, given[k]) for k in new)
+        return
+    if dim == 2:
+        moved = se2.compose(solved[ref], se2.inverse(given[ref]))
+        solved.update(zip(new, se2.compose(moved, np.array([given[k] for k in new])), strict=True))
+    else:
+        moved = solved[ref] @ np.linalg.inv(given[ref])
+        solved.update((k, moved @ given[k]) for k in new)
+
+
+def _with(
+    fixed: gtsam.NonlinearFactorGraph, factors: list, indices: NDArray[np.int64]
+) -> gtsam.NonlinearFactorGraph:
+    """A copy of `fixed` plus ``factors[k]`` for every k in `indices`."""
+    graph = gtsam.NonlinearFactorGraph(fixed)
+    for k in indices:
+        graph.add(factors[k])
+    return graph
+
+
+def _variance_factor(
+    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, poses: int, dof: int
+) -> float | None:
+    """A-posteriori variance of unit weight ``2 J / (m - n)``; None without enough redundancy."""
+    redundancy = dof * factors.size() - dof * poses
+    if redundancy < dof * MIN_REDUNDANCY_LOOPS:
+        return None
+    return 2.0 * factors.error(values) / redundancy
+
+
+def admit_incrementally(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    *,
+    probability: float = 0.99,
+    block: int = 50,
+    gate: str = "stated",
+    max_rounds: int = 50,
+    solver: _Solver | None = None,
+) -> Admission:
+    """One time-ordered TLS pass (module docstring, steps 1-3) from initial `values`.
+
+    Args:
+        graph: the pose graph (2D or 3D); its loops are the candidates.
+        values: initial guess of every pose (e.g. the odometry chain); only the poses'
+            relative placement within each new block is used.
+        probability: chi-square probability of the TLS threshold ``c``.
+        block: poses added per step (ids in increasing order).
+        gate: ``"stated"`` or ``"calibrated"`` innovation gate.
+        max_rounds: admission rounds per block (each ends with a prefix solve).
+        solver: least-squares solver (shared by the calls of `incremental_tls`).
+    """
+    solve = solver or _Solver()
+    if gate not in GATES:
+        raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
+    keys = _check_spine(graph)
+    d, c = _dof(graph.dim), tls_threshold(graph.dim, probability)
+    position = {k: n for n, k in enumerate(keys)}
+    given = poses_from_values(values, graph.dim)
+    unit = [graph.between_factor(loop) for loop in graph.loops]
+    odometry_end = np.array([max(position[o.i], position[o.j]) for o in graph.odometry])
+    loop_end = np.array([max(position[lp.i], position[lp.j]) for lp in graph.loops], dtype=int)
+    anchors = set(graph.anchor_keys())
+    weights = np.zeros(len(graph.loops))
+    fixed = gtsam.NonlinearFactorGraph()
+    solved: dict[int, Array] = {}
+    last, blocks = -1, 0
+    for end in [*range(block - 1, len(keys) - 1, block), len(keys) - 1]:
+        new = keys[last + 1 : end + 1]
+        _extend(solved, given, keys[last] if last >= 0 else None, new, graph.dim)
+        for k in new:
+            if k in anchors:
+                fixed.add(graph.prior_factor(k))
+        for n in np.flatnonzero((odometry_end > last) & (odometry_end <= end)):
+            fixed.add(graph.between_factor(graph.odometry[n]))
+        pending = np.flatnonzero((loop_end > last) & (loop_end <= end))
+        last = end
+        if len(pending) == 0:
+            continue
+        blocks += 1
+        prefix = keys[: end + 1]
+        current = gtsam.Values()
+        for k in prefix:
+            current.insert(k, to_gtsam_pose(solved[k], graph.dim))
+        accepted = np.zeros(len(pending), dtype=bool)
+        for _ in range(max_rounds):
+            errors = np.array([unit[k].error(current) for k in pending])
+            newly = ~accepted & (errors <= c)
+            if newly.any():  # step 1
+                accepted |= newly
+                current = solve(_with(fixed, unit, pending[accepted]), current)
+                continue
+            rest = np.flatnonzero(~accepted)
+            if len(rest) == 0:
+                break
+            factors = _with(
+                fixed, unit, pending[accepted]
+            )  # step 2, at the solution of the accepted graph
+            limit = c
+            if gate == "calibrated":
+                s0 = _variance_factor(factors, current, len(prefix), d)
+                limit = c * min(1.0, s0) if s0 is not None else c
+            try:
+                test = InnovationTest(factors, current, prefix, d)
+            except RuntimeError:  # singular information: no innovation test possible
+                break
+            admitted, _ = greedy_admission(test.gains([unit[pending[q]] for q in rest]), limit)
+            if not admitted:
+                break
+            accepted[rest[admitted]] = True
+            current = solve(_with(fixed, unit, pending[accepted]), current)
+        solved.update(poses_from_values(current, graph.dim))
+        weights[pending] = accepted
+        for q in np.flatnonzero(accepted):
+            fixed.add(unit[pending[q]])
+    result = gtsam.Values()
+    for k in keys:
+        result.insert(k, to_gtsam_pose(solved[k], graph.dim))
+    return Admission(result, weights, tls_cost(graph, result, probability), blocks, gate)
+
+
+def refine_tls(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    weights: Array,
+    *,
+    probability: float = 0.99,
+    max_rounds: int = 30,
+    solver: _Solver | None = None,
+) -> tuple[gtsam.Values, Array]:
+    """Re-decide every loop by the TLS residual rule on the whole graph until stable.
+
+    Solve with the loops of weight 1, set ``w_k = [e_k <= c]``, repeat (iteratively
+    re-weighted least squares of the TLS loss from a start inside its basin).
+    """
+    solve = solver or _Solver()
+    base, loop_index = graph.factor_graph(RobustKernel("none"))
+    c = tls_threshold(graph.dim, probability)
+    n_fixed = base.size() - len(loop_index)
+    w = np.asarray(weights, dtype=float).copy()
+    result = values
+    for _ in range(max_rounds):
+        factors = gtsam.NonlinearFactorGraph()
+        for k in range(n_fixed):
+            factors.add(base.at(k))
+        for k in np.flatnonzero(w > 0.5):
+            factors.add(base.at(loop_index[k]))
+        result = solve(factors, result)
+        new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
+        if np.array_equal(new, w):
+            break
+        w = new
+    return result, w
+
+
+def incremental_tls(
+    graph: PoseGraph, values: gtsam.Values, *, probability: float = 0.99, block: int = 50
+) -> Admission:
+    """TLS solution by time-ordered admission with either gate, then `refine_tls`.
+
+    Both gates are run and the solution with the lower `tls_cost` is returned
+    (module docstring).
+    """
+    best: Admission | None = None
+    solver = _Solver()
+    for gate in GATES:
+        run = admit_incrementally(
+            graph, values, probability=probability, block=block, gate=gate, solver=solver
+        )
+        refined, weights = refine_tls(
+            graph, run.values, run.weights, probability=probability, solver=solver
+        )
+        run = Admission(refined, weights, tls_cost(graph, refined, probability), run.blocks, gate)
+        if best is None or run.tls_cost < best.tls_cost:
+            best = run
+    assert best is not None
+    return best
