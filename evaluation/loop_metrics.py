@@ -66,6 +66,10 @@ class LoopMetrics:
     curve_precision: Array = field(default_factory=lambda: np.zeros(0))
     curve_recall: Array = field(default_factory=lambda: np.zeros(0))
     is_true: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    errors: Array = field(default_factory=lambda: np.zeros((0, 3)))
+    """``(proposals, 3)``: per proposal the reference distance of its two poses [m], and
+    its relative pose's error against the reference: translation [m], rotation [deg]
+    (absolute); NaN rows for unverifiable proposals."""
 
     def to_json(self) -> dict[str, float | int]:
         """The summary figures."""
@@ -127,6 +131,7 @@ def evaluate_loops(
     ib = lookup(reference.stamps, stamps_b, stamp_tolerance)
     verifiable = (ia >= 0) & (ib >= 0)
     is_true = np.zeros(n, dtype=bool)
+    errors = np.full((n, 3), np.nan)
     if verifiable.any():
         ra, rb = ref_xyt[ia[verifiable]], ref_xyt[ib[verifiable]]
         rel_ref = se2.between(ra, rb)
@@ -137,6 +142,11 @@ def evaluate_loops(
             np.abs(np.degrees(err[:, 2])) <= rot_tol_deg
         )
         is_true[verifiable] = close & agree
+        errors[verifiable] = np.column_stack([
+            np.linalg.norm(rb[:, :2] - ra[:, :2], axis=1),
+            np.linalg.norm(err[:, :2], axis=1),
+            np.abs(np.degrees(err[:, 2])),
+        ])
     accepted = np.array([p.accepted for p in proposals], dtype=bool)
     scores = np.array([p.score for p in proposals], dtype=float)
 
@@ -179,4 +189,5 @@ def evaluate_loops(
         curve_precision=np.asarray(curve_p, dtype=float),
         curve_recall=np.asarray(curve_r, dtype=float),
         is_true=is_true,
+        errors=errors,
     )

@@ -34,7 +34,9 @@ Measures
   default tolerances: 2 m, 0.2 m, 2 deg): counts (proposed = every candidate
   verified, accepted = kept after the final GNC, rejected by the check, rejected
   by GNC) and precision / recall against each reference available, for the final
-  loops and for the loops the geometric check accepted (``before_gnc``).  Loops are
+  loops and for the loops the geometric check accepted (``before_gnc``); with an
+  output folder, every candidate's verdict and error against each reference in
+  ``pipeline/loops_vs_reference.csv`` / ``loops_vs_relations.csv`` (`loop_verdicts`).  Loops are
   evaluated in scan-index time: every keyframe is stamped with its scan index and
   the reference pose of a keyframe is looked up at its scan's (output) stamp, so a
   log whose clock runs backwards (Intel) still orders queries correctly.
@@ -537,6 +539,52 @@ def loop_evaluation(result: MappingResult, reference: Trajectory) -> dict[str, A
     return doc
 
 
+LOOP_VERDICT_COLUMNS = (
+    "scan_a", "scan_b", "stage", "accepted", "rejected_by_gnc", "fitness",
+    "reference_distance_m", "error_m", "error_deg", "verdict",
+)
+
+
+def loop_verdicts(result: MappingResult, reference: Trajectory) -> list[dict[str, Any]]:
+    """Every loop candidate of a run judged against a keyframe reference, one row each.
+
+    Columns `LOOP_VERDICT_COLUMNS`: the two keyframes' scan indices (older first), the
+    search stage, whether the check accepted it and GNC then dropped it, the check's
+    fitness, the reference distance of the two poses and the error of the candidate's
+    relative pose against the reference; ``verdict`` is ``true`` / ``false`` (by
+    `evaluate_loops`' rule, for every candidate, accepted or not) or ``unverifiable``.
+    What a user reads to see *which* loops a method let through, and by how much.
+    """
+    kf_index = np.array([k.scan_index for k in result.keyframes], dtype=float)
+    proposals = loop_proposals(result, after_gnc=False)
+    metrics = evaluate_loops(proposals, reference, kf_index)
+    rows = []
+    for e, p, true, err in zip(result.loops, proposals, metrics.is_true, metrics.errors,
+                               strict=True):
+        verifiable = bool(np.isfinite(err[0]))
+        rows.append({
+            "scan_a": int(p.stamp_a), "scan_b": int(p.stamp_b), "stage": e.candidate.source,
+            "accepted": int(e.candidate.accepted), "rejected_by_gnc": int(e.rejected_by_gnc),
+            "fitness": p.score, "reference_distance_m": err[0], "error_m": err[1],
+            "error_deg": err[2],
+            "verdict": ("true" if true else "false") if verifiable else "unverifiable",
+        })
+    return rows
+
+
+def write_loop_verdicts(path: Path, rows: Sequence[dict[str, Any]]) -> Path:
+    """`loop_verdicts` rows as CSV (floats with 6 decimals, NaN as empty)."""
+    import csv
+
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, LOOP_VERDICT_COLUMNS)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (("" if np.isnan(v) else f"{v:.6f}") if isinstance(v, float)
+                                 else v) for k, v in row.items()})
+    return path
+
+
 def loop_counts(result: MappingResult) -> dict[str, Any]:
     """Keyframes and loop-candidate counts of a pipeline run."""
     checked = [e for e in result.loops if e.candidate.accepted]
@@ -884,6 +932,15 @@ def write_outputs(bench: SlamBenchmark, out: Path, *, write_map: bool = True) ->
             write_results(folder, pipeline.result, bench.input.name, wall_s=pipeline.wall_s,
                           write_map=write_map, map_config=bench.config.map)
         paths["pipeline"] = folder
+        kf_index = [k.scan_index for k in pipeline.result.keyframes]
+        if bench.reference is not None:
+            ref = keyframe_reference(bench.reference, bench.eval_stamps, kf_index)
+            paths["loops_vs_reference"] = write_loop_verdicts(
+                folder / "loops_vs_reference.csv", loop_verdicts(pipeline.result, ref))
+        if bench.relations_ref is not None:
+            paths["loops_vs_relations"] = write_loop_verdicts(
+                folder / "loops_vs_relations.csv",
+                loop_verdicts(pipeline.result, bench.relations_ref.trajectory()))
     if bench.reference is not None and bench.reference_name == "logged poses":
         paths["reference_tum"] = out / "reference_logged.tum"
         write_tum(paths["reference_tum"], bench.reference)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 from pathlib import Path
@@ -257,6 +258,26 @@ def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
         assert (tmp_path / name).is_file(), name
     assert "| relations trans [m] |" in paths["report"].read_text()
     assert json.loads((tmp_path / "results.json").read_text())["scans"] == len(bench.input.scans)
+
+
+def test_loop_verdicts_agree_with_the_counts(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
+    """The per-loop CSV says which loops were true, consistently with the JSON counts."""
+    sb.write_outputs(bench, tmp_path, write_map=False)
+    loops = bench.reports[0]["loops"]
+    for name in ("reference", "relations"):
+        with (tmp_path / "pipeline" / f"loops_vs_{name}.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        assert len(rows) == loops["proposed"]
+        kept = [r for r in rows if r["accepted"] == "1" and r["rejected_by_gnc"] == "0"]
+        doc = loops["against"][name]
+        assert sum(r["verdict"] == "true" for r in kept) == doc["true_positives"]
+        assert sum(r["verdict"] == "false" for r in kept) == doc["false_positives"]
+        assert sum(r["verdict"] == "unverifiable" for r in rows) == doc["unverifiable"]
+        for r in rows:
+            if r["verdict"] == "true":
+                assert float(r["error_m"]) <= 0.2 and float(r["error_deg"]) <= 2.0
+                assert float(r["reference_distance_m"]) <= 2.0
+            assert int(r["scan_a"]) < int(r["scan_b"])
 
 
 def test_bad_relations_and_reference_fail_before_any_run(sim: SimulatedRun) -> None:
