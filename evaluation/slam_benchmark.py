@@ -577,7 +577,7 @@ def write_loop_verdicts(path: Path, rows: Sequence[dict[str, Any]]) -> Path:
     import csv
 
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, LOOP_VERDICT_COLUMNS)
+        writer = csv.DictWriter(f, LOOP_VERDICT_COLUMNS, lineterminator="\n")
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (("" if np.isnan(v) else f"{v:.6f}") if isinstance(v, float)

@@ -87,3 +87,33 @@ def test_prior_gate_rejects_a_match_far_from_the_prediction(offset: np.ndarray) 
                     prior_covariance=np.diag([0.05, 0.05, 0.01]) ** 2, headings=[truth[2]],
                     config=cfg)
     assert not result.accepted
+
+
+def test_partial_overlap_needs_the_prior_gate() -> None:
+    """A revisit sharing ~45% of its submap passes only as a pose-gated candidate."""
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    # The query's submap also holds a wing the candidate's never saw.
+    wing = _walls([((6, 0), (14, 0)), ((14, 0), (14, 3)), ((14, 3), (7, 3)), ((8, -2), (12, -2))])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    query = _seen_from(np.vstack([ROOM, wing]), b)
+    truth = se2.between(a, b)
+    gated = verify(query, target, prior=truth, prior_covariance=np.diag([0.1, 0.1, 0.02]) ** 2)
+    cfg = GeometricCheckConfig()
+    assert cfg.min_fitness_gated <= gated.fitness < cfg.min_fitness
+    assert gated.accepted, gated.reason
+    np.testing.assert_allclose(gated.relative[:2], truth[:2], atol=0.01)
+    appearance = verify(query, target, headings=[truth[2]], translation=truth[:2])
+    assert not appearance.accepted
+    assert appearance.reason.startswith("fitness")
+
+
+def test_partial_overlap_must_be_well_constrained() -> None:
+    """The lower gated threshold does not admit a poorly constrained partial overlap."""
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    wing = _walls([((6, 0), (14, 0)), ((14, 0), (14, 3)), ((14, 3), (7, 3)), ((8, -2), (12, -2))])
+    query = _seen_from(np.vstack([ROOM, wing]), b)
+    truth = se2.between(a, b)
+    cfg = GeometricCheckConfig(min_degeneracy_partial=0.6)  # above any real degeneracy
+    result = verify(query, RegistrationTarget(_seen_from(ROOM, a)), prior=truth,
+                    prior_covariance=np.diag([0.1, 0.1, 0.02]) ** 2, config=cfg)
+    assert not result.accepted and result.reason.startswith("partial overlap")
