@@ -18,42 +18,13 @@ input raises `UserError` / `DataError` (one ``error:`` line, exit 2).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from data.errors import UserError
-
-
-@contextmanager
-def _progress() -> Iterator[Callable[[str, int, int], None]]:
-    """Rich progress bars on stderr, one per stage (shown on a terminal only)."""
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    console = Console(stderr=True)
-    bar = Progress(TextColumn("{task.description:<9}"), BarColumn(), MofNCompleteColumn(),
-                   TextColumn("scans"), TimeElapsedColumn(), TimeRemainingColumn(),
-                   console=console, transient=True, disable=not console.is_terminal)
-    tasks: dict[str, int] = {}
-
-    def update(stage: str, done: int, total: int) -> None:
-        if stage not in tasks:
-            tasks[stage] = bar.add_task(stage, total=total)
-        bar.update(tasks[stage], completed=done, total=total)
-
-    with bar:
-        yield update
+from slam.cli.common import stage_progress
 
 
 def slam(
@@ -134,7 +105,7 @@ def slam(
         raise UserError(f"unknown odometry {cfg.odometry!r}; choose {', '.join(FRONT_ENDS)}")
     rels = read_relations(relations) if relations is not None else None
     ref = read_tum(reference) if reference is not None else None
-    with _progress() as update:
+    with stage_progress("scans", label_width=9, remaining=True) as update:
         data = load_input(input, limit=limit, odometry_noise=odometry_noise, topic=topic,
                           odom_topic=odom_topic, strict=strict, progress=update)
         ref_name = str(reference) if reference is not None else None

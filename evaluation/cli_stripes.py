@@ -8,41 +8,13 @@ stderr, results to stdout (``--json``: one JSON document).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from data.errors import UserError
-
-
-@contextmanager
-def _progress_bar() -> Iterator[Callable[[str, int, int], None]]:
-    """A rich progress bar on stderr; yields ``update(stage, done, total)``."""
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-    )
-
-    console = Console(stderr=True)
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn(), console=console, transient=True,
-                   disable=not console.is_terminal)
-    tasks: dict[str, int] = {}
-
-    def update(stage: str, done: int, total: int) -> None:
-        if stage not in tasks:
-            tasks[stage] = bar.add_task(stage, total=total)
-        bar.update(tasks[stage], completed=done, total=total)
-
-    with bar:
-        yield update
+from slam.cli.common import stage_progress
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:
@@ -134,7 +106,7 @@ def stripes(
     else:
         chosen = _names(classes) or DAILY_CLASSES
         objects = daily_objects(seed, per_class, chosen)
-    with _progress_bar() as progress:
+    with stage_progress() as progress:
         result = run_stripes_benchmark(objects, cfg, progress)
     paths = write_stripes_report(result, out) if out is not None else {}
     js = result.to_json()
@@ -180,7 +152,7 @@ def landmarks(
     if out is not None and out.exists() and not out.is_dir():
         raise UserError(f"{out}: output path exists and is not a folder")
     cfg = LandmarkRunConfig(laps=laps)
-    with _progress_bar() as progress:
+    with stage_progress() as progress:
         result = run_landmarks_benchmark(seed, cfg, progress)
     paths = write_landmarks_report(result, out) if out is not None else {}
     js = result.to_json()

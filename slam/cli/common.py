@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -44,3 +46,44 @@ def write_json(path: Path, obj: Any) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(to_json_text(obj) + "\n")
     tmp.replace(path)
+
+
+@contextmanager
+def stage_progress(
+    unit: str | None = None, *, label_width: int = 0, remaining: bool = False
+) -> Iterator[Callable[[str, int, int], None]]:
+    """Rich progress bars on stderr, one per stage, shown on a terminal only.
+
+    Yields ``update(stage, done, total)``: the first call for a stage adds its bar.
+    `unit` is printed after the counts (e.g. ``"scans"``), `label_width` pads the stage
+    names so the bars line up, `remaining` adds an estimated time remaining.
+    """
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    console = Console(stderr=True)
+    label = f"{{task.description:<{label_width}}}" if label_width else "{task.description}"
+    columns: list[ProgressColumn] = [TextColumn(label), BarColumn(), MofNCompleteColumn()]
+    if unit:
+        columns.append(TextColumn(unit))
+    columns.append(TimeElapsedColumn())
+    if remaining:
+        columns.append(TimeRemainingColumn())
+    bar = Progress(*columns, console=console, transient=True, disable=not console.is_terminal)
+    tasks: dict[str, int] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=total)
+        bar.update(tasks[stage], completed=done, total=total)
+
+    with bar:
+        yield update
