@@ -21,7 +21,9 @@ is usable when it has at least `min_normal_neighbors` neighbours and is line-lik
 ``lambda_min <= max_normal_ratio * lambda_max``.  Corners, clutter and isolated
 points stay in the tree but a source point whose nearest neighbour is one of them
 gets no correspondence (so a point near a corner is never pulled onto the other
-wall).  All vectorised over points; no loop.
+wall), unless `point_to_point_clutter` is set and the nearest neighbour is
+clutter (enough neighbours, not line-like): then the correspondence is a
+point-to-point one (below).  Isolated points never match.  All vectorised over points; no loop.
 
 ICP (`register`)
 ----------------
@@ -36,6 +38,12 @@ source point ``p_i`` matched to its nearest target point ``q_j`` (normal ``n_j``
 
 (``Lambda``: optional prior information, zero unless a prior is given; with
 ``(x, y, theta)`` as coordinates the update is additive and exact.)
+
+With `point_to_point_clutter`, a source point whose nearest target point is
+clutter (vegetation, poles, rubble: most of an outdoor scan) is matched to it
+point to point: two residual rows of the same form with the normals ``(1, 0)`` and
+``(0, 1)``, i.e. the two components of ``R p_i + t - q_j``.  Its per-point residual
+(inlier test, fitness, rms) is the distance ``|R p_i + t - q_j|``.
 
 Outlier rejection, both adaptive:
 
@@ -67,7 +75,8 @@ were found; otherwise they are searched again at the final pose):
   It is additive in (x, y, theta) of the target frame; `body_covariance` turns it
   into the right-perturbation (body frame) covariance a ``BetweenFactorPose2`` takes.
 * ``inlier_ratio``: fraction of source points with a correspondence inside the gate
-  and ``|r| <= fitness_tolerance``.
+  and ``|r| <= fitness_tolerance`` (``r``: the point's residual, point to line or,
+  for a point-to-point match, its distance).
 * ``rms``: root mean square point-to-line residual of those inliers [m].
 * ``fitness``: the score used to rank hypotheses, in [0, 1]:
   ``mean_i max(0, 1 - (r_i / fitness_tolerance)^2)`` over all source points, 0 for
@@ -138,6 +147,8 @@ class IcpConfig:
         min_normal_neighbors: fewer neighbours than this: no normal, point dropped.
         max_normal_ratio: ``lambda_min / lambda_max`` above this: not line-like, dropped.
         fitness_tolerance: residual scale of `fitness` and of the inlier test [m].
+        point_to_point_clutter: match source points whose nearest target point is not
+            line-like point to point instead of dropping them (outdoor scans).
     """
 
     max_iterations: int = 30
@@ -154,6 +165,7 @@ class IcpConfig:
     min_normal_neighbors: int = 4
     max_normal_ratio: float = 0.1
     fitness_tolerance: float = 0.05
+    point_to_point_clutter: bool = False
 
     def __post_init__(self) -> None:
         if self.kernel not in KERNEL_CONSTANTS:
@@ -251,11 +263,13 @@ def estimate_normals(
     """Unit normals ``(N, 2)``, a line-like mask ``(N,)`` and ``lambda_min / lambda_max``.
 
     Local PCA over each point's neighbours (module docstring), vectorised over points.
+    The ratio is ``inf`` where a point has fewer than `min_normal_neighbors`
+    neighbours (isolated: neither line nor clutter).
     """
     n = len(points)
     k = min(config.normal_neighbors, n)
     if n < config.min_normal_neighbors:
-        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.ones(n)
+        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.full(n, np.inf)
     dist, idx = tree.query(points, k=k, distance_upper_bound=config.normal_radius)
     dist = dist.reshape(n, k)
     idx = idx.reshape(n, k)
@@ -277,7 +291,9 @@ def estimate_normals(
     normals = np.column_stack([-np.sin(phi), np.cos(phi)])
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(lam_max > 0, np.maximum(lam_min, 0.0) / lam_max, 1.0)
-    line_like = (count >= config.min_normal_neighbors) & (ratio <= config.max_normal_ratio)
+    enough = count >= config.min_normal_neighbors
+    ratio = np.where(enough, ratio, np.inf)
+    line_like = enough & (ratio <= config.max_normal_ratio)
     return normals, line_like, ratio
 
 
@@ -287,12 +303,14 @@ class RegistrationTarget:
     Attributes:
         points: ``(M, 2)`` the points in the target frame [m].
         normals: ``(M, 2)`` their unit normals (meaningless where not `usable`).
-        usable: ``(M,)`` line-like points with a normal (the only ones matched).
+        usable: ``(M,)`` line-like points with a normal (matched point to line).
+        clutter: ``(M,)`` points with enough neighbours that are not line-like
+            (matched point to point with `IcpConfig.point_to_point_clutter`).
         config: the `IcpConfig` the normals were made with (and the default for
             `register`).
     """
 
-    __slots__ = ("config", "normals", "points", "tree", "usable")
+    __slots__ = ("clutter", "config", "normals", "points", "tree", "usable")
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None) -> None:
         self.config = config or IcpConfig()
@@ -300,15 +318,25 @@ class RegistrationTarget:
         self.points = pts
         self.tree = cKDTree(pts) if len(pts) else None
         if self.tree is not None and len(pts) >= self.config.min_normal_neighbors:
-            self.normals, self.usable, _ = estimate_normals(pts, self.tree, self.config)
+            self.normals, self.usable, ratio = estimate_normals(pts, self.tree, self.config)
+            self.clutter = np.isfinite(ratio) & ~self.usable
         else:
             self.normals, self.usable = np.zeros((len(pts), 2)), np.zeros(len(pts), dtype=bool)
-        if not self.usable.any():
+            self.clutter = np.zeros(len(pts), dtype=bool)
+        if not self.matchable.any():
             self.tree = None
 
+    @property
+    def matchable(self) -> NDArray[np.bool_]:
+        """``(M,)`` the points ICP matches: line-like ones, plus clutter with
+        `IcpConfig.point_to_point_clutter`."""
+        if self.config.point_to_point_clutter:
+            return self.usable | self.clutter
+        return self.usable
+
     def __len__(self) -> int:
-        """Number of usable (line-like) target points."""
-        return int(self.usable.sum())
+        """Number of target points ICP can match (`matchable`)."""
+        return int(self.matchable.sum())
 
 
 def _weights(r: Array, scale: float, kernel: str) -> Array:
@@ -327,12 +355,17 @@ def _weights(r: Array, scale: float, kernel: str) -> Array:
 
 @dataclass(slots=True)
 class _Matches:
-    """Correspondences of the source at one pose (indices into the source)."""
+    """Correspondences of the source at one pose: one row per residual.
 
-    sel: NDArray[np.intp]  # (K,) matched source points
+    A point-to-line match is one row; a point-to-point match two (normals ``(1, 0)``
+    and ``(0, 1)``), both with the same source index in `sel`.
+    """
+
+    sel: NDArray[np.intp]  # (K,) source point of each row
     dist: Array  # (K,) point-to-point distances
     q: Array  # (K, 2) target points
-    n: Array  # (K, 2) target normals
+    n: Array  # (K, 2) target normals (or unit axes)
+    points: int  # matched source points (<= K)
 
 
 def _rotated(src: Array, theta: float) -> Array:
@@ -341,13 +374,31 @@ def _rotated(src: Array, theta: float) -> Array:
     return src @ np.array([[c, s], [-s, c]])
 
 
-def _match(target: RegistrationTarget, moved: Array, gate: float) -> _Matches:
+_AXES = np.eye(2)
+
+
+def _match(target: RegistrationTarget, moved: Array, gate: float, cfg: IcpConfig) -> _Matches:
     dist, idx = target.tree.query(moved, k=1, distance_upper_bound=gate)
     ok = np.isfinite(dist)
-    ok[ok] = target.usable[idx[ok]]
+    line = target.usable[idx[ok]]
+    if not cfg.point_to_point_clutter:
+        ok[ok] = line
+        sel = np.flatnonzero(ok)
+        j = idx[sel]
+        return _Matches(sel, dist[sel], target.points[j], target.normals[j], len(sel))
+    ok[ok] = line | target.clutter[idx[ok]]
     sel = np.flatnonzero(ok)
     j = idx[sel]
-    return _Matches(sel, dist[sel], target.points[j], target.normals[j])
+    line = target.usable[j]
+    pt_sel, pt_j = sel[~line], j[~line]
+    rows_sel = np.concatenate([sel[line], pt_sel, pt_sel])
+    rows_j = np.concatenate([j[line], pt_j, pt_j])
+    normals = np.concatenate([
+        target.normals[j[line]],
+        np.broadcast_to(_AXES[0], (len(pt_j), 2)),
+        np.broadcast_to(_AXES[1], (len(pt_j), 2)),
+    ])
+    return _Matches(rows_sel, dist[rows_sel], target.points[rows_j], normals, len(sel))
 
 
 def _normal_equations(
@@ -442,9 +493,9 @@ def register(
     for iterations in range(1, cfg.max_iterations + 1):
         rp = _rotated(src, x[2])
         moved = rp + x[:2]
-        m = _match(target, moved, gate)
-        if len(m.sel) < cfg.min_correspondences:
-            return _failed(x0, iterations, len(m.sel), prior_cov)
+        m = _match(target, moved, gate, cfg)
+        if m.points < cfg.min_correspondences:
+            return _failed(x0, iterations, m.points, prior_cov)
         _, _, h, g, s = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
         h = h / s**2 + lam
         g = g / s**2
@@ -489,19 +540,26 @@ def _evaluate(
     """
     rp = _rotated(src, x[2])
     moved = rp + x[:2]
-    m = matches if matches is not None else _match(target, moved, gate)
-    if len(m.sel) < cfg.min_correspondences:
-        return _failed(x0, iterations, len(m.sel), prior_cov)
+    m = matches if matches is not None else _match(target, moved, gate, cfg)
+    if m.points < cfg.min_correspondences:
+        return _failed(x0, iterations, m.points, prior_cov)
     r, w, h_data, _, _ = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
     wsum = float(w.sum())
     sigma2 = max(float(w @ r**2) / max(wsum - 3.0, 1.0), cfg.min_residual_scale**2)
     info = h_data / sigma2 + lam
     cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
     cov = 0.5 * (cov + cov.T)
-    inlier = np.abs(r) <= cfg.fitness_tolerance
     n_src = len(src)
-    rms = float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else 0.0
-    fitness = float(np.clip(1.0 - (r / cfg.fitness_tolerance) ** 2, 0.0, None).sum() / n_src)
+    if m.points == len(m.sel):
+        r_point = r
+    else:  # point-to-point matches have two rows: their residual is the distance
+        matched = np.unique(m.sel)
+        r_point = np.sqrt(np.bincount(m.sel, weights=r**2, minlength=n_src)[matched])
+    inlier = np.abs(r_point) <= cfg.fitness_tolerance
+    rms = float(np.sqrt(np.mean(r_point[inlier] ** 2))) if inlier.any() else 0.0
+    fitness = float(
+        np.clip(1.0 - (r_point / cfg.fitness_tolerance) ** 2, 0.0, None).sum() / n_src
+    )
     # Schur complement of the rotation: translational information with theta marginalised.
     h_tt = h_data[:2, :2]
     if h_data[2, 2] > 1e-12:
@@ -512,7 +570,7 @@ def _evaluate(
         pose=x.copy(), covariance=cov, hessian=h_data, sigma=float(np.sqrt(sigma2)),
         inlier_ratio=float(inlier.sum()) / n_src, rms=rms, fitness=fitness,
         degeneracy=degeneracy, degenerate_axis=evecs[:, 0].copy(), iterations=iterations,
-        converged=converged, correspondences=len(m.sel), ok=True, initial=x0.copy(),
+        converged=converged, correspondences=m.points, ok=True, initial=x0.copy(),
     )
 
 
@@ -686,9 +744,9 @@ def overlap_scores(
     """``(K,)`` coarse score of each guess without ICP (for pre-screening many guesses).
 
     ``mean_i max(0, 1 - (d_i / tolerance)^2)`` with ``d_i`` the distance of source
-    point i, moved by the guess, to its nearest usable target point (0 beyond
-    `tolerance`).  One KD-tree query for all guesses together (vectorised over
-    guesses and points).
+    point i, moved by the guess, to its nearest target point if that is
+    `RegistrationTarget.matchable` (0 otherwise and beyond `tolerance`).  One
+    KD-tree query for all guesses together (vectorised over guesses and points).
     """
     g = np.asarray(guesses, dtype=float).reshape(-1, 3)
     src = _as_points(source, "source points")
@@ -700,7 +758,7 @@ def overlap_scores(
     moved = np.stack([x, y], axis=-1).reshape(-1, 2)
     dist, idx = target.tree.query(moved, k=1, distance_upper_bound=tolerance)
     found = np.isfinite(dist)
-    found[found] = target.usable[idx[found]]
+    found[found] = target.matchable[idx[found]]
     score = np.where(found, 1.0 - (np.where(found, dist, 0.0) / tolerance) ** 2, 0.0)
     return score.reshape(len(g), len(src)).mean(axis=1)
 

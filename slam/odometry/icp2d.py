@@ -111,7 +111,9 @@ class Icp2dConfig:
     """Parameters of the scan-to-map ICP odometry (module docstring).
 
     Attributes:
-        icp: ICP and normal parameters (`loopclosure.registration.IcpConfig`).
+        icp: ICP and normal parameters (`loopclosure.registration.IcpConfig`);
+            clutter (vegetation, poles) is matched point to point by default, which
+            keeps outdoor logs registered where few map points are line-like.
         min_range: beams shorter than this are not used [m] (robot body).
         max_range: beams longer than this are not used [m] (sparse, noisy far walls).
         source_voxel: voxel of the scan's points [m] (0: all points).
@@ -152,7 +154,7 @@ class Icp2dConfig:
             prediction (translation [m], rotation [rad]).
     """
 
-    icp: IcpConfig = field(default_factory=IcpConfig)
+    icp: IcpConfig = field(default_factory=lambda: IcpConfig(point_to_point_clutter=True))
     min_range: float = 0.05
     max_range: float = 40.0
     source_voxel: float = 0.05
