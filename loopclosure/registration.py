@@ -149,6 +149,8 @@ class IcpConfig:
         fitness_tolerance: residual scale of `fitness` and of the inlier test [m].
         point_to_point_clutter: match source points whose nearest target point is not
             line-like point to point instead of dropping them (outdoor scans).
+        clutter_weight: weight of those point-to-point rows relative to point-to-line
+            ones (multiplies the robust kernel's weight).
     """
 
     max_iterations: int = 30
@@ -166,6 +168,7 @@ class IcpConfig:
     max_normal_ratio: float = 0.1
     fitness_tolerance: float = 0.05
     point_to_point_clutter: bool = False
+    clutter_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kernel not in KERNEL_CONSTANTS:
@@ -176,6 +179,7 @@ class IcpConfig:
             "max_correspondence_distance",
             "min_correspondence_distance",
             "gate_sigmas",
+            "clutter_weight",
             "min_residual_scale",
             "normal_radius",
             "fitness_tolerance",
@@ -366,6 +370,7 @@ class _Matches:
     q: Array  # (K, 2) target points
     n: Array  # (K, 2) target normals (or unit axes)
     points: int  # matched source points (<= K)
+    lines: int  # the first `lines` rows are point-to-line, the rest point-to-point
 
 
 def _rotated(src: Array, theta: float) -> Array:
@@ -385,7 +390,7 @@ def _match(target: RegistrationTarget, moved: Array, gate: float, cfg: IcpConfig
         ok[ok] = line
         sel = np.flatnonzero(ok)
         j = idx[sel]
-        return _Matches(sel, dist[sel], target.points[j], target.normals[j], len(sel))
+        return _Matches(sel, dist[sel], target.points[j], target.normals[j], len(sel), len(sel))
     ok[ok] = line | target.clutter[idx[ok]]
     sel = np.flatnonzero(ok)
     j = idx[sel]
@@ -398,17 +403,20 @@ def _match(target: RegistrationTarget, moved: Array, gate: float, cfg: IcpConfig
         np.broadcast_to(_AXES[0], (len(pt_j), 2)),
         np.broadcast_to(_AXES[1], (len(pt_j), 2)),
     ])
-    return _Matches(rows_sel, dist[rows_sel], target.points[rows_j], normals, len(sel))
+    return _Matches(rows_sel, dist[rows_sel], target.points[rows_j], normals, len(sel),
+                    int(line.sum()))
 
 
 def _normal_equations(
-    rp: Array, moved: Array, m: _Matches, scale_floor: float, kernel: str
+    rp: Array, moved: Array, m: _Matches, cfg: IcpConfig
 ) -> tuple[Array, Array, Array, Array, float]:
     """Residuals, weights, ``J^T W J`` and ``J^T W r`` (unscaled) and the scale s."""
     n = m.n
     r = np.einsum("ij,ij->i", n, moved[m.sel] - m.q)
-    s = _robust_scale(r, scale_floor)
-    w = _weights(r, s, kernel)
+    s = _robust_scale(r, cfg.min_residual_scale)
+    w = _weights(r, s, cfg.kernel)
+    if m.lines < len(r):
+        w[m.lines:] *= cfg.clutter_weight
     rps = rp[m.sel]
     jac = np.empty((len(r), 3))
     jac[:, :2] = n
@@ -496,7 +504,7 @@ def register(
         m = _match(target, moved, gate, cfg)
         if m.points < cfg.min_correspondences:
             return _failed(x0, iterations, m.points, prior_cov)
-        _, _, h, g, s = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
+        _, _, h, g, s = _normal_equations(rp, moved, m, cfg)
         h = h / s**2 + lam
         g = g / s**2
         if x_prior is not None:
@@ -543,7 +551,7 @@ def _evaluate(
     m = matches if matches is not None else _match(target, moved, gate, cfg)
     if m.points < cfg.min_correspondences:
         return _failed(x0, iterations, m.points, prior_cov)
-    r, w, h_data, _, _ = _normal_equations(rp, moved, m, cfg.min_residual_scale, cfg.kernel)
+    r, w, h_data, _, _ = _normal_equations(rp, moved, m, cfg)
     wsum = float(w.sum())
     sigma2 = max(float(w @ r**2) / max(wsum - 3.0, 1.0), cfg.min_residual_scale**2)
     info = h_data / sigma2 + lam

@@ -360,3 +360,24 @@ def test_point_to_point_residual_is_the_distance() -> None:
     assert res.fitness == pytest.approx(0.96, abs=1e-6)
     assert res.rms == pytest.approx(0.01, abs=1e-6)
     assert res.inlier_ratio == 1.0
+
+
+def test_clutter_weight_scales_the_point_to_point_information() -> None:
+    """All rows point to point: the data information scales by `clutter_weight`
+    exactly (it multiplies the kernel weight); the pose and fitness do not change."""
+    pts = grove()
+    source = se2.transform_points(se2.inverse(np.array([0.02, 0.01, 0.005])), pts)
+    results = []
+    for weight in (1.0, 0.25):
+        cfg = IcpConfig(point_to_point_clutter=True, clutter_weight=weight,
+                        translation_tolerance=1e-10, rotation_tolerance=1e-10)
+        target = RegistrationTarget(pts, cfg)
+        target.usable[:] = False  # every match point to point
+        target.clutter[:] = True
+        results.append(register(source, target))
+    full, quarter = results
+    np.testing.assert_allclose(quarter.hessian, 0.25 * full.hessian, rtol=1e-9)
+    np.testing.assert_allclose(quarter.pose, full.pose, atol=1e-9)
+    assert quarter.fitness == pytest.approx(full.fitness)
+    with pytest.raises(ValueError, match="clutter_weight"):
+        IcpConfig(clutter_weight=0.0)
