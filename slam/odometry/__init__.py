@@ -2,7 +2,8 @@
 
 Front ends (`make_odometry(name, config)`):
 
-* ``"icp2d"``: our scan-to-map point-to-line ICP (`slam.odometry.icp2d`).
+* ``"icp2d"``: our scan-to-map ICP, point to line and, on clutter, point to point
+  (`slam.odometry.icp2d`).
 * ``"kiss-icp"``: KISS-ICP on point clouds and on planar scans lifted to z = 0
   (`slam.odometry.kiss`).
 * ``"wheel"``: the odometry in the log (`slam.odometry.wheel`).

@@ -1,7 +1,8 @@
 """Scan-to-map 2D ICP odometry (the ``icp2d`` front end).
 
 Each scan's valid end points (sensor frame, beams within ``[min_range, max_range]``,
-voxel-downsampled to `source_voxel`) are registered by point-to-line ICP
+voxel-downsampled to `source_voxel`) are registered by point-to-line ICP, with
+clutter (vegetation, furniture) matched point to point
 (`loopclosure.registration.register`) onto a local map: the points of the last
 `map_keyframes` map keyframes, in the odometry frame, merged and voxel-downsampled
 to `map_voxel`, cropped to `map_radius` around the newest keyframe.  A scan becomes
@@ -125,7 +126,7 @@ class Icp2dConfig:
         keyframe_rotation: rotation that makes a new map keyframe [rad].
         min_points: fewer usable points: status ``no_points``.
         min_inlier_ratio: fewer inliers: status ``failed``.
-        max_rms: larger RMS point-to-line residual: status ``failed`` [m].
+        max_rms: larger RMS residual of the inliers: status ``failed`` [m].
         min_degeneracy: smaller normalised translational eigenvalue: ``degenerate``.
         use_prior: the prediction is a prior of ICP.
         odometry_noise: covariance model of odometry increments.
