@@ -113,8 +113,10 @@ class Icp2dConfig:
 
     Attributes:
         icp: ICP and normal parameters (`loopclosure.registration.IcpConfig`);
-            clutter (vegetation, poles) is matched point to point by default, which
-            keeps outdoor logs registered where few map points are line-like.
+            clutter (vegetation, poles) is matched point to point by default, at 0.3
+            the weight of a wall's point-to-line row: it keeps outdoor logs
+            registered where few map points are line-like, while walls dominate
+            indoors.
         min_range: beams shorter than this are not used [m] (robot body).
         max_range: beams longer than this are not used [m] (sparse, noisy far walls).
         source_voxel: voxel of the scan's points [m] (0: all points).
@@ -155,7 +157,9 @@ class Icp2dConfig:
             prediction (translation [m], rotation [rad]).
     """
 
-    icp: IcpConfig = field(default_factory=lambda: IcpConfig(point_to_point_clutter=True))
+    icp: IcpConfig = field(
+        default_factory=lambda: IcpConfig(point_to_point_clutter=True, clutter_weight=0.3)
+    )
     min_range: float = 0.05
     max_range: float = 40.0
     source_voxel: float = 0.05
