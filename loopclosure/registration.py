@@ -23,7 +23,8 @@ points stay in the tree but a source point whose nearest neighbour is one of the
 gets no correspondence (so a point near a corner is never pulled onto the other
 wall), unless `point_to_point_clutter` is set and the nearest neighbour is
 clutter (enough neighbours, not line-like): then the correspondence is a
-point-to-point one (below).  Isolated points never match.  All vectorised over points; no loop.
+point-to-point one (below).  Isolated points never match.  All vectorised over
+points; no loop.
 
 ICP (`register`)
 ----------------
@@ -77,7 +78,7 @@ were found; otherwise they are searched again at the final pose):
 * ``inlier_ratio``: fraction of source points with a correspondence inside the gate
   and ``|r| <= fitness_tolerance`` (``r``: the point's residual, point to line or,
   for a point-to-point match, its distance).
-* ``rms``: root mean square point-to-line residual of those inliers [m].
+* ``rms``: root mean square residual ``r`` of those inliers [m].
 * ``fitness``: the score used to rank hypotheses, in [0, 1]:
   ``mean_i max(0, 1 - (r_i / fitness_tolerance)^2)`` over all source points, 0 for
   points without a correspondence within the gate (a truncated-quadratic overlap:
@@ -147,8 +148,9 @@ class IcpConfig:
         min_normal_neighbors: fewer neighbours than this: no normal, point dropped.
         max_normal_ratio: ``lambda_min / lambda_max`` above this: not line-like, dropped.
         fitness_tolerance: residual scale of `fitness` and of the inlier test [m].
-        point_to_point_clutter: match source points whose nearest target point is not
-            line-like point to point instead of dropping them (outdoor scans).
+        point_to_point_clutter: match source points whose nearest target point is
+            clutter (enough neighbours, not line-like) point to point instead of
+            dropping them (outdoor scans).
         clutter_weight: weight of those point-to-point rows relative to point-to-line
             ones (multiplies the robust kernel's weight).
     """
@@ -206,7 +208,7 @@ class IcpResult:
         hessian: ``3x3`` data information ``sum w J^T J`` (without the 1/sigma^2).
         sigma: residual standard deviation used for the covariance [m].
         inlier_ratio: inliers / source points.
-        rms: RMS point-to-line residual of the inliers [m] (0 without inliers).
+        rms: RMS residual of the inliers [m] (0 without inliers).
         fitness: overlap score in [0, 1] (ranking of hypotheses).
         degeneracy: normalised smallest translational eigenvalue in [0, 0.5].
         degenerate_axis: ``(2,)`` unit direction of that eigenvalue (target frame).
