@@ -386,17 +386,14 @@ _AXES = np.eye(2)
 
 def _match(target: RegistrationTarget, moved: Array, gate: float, cfg: IcpConfig) -> _Matches:
     dist, idx = target.tree.query(moved, k=1, distance_upper_bound=gate)
-    ok = np.isfinite(dist)
-    line = target.usable[idx[ok]]
-    if not cfg.point_to_point_clutter:
-        ok[ok] = line
-        sel = np.flatnonzero(ok)
-        j = idx[sel]
-        return _Matches(sel, dist[sel], target.points[j], target.normals[j], len(sel), len(sel))
-    ok[ok] = line | target.clutter[idx[ok]]
-    sel = np.flatnonzero(ok)
-    j = idx[sel]
+    found = np.flatnonzero(np.isfinite(dist))
+    j = idx[found]
     line = target.usable[j]
+    if not cfg.point_to_point_clutter:
+        sel, j = found[line], j[line]
+        return _Matches(sel, dist[sel], target.points[j], target.normals[j], len(sel), len(sel))
+    keep = line | target.clutter[j]
+    sel, j, line = found[keep], j[keep], line[keep]
     pt_sel, pt_j = sel[~line], j[~line]
     rows_sel = np.concatenate([sel[line], pt_sel, pt_sel])
     rows_j = np.concatenate([j[line], pt_j, pt_j])
@@ -560,11 +557,10 @@ def _evaluate(
     cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
     cov = 0.5 * (cov + cov.T)
     n_src = len(src)
-    if m.points == len(m.sel):
-        r_point = r
-    else:  # point-to-point matches have two rows: their residual is the distance
-        matched = np.unique(m.sel)
-        r_point = np.sqrt(np.bincount(m.sel, weights=r**2, minlength=n_src)[matched])
+    # Point-to-line rows first, then the x and the y rows of the point-to-point matches:
+    # a point-to-point match's residual is its distance.
+    x_rows, y_rows = r[m.lines : m.points], r[m.points :]
+    r_point = np.concatenate([r[: m.lines], np.hypot(x_rows, y_rows)])
     inlier = np.abs(r_point) <= cfg.fitness_tolerance
     rms = float(np.sqrt(np.mean(r_point[inlier] ** 2))) if inlier.any() else 0.0
     fitness = float(
