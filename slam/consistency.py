@@ -89,7 +89,13 @@ from scipy.stats import chi2
 
 from data import se2
 from data.errors import UserError
-from slam.pose_graph import PoseGraph, RobustKernel, poses_from_values, to_gtsam_pose
+from slam.pose_graph import (
+    PoseGraph,
+    RobustKernel,
+    pose_dof,
+    poses_from_values,
+    to_gtsam_pose,
+)
 
 Array = NDArray[np.float64]
 GATES = ("stated", "calibrated")
@@ -98,11 +104,7 @@ MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
     """TLS cost ``c`` of a rejected loop: 0.5 * chi2 quantile of its dof (3 in 2D, 6 in 3D)."""
-    return 0.5 * float(chi2.ppf(probability, 3 if dim == 2 else 6))
-
-
-def _dof(dim: int) -> int:
-    return 3 if dim == 2 else 6
+    return 0.5 * float(chi2.ppf(probability, pose_dof(dim)))
 
 
 class _Solver:
@@ -116,7 +118,7 @@ class _Solver:
         self.dogleg = False
 
     def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        from slam.optimize import _solve  # local: slam.optimize imports this module lazily
+        from slam.optimize import _solve  # local: slam.optimize imports this module
 
         if not self.dogleg:
             result, _, used = _solve(factors, values, self.max_iterations)
@@ -204,10 +206,13 @@ class InnovationTest:
             rhs[cj[q] : cj[q] + d] += bj[q].T
             y[q] = self.covariance(rhs)
         span = np.arange(d)
-        gains = _Gains(b, bi, bj, ci[:, None] + span, cj[:, None] + span, y, np.empty((m, d, d)))
-        for q in range(m):
-            gains.M[q] = gains.cross(y[q])[q]
-        return gains
+        ri, rj = ci[:, None] + span, cj[:, None] + span
+        own = np.arange(m)[:, None]
+        # M_q = B_q H^-1 B_q^T = B_q Y_q: candidate q's own rows of its Y only.
+        gram = np.einsum("mab,mbc->mac", bi, y[own, ri]) + np.einsum(
+            "mab,mbc->mac", bj, y[own, rj]
+        )
+        return _Gains(b, bi, bj, ri, rj, y, gram)
 
 
 def admission_costs(gains: _Gains) -> Array:
@@ -353,7 +358,7 @@ def admit_incrementally(
     if gate not in GATES:
         raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
     keys = _check_spine(graph)
-    d, c = _dof(graph.dim), tls_threshold(graph.dim, probability)
+    d, c = pose_dof(graph.dim), tls_threshold(graph.dim, probability)
     position = {k: n for n, k in enumerate(keys)}
     given = poses_from_values(values, graph.dim)
     unit = [graph.between_factor(loop) for loop in graph.loops]
@@ -382,19 +387,19 @@ def admit_incrementally(
         for k in prefix:
             current.insert(k, to_gtsam_pose(solved[k], graph.dim))
         accepted = np.zeros(len(pending), dtype=bool)
+        factors = fixed  # the accepted graph, whose solution is `current`
         for _ in range(max_rounds):
             errors = np.array([unit[k].error(current) for k in pending])
             newly = ~accepted & (errors <= c)
             if newly.any():  # step 1
                 accepted |= newly
-                current = solve(_with(fixed, unit, pending[accepted]), current)
+                factors = _with(fixed, unit, pending[accepted])
+                current = solve(factors, current)
                 continue
             rest = np.flatnonzero(~accepted)
             if len(rest) == 0:
                 break
-            factors = _with(
-                fixed, unit, pending[accepted]
-            )  # step 2, at the solution of the accepted graph
+            # Step 2, at the solution of the accepted graph.
             limit = c
             if gate == "calibrated":
                 s0 = _variance_factor(factors, current, len(prefix), d)
@@ -407,7 +412,8 @@ def admit_incrementally(
             if not admitted:
                 break
             accepted[rest[admitted]] = True
-            current = solve(_with(fixed, unit, pending[accepted]), current)
+            factors = _with(fixed, unit, pending[accepted])
+            current = solve(factors, current)
         solved.update(poses_from_values(current, graph.dim))
         weights[pending] = accepted
         for q in np.flatnonzero(accepted):

@@ -30,10 +30,12 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from data.errors import UserError, warn
+from slam.consistency import incremental_tls, tls_threshold
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
     RobustKernel,
+    pose_dof,
     poses_from_values,
     relative_compose,
     to_gtsam_pose,
@@ -43,12 +45,13 @@ from slam.pose_graph import (
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
 INITIALISATIONS = ("given", "odometry", "lago")
-GNC_STARTS = ("given", "least-squares", "incremental")
+WARM_STARTS = ("given", "least-squares")
+GNC_STARTS = (*WARM_STARTS, "incremental")
 
 
 def default_outlier_residual(dim: int, probability: float = 0.99) -> float:
     """Whitened-residual threshold of a loop factor: sqrt(chi2 quantile) for its dof."""
-    return float(np.sqrt(chi2.ppf(probability, 3 if dim == 2 else 6)))
+    return float(np.sqrt(chi2.ppf(probability, pose_dof(dim))))
 
 
 @dataclass(slots=True)
@@ -181,9 +184,9 @@ def optimize(
     ``method="lm"``: Levenberg-Marquardt with `kernel` on loop factors.
     ``method="gnc"``: GNC-TLS over Gaussian loop factors (`kernel` ignored); a loop is
     an inlier when its factor error stays below the chi-square `gnc_probability`
-    quantile of its dof.  `gnc_start` is `gnc_warm`'s `start`: ``"given"`` (default:
-    fast, right when the start is already good and outliers are few, as after a
-    mapper's iSAM2), ``"least-squares"``, or ``"incremental"`` (time-ordered TLS
+    quantile of its dof.  `gnc_start`: ``"given"`` or ``"least-squares"``, `gnc_warm`'s
+    `start` (``"given"``, the default, is fast and right when the start is already good
+    and outliers are few, as after a mapper's iSAM2), or ``"incremental"`` (time-ordered TLS
     admission from the odometry chain; minutes on a few thousand poses, but
     robust to most loops being false: `slam.consistency`).
     """
@@ -201,8 +204,6 @@ def optimize(
     if method == "gnc":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
         if gnc_start == "incremental":
-            from slam.consistency import incremental_tls
-
             admission = incremental_tls(graph, values, probability=gnc_probability)
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"
@@ -294,21 +295,14 @@ def gnc_warm(
     least-squares solution is a crumpled map in which true and false loops are
     equally inconsistent, while from odometry the surrogate's first, nearly
     convex steps (every loop weighted almost 0) stay near odometry and admit the
-    loops consistent with it first.  ``"incremental"`` replaces the graduation by the
-    time-ordered admission of `slam.consistency.incremental_tls` (returns its weights
-    and its count of prefix solves): measured, graduation from any start folds M3500
+    loops consistent with it first.  (Measured, graduation from any start folds M3500
     with half its loops false, because at small ``mu`` the surrogate is close to L1
-    and every false loop pulls as hard as a true one.
+    and every false loop pulls as hard as a true one: `optimize`'s
+    ``gnc_start="incremental"`` uses `slam.consistency.incremental_tls` instead.)
     """
-    if start not in GNC_STARTS:
-        raise UserError(f"unknown GNC start {start!r}; choose one of {', '.join(GNC_STARTS)}")
-    if start == "incremental":
-        from slam.consistency import incremental_tls
-
-        admission = incremental_tls(graph, values, probability=probability)
-        return admission.values, admission.weights, admission.blocks
-    dim = 3 if graph.dim == 2 else 6
-    barc = 0.5 * chi2.ppf(probability, dim)
+    if start not in WARM_STARTS:
+        raise UserError(f"unknown GNC start {start!r}; choose one of {', '.join(WARM_STARTS)}")
+    barc = tls_threshold(graph.dim, probability)
     base, _ = graph.factor_graph(RobustKernel("none"))
     n_fixed = base.size() - len(graph.loops)
     loop_factors = [base.at(n_fixed + k) for k in range(len(graph.loops))]

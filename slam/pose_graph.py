@@ -183,7 +183,7 @@ class PoseGraph:
     def prior_factor(self, key: int, pose: Array | None = None) -> gtsam.NonlinearFactor:
         """A strong prior holding `key` at `pose` (default its initial guess)."""
         pose = self.initial[key] if pose is None else pose
-        sigmas = np.full(3 if self.dim == 2 else 6, 1e-6)
+        sigmas = np.full(pose_dof(self.dim), 1e-6)
         noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
         if self.dim == 2:
             return gtsam.PriorFactorPose2(key, to_gtsam_pose(pose, 2), noise)
@@ -214,6 +214,11 @@ class PoseGraph:
             loop_index.append(graph.size())
             graph.add(self.between_factor(c, kernel))
         return graph, loop_index
+
+
+def pose_dof(dim: int) -> int:
+    """Degrees of freedom of a pose: 3 in 2D (x, y, theta), 6 in 3D."""
+    return 3 if dim == 2 else 6
 
 
 def _constraint(i: int, j: int, measurement: Array, information: Array) -> Constraint:
