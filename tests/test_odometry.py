@@ -315,25 +315,23 @@ def test_icp2d_outdoors_registers_vegetation() -> None:
     wheel odometry: with clutter matched point to point the front end stays
     registered and ends far closer to the logged (corrected) poses than the
     wheels; point to line alone fails on most scans (the map is ~70% clutter)."""
+    from evaluation.robustness import aligned_position_error
     from evaluation.slam_benchmark import load_input
-    from evaluation.trajectory_error import umeyama
     from loopclosure.registration import IcpConfig
 
     log = shared_file("carmen-corrected/freiburg-campus-corrected.log.gz")
     data = load_input(log, limit=150, odometry_noise=0)
-    ref = data.logged_poses[:, :2]
+    ref = dict(enumerate(data.logged_poses))
+
+    def ate(poses: list[np.ndarray]) -> float:
+        return aligned_position_error(dict(enumerate(poses)), ref, 2)
 
     def run_front(point_to_point: bool) -> tuple[float, int]:
         odo = Icp2dOdometry(Icp2dConfig(icp=IcpConfig(point_to_point_clutter=point_to_point)))
         est = [odo.process(s) for s in data.scans]
-        xy = np.array([e.pose[:2] for e in est])
-        rot, t, _ = umeyama(xy, ref)
-        ate = float(np.sqrt(np.mean(np.sum((ref - (xy @ rot.T + t)) ** 2, axis=1))))
-        return ate, sum(e.status == "failed" for e in est)
+        return ate([e.pose for e in est]), sum(e.status == "failed" for e in est)
 
-    wheel = np.array([s.odom[:2] for s in data.scans])
-    rot, t, _ = umeyama(wheel, ref)
-    wheel_ate = float(np.sqrt(np.mean(np.sum((ref - (wheel @ rot.T + t)) ** 2, axis=1))))
+    wheel_ate = ate([s.odom for s in data.scans])
     ate_on, failed_on = run_front(True)
     _, failed_off = run_front(False)
     print(f"campus: wheel {wheel_ate:.3f} m, icp2d {ate_on:.3f} m, failed {failed_on} "
