@@ -1,9 +1,13 @@
-"""User-facing errors and warnings shared by every layer.
+"""The project's exceptions and warnings, shared by every layer.
 
-A `UserError` is a problem with the user's input (missing file, unknown format,
-garbage, wrong topic).  The CLI prints it as one line, ``error: <message>``, and
-exits with status 2; it never shows a traceback for it.  Anything else that
-escapes is a bug and keeps its traceback.
+Every error the project raises on purpose derives from `LoopClosureError`, so a
+library caller can catch them all in one ``except``.  A `UserError` is a caller's
+mistake (a bad parameter value, an unknown name, a missing file, a wrong topic); it
+is also a `ValueError`, as Python's own functions raise for bad arguments.  A
+`DataError` is a file that cannot be read as what it claims to be, and names the
+file.  The CLI prints either as one line, ``error: <message>``, and exits with
+status 2, never with a traceback.  Anything else that escapes is a bug and keeps
+its traceback.
 """
 
 from __future__ import annotations
@@ -12,8 +16,15 @@ import warnings
 from os import PathLike
 
 
-class UserError(Exception):
-    """Bad input or bad usage: reported to the user in one line, never a traceback."""
+class LoopClosureError(Exception):
+    """Base of every error the project raises on purpose."""
+
+
+class UserError(LoopClosureError, ValueError):
+    """Bad input or bad usage: reported to the user in one line, never a traceback.
+
+    The message names the parameter or file at fault and what would be accepted.
+    """
 
 
 class DataError(UserError):

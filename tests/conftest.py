@@ -12,15 +12,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pytest
 from hypothesis import settings
 
+from tests.helpers import SHARED_DATA
+
 # Property tests draw the same examples on every run, so CI on a fresh checkout
 # (no hypothesis example database) is reproducible; HYPOTHESIS_PROFILE=explore
 # draws new examples to hunt for failures.
 settings.register_profile("ci", derandomize=True)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
-
-_DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data"
-SHARED_DATA = Path(os.environ.get("LOOPCLOSURE_SHARED_DATA", _DEFAULT))
 
 
 @pytest.fixture(scope="session")
@@ -29,11 +28,3 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data not found at {SHARED_DATA} (needs ../shared beside the checkout)")
     return SHARED_DATA
-
-
-def shared_file(relative: str) -> Path:
-    """A file under the shared data folder, or skip the calling test with a reason."""
-    path = SHARED_DATA / relative
-    if not path.exists():
-        pytest.skip(f"real data file {path} not found (needs ../shared/data beside the checkout)")
-    return path

@@ -21,7 +21,7 @@ from slam.consistency import (
 )
 from slam.optimize import BatchSmoother, IncrementalSmoother, initial_guess, optimize
 from slam.pose_graph import PoseGraph, RobustKernel, whitened_residual
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 INFO = np.diag([100.0, 100.0, 400.0])
 

@@ -26,7 +26,7 @@ from data.carmen import (
 from data.errors import DataError, DataWarning, UserError
 from data.sources import ScanSource
 from data.types import Scan
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 DEG = math.pi / 180.0
 

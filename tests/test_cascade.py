@@ -24,7 +24,7 @@ from loopclosure.fusion import LogisticFusion
 from loopclosure.matchers import get_matcher
 from loopclosure.place_database import DEFAULT_LOGISTIC, PlaceDatabaseConfig
 from loopclosure.polygon import Polygon, polygon_from_scan
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 # verify_all_up_to=0: the top K only, even in these tiny databases.
 QUICK = dict(prefilter=("fft", "ring"), verifiers=("integral",), top_k=20, verify_all_up_to=0)

@@ -15,7 +15,7 @@ from data import se2
 from data.errors import DataError, DataWarning
 from data.g2o import graph_info, is_g2o, read_g2o, write_g2o
 from data.types import GraphEdge, PoseGraphData
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SE2_SNIPPET = """\
 # a small SE2 graph

@@ -16,7 +16,7 @@ from loopclosure.matchers.fft import (
     range_function,
 )
 from loopclosure.polygon import Polygon
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SQUARE = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 # Box [-1, 3] x [-1, 1] with a notch [1, 2] x [-0.5, 1] cut from the top: the ray along

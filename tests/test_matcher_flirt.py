@@ -21,7 +21,7 @@ from loopclosure.matchers.flirt_features import (
     smoothed_curves,
 )
 from loopclosure.polygon import Polygon, polygon_from_scan
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SQUARE = Polygon(np.array([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]))
 

@@ -15,7 +15,7 @@ from loopclosure.matchers.integral_invariant import (
     integral_invariant,
 )
 from loopclosure.polygon import Polygon
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SQUARE = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 

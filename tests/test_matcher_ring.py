@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from loopclosure.matchers import get_matcher
 from loopclosure.matchers.ring_projection import RingConfig, RingProjectionMatcher, ring_profile
 from loopclosure.polygon import Polygon
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SQUARE = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 NOTCHED = np.array(

@@ -15,7 +15,7 @@ from loopclosure.matchers.tangent_space import (
     turning_function,
 )
 from loopclosure.polygon import Polygon
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 

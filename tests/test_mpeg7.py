@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from data import mpeg7
 from data.errors import DataError, DataWarning
 from data.mpeg7 import contour_from_image, load_silhouettes, mpeg7_classes, parse_name
-from tests.conftest import SHARED_DATA
+from tests.helpers import SHARED_DATA
 
 H, W = 80, 100  # drawn test images: rows, columns
 

@@ -15,7 +15,7 @@ from data.errors import DataError, DataWarning, UserError
 from data.types import Scan
 from slam.map_io import map_image, write_bytes_atomic
 from slam.occupancy_map import MapConfig, OccupancyGrid, build_occupancy_grid
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 RES = 0.05
 TIGHT = MapConfig(resolution=RES, margin_cells=0)

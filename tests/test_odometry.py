@@ -28,7 +28,7 @@ from slam.odometry import (
 from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry
 from slam.odometry.kiss import KissConfig, KissOdometry
 from slam.odometry.wheel import WheelConfig, WheelOdometry
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from evaluation.trajectory_error import trajectory_errors
 from slam.cli.main import main
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from evaluation.place_datasets import (
     sim_places,
 )
 from loopclosure.polygon import polygon_from_scan
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 # ---------------------------------------------------------------- simulator
 

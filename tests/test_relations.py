@@ -20,7 +20,7 @@ from data.relations import (
     write_relations,
 )
 from data.types import Relation
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SNIPPET = """\
 # t1 t2 x y z roll pitch yaw

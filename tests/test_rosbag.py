@@ -23,7 +23,7 @@ from data.errors import DataError, DataWarning, UserError
 from data.rosbag import RosBag, is_rosbag, laserscan_to_scan, pointcloud2_xyz
 from data.rosbag_write import split_stamp, write_ros2_bag
 from data.types import PointCloud, Scan
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 HUMBLE = get_typestore(Stores.ROS2_HUMBLE)
 NOETIC = get_typestore(Stores.ROS1_NOETIC)

@@ -23,7 +23,7 @@ from evaluation.trajectory_error import trajectory_errors
 from slam.cli.common import to_json_text
 from slam.cli.main import main
 from slam.config import PipelineConfig
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 SIM = {"fov_deg": 180.0, "beams": 181, "max_range": 12.0, "noise_sigma": 0.02}
 METHOD_KEYS = {"method", "wall_s", "ms_per_scan", "relations", "ate", "loops"}

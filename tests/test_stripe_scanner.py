@@ -19,7 +19,7 @@ from data.stripe_scanner.meshes import (
     ycb_labels,
 )
 from data.stripe_scanner.scanner import ScannerConfig, _Camera, scan_mesh, scan_meshes
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 _BOX_FACES = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
                        [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])

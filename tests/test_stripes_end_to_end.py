@@ -15,7 +15,7 @@ from loopclosure.stripes import (
     stratified_split,
     stripe_from_binary_image,
 )
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 
 def _nn_precision(dist: np.ndarray, labels: np.ndarray) -> float:

@@ -10,7 +10,7 @@ from data.relations import read_relations
 from data.types import Relation, Trajectory
 from evaluation.relations_metric import relations_metric
 from evaluation.trajectory_error import associate, rotation_angle_deg, trajectory_errors, umeyama
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 
 def _circle(n: int = 200, radius: float = 5.0) -> Trajectory:

@@ -23,7 +23,7 @@ from loopclosure.virtual_scan import (
     virtual_scan_from_scans,
 )
 from slam.occupancy_map import OccupancyGrid, build_occupancy_grid
-from tests.conftest import shared_file
+from tests.helpers import shared_file
 
 STEP = 2 * np.pi / 360
 
