@@ -67,8 +67,7 @@ do (riSAM, McGann, Rogers & Kaess, ICRA 2023; IPC, arXiv 2405.08503), here in
 batch form.
 
 Cost: a factorisation and ``dof`` sparse solves per candidate and round, and a
-prefix solve per admission round.  Measured (2 shared cores): Intel (1228 poses)
-10-20 s, M3500 (3500 poses) 50-280 s from 10% to 80% false loops.
+prefix solve per admission round.
 
 Requirements: the smallest pose id is an anchor and every later pose is reached by
 odometry from an earlier one (the odometry spine of a mapper or a g2o file);
@@ -89,6 +88,7 @@ from scipy.stats import chi2
 
 from data import se2
 from data.errors import UserError
+from slam.least_squares import StickySolver
 from slam.pose_graph import (
     PoseGraph,
     RobustKernel,
@@ -105,30 +105,6 @@ MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
     """TLS cost ``c`` of a rejected loop: 0.5 * chi2 quantile of its dof (3 in 2D, 6 in 3D)."""
     return 0.5 * float(chi2.ppf(probability, pose_dof(dim)))
-
-
-class _Solver:
-    """Least squares for a sequence of related graphs: LM with sparse Cholesky, and
-    Powell's dogleg with QR once LM has failed on one of them (graphs such as Intel
-    with information entries of 1e12: see `slam.optimize._solve`); every later call
-    then goes straight to dogleg instead of first spending LM's iterations."""
-
-    def __init__(self, max_iterations: int = 100) -> None:
-        self.max_iterations = max_iterations
-        self.dogleg = False
-
-    def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        from slam.optimize import _solve  # local: slam.optimize imports this module
-
-        if not self.dogleg:
-            result, _, used = _solve(factors, values, self.max_iterations)
-            self.dogleg = used == "dogleg-qr"
-            return result
-        params = gtsam.DoglegParams()
-        params.setMaxIterations(self.max_iterations)
-        params.setRelativeErrorTol(1e-6)
-        params.setLinearSolverType("MULTIFRONTAL_QR")
-        return gtsam.DoglegOptimizer(factors, values, params).optimize()
 
 
 # -- the innovation test ---------------------------------------------------------------------
@@ -340,7 +316,7 @@ def admit_incrementally(
     block: int = 50,
     gate: str = "stated",
     max_rounds: int = 50,
-    solver: _Solver | None = None,
+    solver: StickySolver | None = None,
 ) -> Admission:
     """One time-ordered TLS pass (module docstring, steps 1-3) from initial `values`.
 
@@ -354,7 +330,7 @@ def admit_incrementally(
         max_rounds: admission rounds per block (each ends with a prefix solve).
         solver: least-squares solver (shared by the calls of `incremental_tls`).
     """
-    solve = solver or _Solver()
+    solve = solver or StickySolver()
     if gate not in GATES:
         raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
     keys = _check_spine(graph)
@@ -431,14 +407,14 @@ def refine_tls(
     *,
     probability: float = 0.99,
     max_rounds: int = 30,
-    solver: _Solver | None = None,
+    solver: StickySolver | None = None,
 ) -> tuple[gtsam.Values, Array]:
     """Re-decide every loop by the TLS residual rule on the whole graph until stable.
 
     Solve with the loops of weight 1, set ``w_k = [e_k <= c]``, repeat (iteratively
     re-weighted least squares of the TLS loss from a start inside its basin).
     """
-    solve = solver or _Solver()
+    solve = solver or StickySolver()
     base, loop_index = graph.factor_graph(RobustKernel("none"))
     c = tls_threshold(graph.dim, probability)
     n_fixed = base.size() - len(loop_index)
@@ -467,7 +443,7 @@ def incremental_tls(
     (module docstring).
     """
     best: Admission | None = None
-    solver = _Solver()
+    solver = StickySolver()
     for gate in GATES:
         run = admit_incrementally(
             graph, values, probability=probability, block=block, gate=gate, solver=solver

@@ -25,16 +25,14 @@ Format (as ROS ``map_server`` / nav2 ``map_server`` read it):
   (blue polyline) and loop closures (red lines between the two poses) drawn over
   it, upscaled with nearest-neighbour so small maps stay legible.
 
-Every file is written atomically (temporary file in the same directory, then
-``os.replace``): an interrupted run leaves the previous file or none, never half a
-file.  `write_map` writes the PGM before the YAML that names it.
+Every file is written atomically (`data.atomic_write`): an interrupted run leaves
+the previous file or none, never half a file.  `write_map` writes the PGM before
+the YAML that names it.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -42,6 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from data.atomic_write import output_dir, write_bytes_atomic
 from data.errors import DataError, UserError
 
 if TYPE_CHECKING:
@@ -54,36 +53,6 @@ TRAJECTORY_BGR = (200, 90, 20)
 LOOP_BGR = (40, 40, 220)
 #: Upscaled PNGs aim at about this many pixels on the longer side (at most 8x).
 PNG_TARGET_PIXELS = 2000
-
-
-def write_bytes_atomic(path: PathArg, data: bytes) -> Path:
-    """Write `data` to `path` through a temporary file beside it and ``os.replace``.
-
-    Raises `DataError` naming the file when it cannot be written.
-    """
-    target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise DataError(target, f"cannot write: directory {parent} does not exist")
-    tmp: str | None = None
-    try:
-        fd, tmp = tempfile.mkstemp(dir=parent, prefix=f".{target.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600
-        os.replace(tmp, target)
-        tmp = None
-    except OSError as exc:
-        raise DataError(target, f"cannot write: {exc.strerror or exc}") from exc
-    finally:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    return target
 
 
 def pgm_bytes(image: NDArray[np.uint8]) -> bytes:
@@ -213,11 +182,7 @@ def write_map(
     `out_dir` (created if needed); returns ``{"pgm": ..., "yaml": ..., "png": ...}``."""
     if not stem or "/" in stem or os.sep in stem:
         raise UserError(f"map file stem must be a plain file name, got {stem!r}")
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(out, f"cannot create the output directory: {exc.strerror or exc}") from exc
+    out = output_dir(out_dir)
     pgm = write_pgm(grid, out / f"{stem}.pgm")
     yml = write_yaml(grid, out / f"{stem}.yaml", pgm.name)
     png = render_png(grid, out / f"{stem}.png", trajectory_xy=trajectory_xy, loops=loops)

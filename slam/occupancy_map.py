@@ -238,37 +238,6 @@ class OccupancyGrid:
 
     # ------------------------------------------------------------------ output
 
-    def to_pgm(self, path: PathArg) -> Path:
-        """Write the trinary image as binary PGM (P5), atomically; returns the path."""
-        from slam.map_io import write_pgm
-
-        return write_pgm(self, path)
-
-    def to_yaml(self, path: PathArg, image_name: str) -> Path:
-        """Write the ROS map_server YAML naming `image_name` (relative to it), atomically."""
-        from slam.map_io import write_yaml
-
-        return write_yaml(self, path, image_name)
-
-    def to_png(self, path: PathArg) -> Path:
-        """Write the trinary image as PNG, atomically; returns the path."""
-        from slam.map_io import render_png
-
-        return render_png(self, path)
-
-    def render_png(
-        self,
-        path: PathArg,
-        trajectory_xy: ArrayLike | None = None,
-        loops: ArrayLike | None = None,
-        scale: int | None = None,
-    ) -> Path:
-        """PNG of the map with an optional trajectory and loop-closure lines
-        (see `slam.map_io.render_png`)."""
-        from slam.map_io import render_png
-
-        return render_png(self, path, trajectory_xy=trajectory_xy, loops=loops, scale=scale)
-
     def write_map(
         self,
         out_dir: PathArg,

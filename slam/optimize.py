@@ -31,6 +31,7 @@ from scipy.stats import chi2
 
 from data.errors import UserError, warn
 from slam.consistency import incremental_tls, tls_threshold
+from slam.least_squares import conditioning, lm_params, solve
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -67,7 +68,7 @@ class OptimizationResult:
         loop_residuals: whitened residual of every loop constraint under `poses`.
         loop_outliers: indices into `graph.loops` classified as outliers.
         loop_weights: GNC weights per loop (1 inlier, 0 outlier); None for LM.
-        solver: "lm", "dogleg-qr" (LM fallback, see `_solve`), "gnc-tls-warm",
+        solver: "lm", "dogleg-qr" (LM fallback, see `slam.least_squares`), "gnc-tls-warm",
             "tls-incremental-<gate>" (``gnc_start="incremental"``) or "gnc-tls" (gtsam).
     """
 
@@ -123,50 +124,6 @@ def initial_guess(graph: PoseGraph, init: str = "given") -> dict[int, Array]:
     return poses_from_values(gtsam.lago.initialize(factors), 2)
 
 
-def _lm_params(
-    max_iterations: int, solver: str = "MULTIFRONTAL_CHOLESKY"
-) -> gtsam.LevenbergMarquardtParams:
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-6)
-    params.setAbsoluteErrorTol(1e-9)
-    params.setlambdaInitial(1e-4)
-    params.setlambdaFactor(3.0)
-    params.setLinearSolverType(solver)
-    return params
-
-
-def _solve(
-    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int
-) -> tuple[gtsam.Values, int, str]:
-    """Least-squares solve: LM with sparse Cholesky, then Powell's dogleg with QR if LM fails.
-
-    Some published graphs (Intel, MIT) carry information entries of 1e12 next to
-    near-zero ones; sparse Cholesky breaks down on them and LM's damping cannot find a
-    descent direction from a poor start, while dogleg with QR converges.  LM is kept
-    as the first choice because it is twice as fast on well-conditioned graphs.
-    Returns the solution, the iteration count and the solver used.
-    """
-    start_error = factors.error(values)
-    best, iterations = values, 0
-    try:
-        lm = gtsam.LevenbergMarquardtOptimizer(factors, values, _lm_params(max_iterations))
-        result = lm.optimize()
-        iterations = lm.iterations()
-        if factors.error(result) < start_error:
-            best = result
-        if 0 < iterations < max_iterations:
-            return result, iterations, "lm"
-    except RuntimeError:  # gtsam IndeterminateLinearSystemException
-        pass
-    params = gtsam.DoglegParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(1e-6)
-    params.setLinearSolverType("MULTIFRONTAL_QR")
-    dogleg = gtsam.DoglegOptimizer(factors, best, params)
-    return dogleg.optimize(), iterations + dogleg.iterations(), "dogleg-qr"
-
-
 def optimize(
     graph: PoseGraph,
     kernel: str | RobustKernel = "cauchy",
@@ -215,11 +172,11 @@ def optimize(
     elif method == "gnc-gtsam":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
         # GNC's first step is the plain least-squares solution; solving it robustly
-        # first (see `_solve`) gives GncLMOptimizer a start its LM can work from.
-        values, iterations, solver = _solve(factors, values, max_iterations)
+        # first (see `slam.least_squares`) gives GncLMOptimizer a start its LM can work from.
+        values, iterations, solver = solve(factors, values, max_iterations)
         # Graphs that needed the QR fallback break GNC's inner Cholesky LM as well.
         inner = "MULTIFRONTAL_QR" if solver == "dogleg-qr" else "MULTIFRONTAL_CHOLESKY"
-        params = gtsam.GncLMParams(_lm_params(max_iterations, inner))
+        params = gtsam.GncLMParams(lm_params(max_iterations, inner))
         params.setLossType(gtsam.GncLossType.TLS)
         known = sorted(set(range(factors.size())) - set(loop_index))
         params.setKnownInliers(known)
@@ -230,7 +187,7 @@ def optimize(
         solver = "gnc-tls"
     else:
         factors, loop_index = graph.factor_graph(kernel)
-        result, iterations, solver = _solve(factors, values, max_iterations)
+        result, iterations, solver = solve(factors, values, max_iterations)
     seconds = time.perf_counter() - start
     poses = poses_from_values(result, graph.dim)
     residuals = np.array([whitened_residual(c, poses, graph.dim) for c in graph.loops])
@@ -249,15 +206,6 @@ def optimize(
         loop_weights=weights,
         solver=solver,
     )
-
-
-def _conditioning(factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
-    """"lm" if sparse Cholesky can factor the graph at `values`, else "dogleg-qr"."""
-    try:
-        gtsam.LevenbergMarquardtOptimizer(factors, values, _lm_params(1)).optimize()
-    except RuntimeError:
-        return "dogleg-qr"
-    return "lm"
 
 
 def _gnc_tls_weights(error: Array, barc: Array, mu: float) -> Array:
@@ -322,9 +270,9 @@ def gnc_warm(
 
     weights = np.ones(len(graph.loops))
     if start == "least-squares":
-        result, _, used = _solve(base, values, 100)
+        result, _, used = solve(base, values, 100)
     else:
-        result, used = values, _conditioning(base, values)
+        result, used = values, conditioning(base, values)
     # Graphs that needed the QR fallback break a Cholesky LM as well.
     linear = "MULTIFRONTAL_QR" if used == "dogleg-qr" else "MULTIFRONTAL_CHOLESKY"
 
@@ -332,10 +280,10 @@ def gnc_warm(
         g = weighted_graph(w)
         try:
             return gtsam.LevenbergMarquardtOptimizer(
-                g, start, _lm_params(iterations, linear)).optimize()
+                g, start, lm_params(iterations, linear)).optimize()
         except RuntimeError:  # indeterminate system: retry with QR
             return gtsam.LevenbergMarquardtOptimizer(
-                g, start, _lm_params(iterations, "MULTIFRONTAL_QR")).optimize()
+                g, start, lm_params(iterations, "MULTIFRONTAL_QR")).optimize()
 
     errors = loop_errors(result)
     excess = 2.0 * errors - barc

@@ -11,9 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from data.atomic_write import write_bytes_atomic
 from data.errors import DataError, DataWarning, UserError
 from data.types import Scan
-from slam.map_io import map_image, write_bytes_atomic
+from slam.map_io import map_image, render_png, write_map, write_pgm, write_yaml
 from slam.occupancy_map import MapConfig, OccupancyGrid, build_occupancy_grid
 from tests.helpers import shared_file
 
@@ -277,7 +278,7 @@ def test_pgm_and_yaml_round_trip_as_ros_map_server_reads_them(tmp_path):
         r = np.minimum(0.9 / np.abs(np.sin(angles)), 1.9 / np.abs(np.cos(angles)))
     scans = [beam_scan(angles, r, max_range=2.5) for _ in range(5)]
     g = build_occupancy_grid(scans, np.tile([2.01, 0.11, 0.0], (5, 1)), 0.05)
-    paths = g.write_map(tmp_path / "out", stem="map", trajectory_xy=[[2.0, 0.1], [2.0, 0.2]])
+    paths = write_map(g, tmp_path / "out", stem="map", trajectory_xy=[[2.0, 0.1], [2.0, 0.2]])
     assert {p.name for p in paths.values()} == {"map.pgm", "map.yaml", "map.png"}
     assert not list((tmp_path / "out").glob(".*tmp"))
     cells_ros, meta = ros_cells(paths["yaml"])
@@ -305,17 +306,17 @@ def test_pgm_and_yaml_round_trip_as_ros_map_server_reads_them(tmp_path):
 def test_written_files_replace_old_ones_and_errors_name_the_file(tmp_path):
     grid = OccupancyGrid(np.ones((2, 3), np.int32), np.zeros((2, 3), np.int32), [1.5, -2.0], 0.1)
     (tmp_path / "map.yaml").write_text("old")
-    grid.to_yaml(tmp_path / "map.yaml", "map.pgm")
+    write_yaml(grid, tmp_path / "map.yaml", "map.pgm")
     assert read_map_yaml(tmp_path / "map.yaml")["origin"] == [1.5, -2.0, 0.0]
-    grid.to_pgm(tmp_path / "map.pgm")
+    write_pgm(grid, tmp_path / "map.pgm")
     assert read_pgm(tmp_path / "map.pgm").tolist() == [[0, 0, 0], [0, 0, 0]]
     with pytest.raises(DataError, match="does not exist"):
         write_bytes_atomic(tmp_path / "missing" / "map.pgm", b"x")
     (tmp_path / "file").write_text("not a directory")
     with pytest.raises(DataError, match="file"):
-        grid.write_map(tmp_path / "file")
+        write_map(grid, tmp_path / "file")
     with pytest.raises(UserError):
-        grid.to_yaml(tmp_path / "x.yaml", "bad: name")
+        write_yaml(grid, tmp_path / "x.yaml", "bad: name")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "map.pgm", "map.yaml"]
 
 
@@ -333,10 +334,10 @@ def test_png_picture_scales_and_draws_the_overlays(tmp_path):
     # Loop line at y = 1.5 m: image row 20, red-ish.
     assert img[20, 20:140, 2].min() > img[20, 20:140, 0].max()
     assert (img[5, :, 0] == 254).all()  # free elsewhere
-    path = grid.render_png(tmp_path / "m.png", trajectory_xy=[[0.5, 0.5]])
+    path = render_png(grid, tmp_path / "m.png", trajectory_xy=[[0.5, 0.5]])
     back = cv2.imread(str(path))
     assert back is not None and back.shape[2] == 3
-    grid.to_png(tmp_path / "plain.png")
+    render_png(grid, tmp_path / "plain.png")
     assert cv2.imread(str(tmp_path / "plain.png")).shape[:2] == (20 * 8, 40 * 8)
 
 
