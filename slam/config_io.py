@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 
 from ruamel.yaml import YAML, YAMLError
 
+from data.atomic_write import atomic_output
 from data.errors import UserError
 
 T = TypeVar("T")
@@ -147,7 +148,5 @@ def dump_config(config: Any, path: Path) -> None:
     """Write `config` as YAML to `path` (atomically)."""
     yaml = YAML()
     yaml.default_flow_style = False
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
-    with tmp.open("w") as f:
+    with atomic_output(path, "w") as f:
         yaml.dump(to_dict(config), f)
-    tmp.replace(path)

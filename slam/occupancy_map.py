@@ -169,7 +169,10 @@ class OccupancyGrid:
         self.misses = np.asarray(self.misses, dtype=np.int32)
         self.origin = np.asarray(self.origin, dtype=float).reshape(2)
         if self.hits.ndim != 2 or self.hits.shape != self.misses.shape:
-            raise ValueError("hits and misses must be 2-D arrays of one shape")
+            raise UserError(
+                f"OccupancyGrid: hits and misses must be 2-D arrays of one shape, got "
+                f"{self.hits.shape} and {self.misses.shape}"
+            )
 
     # ------------------------------------------------------------------ geometry
 

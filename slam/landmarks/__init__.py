@@ -1,4 +1,4 @@
-"""Recognised objects as landmarks in the pose graph (issue 6, part 2).
+"""Recognised objects as landmarks in the pose graph.
 
 A robot with a push-broom line laser (`sensor`) drives a simulated planar world with
 known objects on the floor (`world`); the mapper segments object clusters from the

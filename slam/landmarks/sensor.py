@@ -340,7 +340,7 @@ def cast(
     """
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     if not np.isfinite(poses).all():
-        raise ValueError("ray casting needs finite poses")
+        raise UserError("ray casting needs finite poses (NaN or inf in `poses`)")
     n_s = len(poses)
     ranges = np.broadcast_to(laser.floor_ranges(), (n_s, laser.beams)).copy()
     hit = np.full((n_s, laser.beams), -1, dtype=np.int64)
