@@ -4,9 +4,8 @@ The tree is plain dataclasses: YAML files (``--config FILE``) and ``--set
 section.key=value`` overrides go through `slam.config_io`, and every run writes
 the tree it used to ``config.yaml`` beside its results.
 
-The defaults are the ones measured on the embedded demo, the Intel log and the
-corrected Radish logs together (not tuned to one of them); each section's class
-documents its fields and units.
+The defaults were chosen on the embedded demo and several real logs together (not
+tuned to one of them); each section's class documents its fields and units.
 """
 
 from __future__ import annotations

@@ -12,8 +12,8 @@ approaches this optimum through a convex surrogate; at small ``mu`` that
 surrogate is close to an L1 loss, in which every loop pulls with the same force
 whatever its residual.  With half the loops false (plausible measurements between
 random poses) those pulls fold a graph such as M3500 before the surrogate turns
-robust: measured, GNC fails on M3500 at 50% false loops from every start tried,
-including the outlier-free optimum itself (ATE 28 m).
+robust: GNC can fail on M3500 at 50% false loops from every start, including the
+outlier-free optimum itself.
 
 This module reaches the TLS optimum the way a mapper meets its loops: in time
 order.  Poses are added in blocks of `block` ids (odometry composed onto the

@@ -243,7 +243,7 @@ def gnc_warm(
     least-squares solution is a crumpled map in which true and false loops are
     equally inconsistent, while from odometry the surrogate's first, nearly
     convex steps (every loop weighted almost 0) stay near odometry and admit the
-    loops consistent with it first.  (Measured, graduation from any start folds M3500
+    loops consistent with it first.  (Graduation from any start can fold M3500
     with half its loops false, because at small ``mu`` the surrogate is close to L1
     and every false loop pulls as hard as a true one: `optimize`'s
     ``gnc_start="incremental"`` uses `slam.consistency.incremental_tls` instead.)
