@@ -57,20 +57,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data import se2
+from data.atomic_write import write_text_atomic
 from data.compression import open_text
-from data.errors import DataError, warn
+from data.errors import DataError, UserError, warn
+from data.text_table import PathArg, Row, data_rows, format_rows, parse_rows, read_lines
 from data.trajectory_io import (
-    PathArg,
-    Row,
     checked_quaternions,
-    data_rows,
-    format_rows,
-    parse_rows,
     pose_matrices,
     quaternion_to_rotation,
-    read_lines,
     rotation_to_quaternion,
-    write_text_atomic,
 )
 from data.types import GraphEdge, PoseGraphData
 
@@ -348,7 +343,7 @@ def _pose_columns(kind: _Kind, poses: Array) -> Array:
 
 
 def _stack(arrays: list[Any], shape: tuple[int, ...], what: str, names: list[str]) -> Array:
-    """``(N, *shape)`` stack of finite arrays, or ValueError naming the first bad one."""
+    """``(N, *shape)`` stack of finite arrays, or `UserError` naming the first bad one."""
     if not arrays:
         return np.zeros((0, *shape))
     try:
@@ -358,11 +353,12 @@ def _stack(arrays: list[Any], shape: tuple[int, ...], what: str, names: list[str
     if out is None or out.shape[1:] != shape:
         bad = next((k for k, a in enumerate(arrays) if np.shape(a) != shape), 0)
         got = np.shape(arrays[bad])
-        raise ValueError(f"{names[bad]}: {what} must be numeric, shape {shape}, not {got}")
+        raise UserError(f"graph: {names[bad]}: {what} must be numeric, shape {shape}, not {got}")
     finite = np.isfinite(out.reshape(len(out), -1)).all(axis=1)
     if not finite.all():
         bad = int(np.flatnonzero(~finite)[0])
-        raise ValueError(f"{names[bad]}: {what} has NaN or inf; refusing to write it")
+        raise UserError(f"graph: {names[bad]}: {what} has NaN or inf; refusing to write it "
+                        "(need finite numbers)")
     return out
 
 
@@ -370,19 +366,20 @@ def write_g2o(path: PathArg, graph: PoseGraphData) -> None:
     """Write `graph` as a g2o file, atomically, with round-trip precision.
 
     Raises:
-        ValueError: a graph with the wrong dim, shapes, or non-finite numbers, an
+        UserError: a graph with the wrong dim, shapes, or non-finite numbers, an
             empty graph, or fixed ids without a vertex (a file the reader would
             refuse is never written).
         DataError: the file cannot be written.
     """
     if graph.dim not in (2, 3):
-        raise ValueError(f"graph dim must be 2 or 3, not {graph.dim}")
+        raise UserError(f"graph.dim must be 2 or 3, not {graph.dim}")
     kind = SE2 if graph.dim == 2 else SE3
     if not graph.vertices and not graph.edges:
-        raise ValueError("empty graph: no vertices and no edges to write")
+        raise UserError("graph: empty graph, no vertices and no edges to write")
     missing = graph.fixed - set(graph.vertices)
     if missing:
-        raise ValueError(f"fixed ids without a vertex: {sorted(missing)[:10]}")
+        raise UserError(f"graph.fixed: ids without a vertex: {sorted(missing)[:10]} "
+                        "(every fixed id must be a key of graph.vertices)")
     shape = (3,) if kind is SE2 else (4, 4)
     ids = list(graph.vertices)
     poses = _stack(list(graph.vertices.values()), shape, "pose", [f"vertex {v}" for v in ids])

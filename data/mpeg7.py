@@ -11,10 +11,10 @@ points of polygons".  This module does that conversion, one rule for every image
    (``Bone-1.gif`` -> ``bone``, ``device0-1.gif`` -> ``device0``); a stem without a
    trailing index is its own label.  Sorted by label, then index (numerically),
    then name.
-2. **Image -> mask.** The file is decoded to 8-bit grey by OpenCV (this OpenCV,
-   5.0, decodes GIF; should an OpenCV build not, Pillow, installed with
-   matplotlib, decodes it instead; only the first frame counts).  Otsu's threshold
-   splits it into two classes (for the 0/255 MPEG-7 images: the 255 pixels).  If
+2. **Image -> mask.** The file is decoded to 8-bit grey by OpenCV (should an
+   OpenCV build not decode GIF, Pillow, installed with matplotlib, decodes it
+   instead; only the first frame counts).  Otsu's threshold splits it into two
+   classes (for the 0/255 MPEG-7 images: the 255 pixels).  If
    more than half of the image's border pixels are foreground, the polarity is
    flipped (a dark shape on a light background).
 3. **Mask -> outer contour.** The largest 8-connected component (at least
@@ -30,9 +30,7 @@ points of polygons".  This module does that conversion, one rule for every image
    circular Gaussian of sigma ``s`` samples (removes the 8-connected staircase),
    then simplified by Douglas-Peucker (``cv2.approxPolyDP``, closed) with
    tolerance ``s`` px, which drops the redundant points of straight and gently
-   curved runs.  On the 200-image subset with ``s = 1`` this leaves a median of
-   ~70 vertices (raw contours: ~1,100) within ~1 px of the pixel boundary.
-   ``smooth=0`` keeps the raw pixel contour.  With `max_vertices` set, the
+   curved runs.  ``smooth=0`` keeps the raw pixel contour.  With `max_vertices` set, the
    Douglas-Peucker tolerance is multiplied by 1.25 until the polygon has at most
    that many vertices.
 6. **Checks.** Consecutive duplicate vertices are dropped; a polygon with fewer
@@ -57,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 
-from data.errors import DataError, warn
+from data.errors import DataError, UserError, warn
 
 Array = NDArray[np.float64]
 
@@ -192,9 +190,9 @@ def contour_from_image(img: NDArray[np.uint8], *, smooth: float = 1.0,
 
 def _validate(smooth: float, max_vertices: int | None) -> None:
     if not np.isfinite(smooth) or smooth < 0:
-        raise ValueError(f"smooth must be a finite number >= 0, not {smooth}")
+        raise UserError(f"smooth must be a finite number >= 0 [px], not {smooth}")
     if max_vertices is not None and max_vertices < 3:
-        raise ValueError(f"max_vertices must be at least 3, not {max_vertices}")
+        raise UserError(f"max_vertices must be None or at least 3, not {max_vertices}")
 
 
 def load_silhouettes(
@@ -213,7 +211,7 @@ def load_silhouettes(
 
     Raises:
         DataError: missing folder, no image files, or no image with a shape.
-        ValueError: `smooth` < 0 or `max_vertices` < 3.
+        UserError: `smooth` < 0 or `max_vertices` < 3.
     """
     _validate(smooth, max_vertices)
     root = Path(folder)

@@ -41,16 +41,9 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from data.errors import DataError
-from data.trajectory_io import (
-    PathArg,
-    data_rows,
-    format_rows,
-    format_stamps,
-    parse_rows,
-    read_lines,
-    write_text_atomic,
-)
+from data.atomic_write import write_text_atomic
+from data.errors import DataError, UserError
+from data.text_table import PathArg, data_rows, format_rows, format_stamps, parse_rows, read_lines
 from data.types import Relation
 
 Array = NDArray[np.float64]
@@ -124,17 +117,18 @@ def write_relations(path: PathArg, relations: Iterable[Relation]) -> None:
     """Write relations as ``t1 t2 x y z roll pitch yaw`` lines, atomically.
 
     Raises:
-        ValueError: no relations, a delta that is not ``4x4``, or non-finite numbers.
+        UserError: no relations, a delta that is not ``4x4``, or non-finite numbers.
         DataError: the file cannot be written.
     """
     rels = list(relations)
     if not rels:
-        raise ValueError("no relations to write")
+        raise UserError("relations: no relations to write (need at least one)")
     if any(np.shape(r.delta) != (4, 4) for r in rels):
-        raise ValueError("every Relation.delta must be a 4x4 matrix")
+        raise UserError("relations: every Relation.delta must be a 4x4 matrix")
     t1, t2, delta = relations_arrays(rels)
     if not (np.isfinite(t1).all() and np.isfinite(t2).all() and np.isfinite(delta).all()):
-        raise ValueError("relations contain NaN or inf; refusing to write them")
+        raise UserError("relations: relations contain NaN or inf; refusing to write them "
+                        "(need finite stamps and deltas)")
     body = format_rows(np.column_stack([delta[:, :3, 3], matrix_to_rpy(delta[:, :3, :3])]))
     rows = zip(format_stamps(t1), format_stamps(t2), body, strict=True)
     write_text_atomic(path, "".join(f"{a} {b} {c}\n" for a, b, c in rows))

@@ -1,4 +1,4 @@
-"""TUM and KITTI trajectory files, plus the text-table helpers every text format here shares.
+"""TUM and KITTI trajectory files: read and write, plus the quaternion conversions.
 
 Formats (units: seconds and metres; poses are body-in-world ``4x4`` matrices in a
 `Trajectory`):
@@ -24,178 +24,38 @@ Rules shared by both readers:
 - KITTI rotation blocks must be rotations to within 1e-2 (``max |RᵀR - I|`` and
   ``det R > 0``); they are kept exactly as written.
 
-Writers write atomically (temporary file in the same directory, then rename), gzip
-or bzip2 compressed when the path ends in ``.gz`` / ``.bz2`` (the readers open
-either transparently).  Precision: stamps as ``%.6f`` when that reads back
+Writers write atomically (`data.atomic_write.write_text_atomic`), gzip or bzip2
+compressed when the path ends in ``.gz`` / ``.bz2`` (the readers open either
+transparently).  Precision: stamps as ``%.6f`` when that reads back
 exactly (microsecond stamps such as CARMEN ipc times), else with Python's
 shortest round-trip repr; pose numbers with the shortest round-trip repr (up to 17
 significant digits, never fewer than needed), so write -> read gives the same
 floats (TUM orientations up to the ~1e-16 of the quaternion <-> matrix conversion).
 
-The helpers `read_lines`, `data_rows`, `parse_rows`, `write_text_atomic`,
-`format_rows` and the quaternion conversions are shared with `data.g2o` and
-`data.relations`.
+The text-table rules are `data.text_table`'s; the quaternion conversions here are
+shared with `data.g2o`.
 """
 
 from __future__ import annotations
 
-import bz2
-import contextlib
-import gzip
-import os
-import tempfile
 from os import PathLike
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from data.compression import open_text
-from data.errors import DataError, warn
+from data.atomic_write import write_text_atomic
+from data.errors import DataError, UserError, warn
+from data.text_table import PathArg, data_rows, format_rows, format_stamps, parse_rows, read_lines
 from data.types import Trajectory
 
 Array = NDArray[np.float64]
-PathArg = str | PathLike[str]
-
-Row = tuple[int, list[str]]
-"""A data line: its 1-based line number and its whitespace-separated tokens."""
 
 QUAT_NORM_TOL = 1e-3
 """Quaternions whose norm differs from 1 by more than this draw a warning (then normalised)."""
 
 ROTATION_TOL = 1e-2
 """KITTI rotation blocks must satisfy ``max |RᵀR - I| <= ROTATION_TOL`` and ``det R > 0``."""
-
-
-# --------------------------------------------------------------------------- text helpers
-
-
-def read_lines(path: PathArg) -> list[str]:
-    """All lines of a plain, gzip or bzip2 text file (latin-1, never fails on stray bytes).
-
-    Raises `DataError` when the file is missing, a directory, or its compressed
-    stream is corrupt.
-    """
-    try:
-        with open_text(path) as f:
-            return f.read().splitlines()
-    except (OSError, EOFError, ValueError) as exc:
-        raise DataError(path, f"cannot read: {exc}") from exc
-
-
-def data_rows(lines: list[str], comment: str = "#") -> list[Row]:
-    """``(line number, tokens)`` of every non-blank line not starting with `comment`."""
-    rows: list[Row] = []
-    for n, line in enumerate(lines, start=1):
-        tokens = line.split()
-        if tokens and not tokens[0].startswith(comment):
-            rows.append((n, tokens))
-    return rows
-
-
-def parse_rows(path: PathArg, rows: list[Row], ncols: int, what: str) -> tuple[NDArray, Array]:
-    """Line numbers ``(N,)`` and finite values ``(N, ncols)`` of token rows.
-
-    Vectorised: one numpy conversion for the whole table; only when it fails is
-    the table scanned again to name the first bad line.
-
-    Raises:
-        DataError: a row without exactly `ncols` tokens, a token that is not a
-            number, or a NaN/inf value, naming the line (``what`` names the record).
-    """
-    linenos = np.fromiter((n for n, _ in rows), dtype=np.int64, count=len(rows))
-    counts = np.fromiter((len(t) for _, t in rows), dtype=np.int64, count=len(rows))
-    wrong = np.flatnonzero(counts != ncols)
-    if wrong.size:
-        k = int(wrong[0])
-        raise DataError(
-            path,
-            f"line {linenos[k]}: {what} needs {ncols} values, found {counts[k]}"
-            + (f" ({wrong.size} such lines)" if wrong.size > 1 else ""),
-        )
-    if not rows:
-        return linenos, np.zeros((0, ncols))
-    try:
-        values = np.array([t for _, t in rows], dtype=float)
-    except ValueError:
-        for n, tokens in rows:
-            for tok in tokens:
-                try:
-                    float(tok)
-                except ValueError:
-                    raise DataError(path, f"line {n}: {tok!r} is not a number") from None
-        raise  # pragma: no cover - numpy and float() disagree
-    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
-    if bad.size:
-        k = int(bad[0])
-        raise DataError(
-            path,
-            f"line {linenos[k]}: non-finite value (NaN or inf) in {what}"
-            + (f" ({bad.size} such lines)" if bad.size > 1 else ""),
-        )
-    return linenos, values.reshape(len(rows), ncols)
-
-
-def format_rows(values: ArrayLike) -> list[str]:
-    """Rows of a 2-D array as space-separated shortest round-trip reprs of each float."""
-    table = np.asarray(values, dtype=float)
-    return [" ".join(map(repr, row)) for row in table.tolist()]
-
-
-def format_stamps(stamps: ArrayLike) -> list[str]:
-    """Stamps [s] as ``%.6f`` where that reads back exactly, else the round-trip repr."""
-    s = np.asarray(stamps, dtype=float).reshape(-1)
-    out = []
-    for x in s.tolist():
-        fixed = f"{x:.6f}"
-        out.append(fixed if float(fixed) == x else repr(x))
-    return out
-
-
-def _file_mode(target: Path) -> int:
-    """Permission bits for a written file: the old file's, else what ``open()`` would give."""
-    try:
-        return target.stat().st_mode & 0o777
-    except OSError:
-        mask = os.umask(0)
-        os.umask(mask)
-        return 0o666 & ~mask
-
-
-def write_text_atomic(path: PathArg, text: str) -> None:
-    """Write `text` to `path` atomically: a temporary file beside it, then ``os.replace``.
-
-    A path ending in ``.gz`` or ``.bz2`` is compressed accordingly.  An
-    interrupted write leaves any previous file untouched and no temporary file
-    behind.  Raises `DataError` when the file cannot be written.
-    """
-    target = Path(path)
-    data = text.encode("utf-8")
-    suffix = target.suffix.lower()
-    if suffix == ".gz":
-        data = gzip.compress(data, mtime=0)
-    elif suffix == ".bz2":
-        data = bz2.compress(data)
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise DataError(target, f"cannot write: directory {parent} does not exist")
-    tmp_name: str | None = None
-    try:
-        fd, tmp_name = tempfile.mkstemp(dir=parent, prefix=f".{target.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp_name, _file_mode(target))  # mkstemp makes 0600; give the usual mode
-        os.replace(tmp_name, target)
-        tmp_name = None
-    except OSError as exc:
-        raise DataError(target, f"cannot write: {exc.strerror or exc}") from exc
-    finally:
-        if tmp_name is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp_name)
 
 
 # --------------------------------------------------------------------------- rotations
@@ -268,11 +128,12 @@ def _check_increasing(path: PathArg, linenos: NDArray, stamps: Array) -> None:
 
 def _check_writable(traj: Trajectory) -> None:
     if len(traj) == 0:
-        raise ValueError("empty trajectory: nothing to write")
+        raise UserError("traj: empty trajectory, nothing to write (need at least one pose)")
     if not (np.all(np.isfinite(traj.stamps)) and np.all(np.isfinite(traj.poses))):
-        raise ValueError("trajectory has non-finite stamps or poses; refusing to write NaN/inf")
+        raise UserError("traj: trajectory has non-finite stamps or poses; refusing to write "
+                        "NaN/inf (need finite numbers)")
     if np.any(np.diff(traj.stamps) <= 0):
-        raise ValueError("trajectory stamps must be strictly increasing")
+        raise UserError("traj: trajectory stamps must be strictly increasing")
 
 
 def read_tum(path: PathArg) -> Trajectory:
@@ -295,8 +156,8 @@ def write_tum(path: PathArg, traj: Trajectory) -> None:
     """Write `traj` as TUM ``stamp x y z qx qy qz qw``, atomically (see module docstring).
 
     Raises:
-        ValueError: non-finite values or stamps that do not strictly increase (a
-            file the reader would refuse is never written).
+        UserError: an empty trajectory, non-finite values or stamps that do not
+            strictly increase (a file the reader would refuse is never written).
         DataError: the file cannot be written.
     """
     _check_writable(traj)
@@ -366,7 +227,8 @@ def write_kitti(path: PathArg, traj: Trajectory) -> None:
     Stamps are not part of the format and are not written.
 
     Raises:
-        ValueError: non-finite poses or stamps that do not strictly increase.
+        UserError: an empty trajectory, non-finite poses or stamps that do not
+            strictly increase.
         DataError: the file cannot be written.
     """
     _check_writable(traj)

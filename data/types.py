@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data import se2
+from data.errors import UserError
 
 Array = NDArray[np.float64]
 
@@ -101,7 +102,8 @@ class Trajectory:
         self.stamps = np.asarray(self.stamps, dtype=float).reshape(-1)
         self.poses = np.asarray(self.poses, dtype=float).reshape(-1, 4, 4)
         if len(self.stamps) != len(self.poses):
-            raise ValueError(f"{len(self.stamps)} stamps but {len(self.poses)} poses")
+            raise UserError(f"Trajectory: {len(self.stamps)} stamps but {len(self.poses)} poses "
+                            "(need one stamp per pose)")
 
     @classmethod
     def from_xytheta(cls, stamps: Array, poses: Array) -> Trajectory:

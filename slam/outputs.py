@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from data.atomic_write import write_text_atomic
 from data.errors import warn
-from data.trajectory_io import write_kitti, write_text_atomic, write_tum
+from data.trajectory_io import write_kitti, write_tum
 from data.types import Trajectory
 
 Array = NDArray[np.float64]

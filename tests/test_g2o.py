@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from data import se2
-from data.errors import DataError, DataWarning
+from data.errors import DataError, DataWarning, UserError
 from data.g2o import graph_info, is_g2o, read_g2o, write_g2o
 from data.types import GraphEdge, PoseGraphData
 from tests.helpers import shared_file
@@ -275,10 +275,10 @@ def test_writer_refuses_bad_graph_and_keeps_old_file(tmp_path: Path) -> None:
     out = _write(tmp_path, SE2_SNIPPET, "keep.g2o")
     g = read_g2o(out)
     g.vertices[1] = np.array([np.nan, 0.0, 0.0])
-    with pytest.raises(ValueError, match="vertex 1"):
+    with pytest.raises(UserError, match="vertex 1"):
         write_g2o(out, g)
     assert out.read_text() == SE2_SNIPPET
-    with pytest.raises(ValueError, match="empty graph"):
+    with pytest.raises(UserError, match="empty graph"):
         write_g2o(tmp_path / "e.g2o", PoseGraphData(2))
     with pytest.raises(DataError, match="does not exist"):
         write_g2o(tmp_path / "no" / "dir.g2o", PoseGraphData(2, {0: np.zeros(3)}))

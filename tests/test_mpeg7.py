@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data import mpeg7
-from data.errors import DataError, DataWarning
+from data.errors import DataError, DataWarning, UserError
 from data.mpeg7 import contour_from_image, load_silhouettes, mpeg7_classes, parse_name
 from tests.helpers import SHARED_DATA
 
@@ -200,9 +200,9 @@ def test_bad_folders_are_data_errors(tmp_path: Path) -> None:
 
 
 def test_bad_parameters(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="smooth"):
+    with pytest.raises(UserError, match="smooth"):
         load_silhouettes(tmp_path, smooth=-1)
-    with pytest.raises(ValueError, match="max_vertices"):
+    with pytest.raises(UserError, match="max_vertices"):
         load_silhouettes(tmp_path, max_vertices=2)
 
 

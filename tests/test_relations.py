@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from data.errors import DataError
+from data.errors import DataError, UserError
 from data.relations import (
     matrix_to_rpy,
     read_relations,
@@ -116,11 +116,11 @@ def test_round_trip(tmp_path: Path) -> None:
 
 
 def test_writer_refuses_bad_relations(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="no relations"):
+    with pytest.raises(UserError, match="no relations"):
         write_relations(tmp_path / "x", [])
-    with pytest.raises(ValueError, match="NaN"):
+    with pytest.raises(UserError, match="NaN"):
         write_relations(tmp_path / "x", [Relation(0.0, 1.0, np.full((4, 4), np.nan))])
-    with pytest.raises(ValueError, match="4x4"):
+    with pytest.raises(UserError, match="4x4"):
         write_relations(tmp_path / "x", [Relation(0.0, 1.0, np.zeros(3))])
     assert not (tmp_path / "x").exists()
 

@@ -20,8 +20,14 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from data.errors import DataError, DataWarning, UserError
-from data.rosbag import RosBag, is_rosbag, laserscan_to_scan, pointcloud2_xyz
-from data.rosbag_write import split_stamp, write_ros2_bag
+from data.rosbag import (
+    RosBag,
+    is_rosbag,
+    laserscan_to_scan,
+    pointcloud2_xyz,
+    split_stamp,
+    write_ros2_bag,
+)
 from data.types import PointCloud, Scan
 from tests.helpers import shared_file
 
@@ -254,9 +260,9 @@ def test_bag_without_odometry_gives_none(tmp_path):
 
 
 def test_pending_scans_are_released_when_odometry_never_comes(tmp_path, monkeypatch):
-    import data.rosbag as rb
+    import data.rosbag.odom_sync as odom_sync
 
-    monkeypatch.setattr(rb, "_MAX_PENDING", 2)
+    monkeypatch.setattr(odom_sync, "_MAX_PENDING", 2)
     msgs = [("/tf", TF, T0, _tf(HUMBLE, (T0, "map", "odom", 1.0, 0.0, 0.0)))]
     msgs += [("/scan", LASER, T0 + k * SEC, _laser(HUMBLE, T0 + k * SEC, [1.0]))
              for k in range(6)]

@@ -11,15 +11,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from data.errors import DataError, DataWarning
-from data.trajectory_io import (
-    format_stamps,
-    read_kitti,
-    read_tum,
-    write_kitti,
-    write_text_atomic,
-    write_tum,
-)
+from data.atomic_write import write_text_atomic
+from data.errors import DataError, DataWarning, UserError
+from data.text_table import format_stamps
+from data.trajectory_io import read_kitti, read_tum, write_kitti, write_tum
 from data.types import Trajectory
 
 H = math.sqrt(0.5)
@@ -150,15 +145,15 @@ def test_writers_refuse_bad_trajectories(tmp_path: Path) -> None:
     out = _write(tmp_path, TUM, "keep.tum")
     bad = _random_traj(3, seed=2)
     bad.poses[1, 0, 3] = np.nan
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(UserError, match="non-finite"):
         write_tum(out, bad)
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(UserError, match="non-finite"):
         write_kitti(out, bad)
     backwards = _random_traj(3, seed=3)
     backwards.stamps[2] = backwards.stamps[0]
-    with pytest.raises(ValueError, match="strictly increasing"):
+    with pytest.raises(UserError, match="strictly increasing"):
         write_tum(out, backwards)
-    with pytest.raises(ValueError, match="empty"):
+    with pytest.raises(UserError, match="empty"):
         write_tum(out, Trajectory(np.zeros(0), np.zeros((0, 4, 4))))
     assert out.read_text() == TUM
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.tum"]
@@ -248,7 +243,7 @@ def test_interrupted_write_leaves_old_file_and_no_temp(
     def fail(*_args: object) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr("data.trajectory_io.os.replace", fail)
+    monkeypatch.setattr("data.atomic_write.os.replace", fail)
     with pytest.raises(DataError, match="cannot write: No space left"):
         write_tum(out, _random_traj(3, seed=7))
     assert out.read_text() == TUM

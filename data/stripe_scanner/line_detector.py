@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from data.errors import UserError
+
 Array = NDArray[np.float64]
 
 
@@ -36,7 +38,7 @@ def laser_line_positions(
     """
     img = np.nan_to_num(np.asarray(image, dtype=float), nan=0.0)
     if img.ndim != 2:
-        raise ValueError(f"expected a 2D image, got shape {img.shape}")
+        raise UserError(f"image must be a 2D (rows, columns) array, got shape {img.shape}")
     h = img.shape[0]
     above = img >= threshold
     found = above.any(axis=0)

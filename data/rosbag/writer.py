@@ -19,11 +19,12 @@
   subscribers receive it.
 
 Every message is recorded at its header stamp, except where the input's stamps go
-backwards (the Intel log's do, 631 times, while its file order is the order of
-motion): a scan and its odometry are then recorded 1 ns after the previous scan, so
-a player replays the bag in input order; header stamps stay exact.  The bag is built in a hidden
-sibling folder and renamed into place only when complete: an existing output is
-never overwritten, and a failed or interrupted conversion leaves nothing behind.
+backwards (the Intel log's do, while its file order is the order of motion): a
+scan and its odometry are then recorded 1 ns after the previous scan, so a player
+replays the bag in input order; header stamps stay exact.  The bag is built in a
+hidden sibling folder and renamed into place only when complete: an existing
+output is never overwritten, and a failed or interrupted conversion leaves nothing
+behind.
 """
 
 from __future__ import annotations
