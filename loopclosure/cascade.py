@@ -1,8 +1,8 @@
 """The cascade matcher: prefilter -> verifier -> fused score, behind the `Matcher` interface.
 
-Issue 4, "Beyond the paper: a cascade that beats every single matcher".  The cascade
-is the place database (`loopclosure.place_database`) seen as one matcher, so the
-all-pairs benchmark (Bull's eye, ROC, F-score) scores it like any other:
+The cascade is the place database (`loopclosure.place_database`) seen as one
+matcher, so the all-pairs benchmark (Bull's eye, ROC, F-score) scores it like any
+other:
 
 - ``describe(polygon)``: the descriptors of every stage (a dict stage -> descriptor).
 - ``stack(descriptors)``: a `PlaceDatabase` holding them (keys 0..M-1); its stage
@@ -40,46 +40,38 @@ Parameters (`CascadeConfig`: the `PlaceDatabaseConfig` fields, with these defaul
     n_headings = 0 (the benchmark needs no heading); scale_invariant passed down to
     every stage (True for MPEG-7).
 
-Why K = M on small databases and the FLIRT anchor on places (issue 4, Robot set:
-263 real scans, 29 places of 5-19 scans, so 2n <= 38): the FFT + ring prefilter,
-near perfect on the simulated sets, keeps only 0.80 of the same-place scans of a
-real query within its K = 128 (recall@16/32/64/128/200 = 0.51/0.56/0.65/0.80/0.94),
-so FLIRT re-ranking the top 128 alone reaches Bull's eye 70.6 against FLIRT's 74.7
-over all pairs; and the Box-calibrated logistic fell further, to 68.1 (69.4 even
-with K = M), because it trusts MRM, ring and FFT, which are weak on real scans
-(Bull's eye 50.9 / 56.0 / 53.2).  No logistic helps there: one fitted on the Robot
-pairs themselves (a diagnostic, not shipped) reached only 71.7 with K = M, so on
-real places every other stage only adds noise to FLIRT's order.  Hence: verify
-everything when that is affordable (the prefilter is a speed device, not a
-quality one), and on places let FLIRT order the verified candidates; the
-calibrated fusion is kept for ties, for the place database (`PlaceDatabaseConfig`,
-untouched) and for explicit ``fusion`` modes.  On scale-invariant shape sets the
-anchor is off and rank fusion orders (FLIRT is the weakest verifier on MPEG-7).
-The anchored cascade therefore equals FLIRT's ranking when K = M, i.e. it cannot
-fall below FLIRT on Bull's eye; it beats FLIRT only where FLIRT has exact ties.
-K matters for the benchmark: Bull's eye counts the 2n nearest (n = class size, 21 on
-Box/Surface, 20 on MPEG-7), so re-ranking can only change it when K > 2n; and the
-prefilter must keep every same-class shape within K (recall@K = 1): FFT + ring
-recall@100 / @128 is 0.9998 / 1.0 on Box seed 0, 1.0 on Surface, 0.989 / 0.994 on
-the MPEG-7 subset.
+Why K = M on small databases and the FLIRT anchor on places: on real scans the
+FFT + ring prefilter, near perfect on the simulated sets, loses a part of the
+same-place scans of a query beyond any affordable K, and FLIRT re-ranking only the
+top K then falls below FLIRT over all pairs; the MRM, ring and FFT stages the
+Box-calibrated logistic trusts are weak on real scans, so on real places every other
+stage only adds noise to FLIRT's order (even a logistic fitted on real pairs does
+not beat FLIRT alone).  Hence: verify everything when that is affordable (the
+prefilter is a speed device, not a quality one), and on places let FLIRT order the
+verified candidates; the calibrated fusion is kept for ties, for the place database
+(`PlaceDatabaseConfig`, untouched) and for explicit ``fusion`` modes.  On
+scale-invariant shape sets the anchor is off and rank fusion orders (FLIRT is the
+weakest verifier on MPEG-7).  The anchored cascade therefore equals FLIRT's ranking
+when K = M, i.e. it cannot fall below FLIRT on Bull's eye; it beats FLIRT only where
+FLIRT has exact ties.  K matters for the benchmark: Bull's eye counts the 2n nearest
+(n = class size), so re-ranking can only change it when K > 2n; and the prefilter
+must keep every same-class shape within K (recall@K = 1).
 
 Fusion "auto" = logistic for places (not scale invariant), reciprocal rank fusion for
 scale-invariant shape sets (`PlaceDatabaseConfig.resolved_fusion`).  The logistic is
 calibrated on laser places, where FLIRT separates places almost perfectly and gets
 the largest weight; on MPEG-7 silhouettes FLIRT is the weakest verifier, and the
-Box-calibrated logistic fell below MRM alone (Bull's eye 88.5 against 92.4 on the
-subset), while rank fusion, which needs no calibration, reached 93.4.
+Box-calibrated logistic falls below MRM alone there, while rank fusion, which needs
+no calibration, does not.
 
 Calibration of the logistic fusion (`calibrate_logistic`): every shape of a labelled
 set queries the database of all the others (leave one out); the K prefilter
 candidates give (stage distances, same place?) pairs; features
 log(d_s / scale_s + 1e-3); ridge-penalised Newton fit (`loopclosure.fusion`).
-`CASCADE_LOGISTIC` was fitted on the simulated Box set, seed 0 (29,568 pairs).
-Held out on Box seed 1 (29,568 candidate pairs, 15.6 % same place): log loss 0.019,
-Brier score 0.005, precision 1.000 and recall 0.956 at p > 0.5.  Refit, without any
+`CASCADE_LOGISTIC` was fitted on the simulated Box set, seed 0.  Refit, without any
 CLI::
 
-    /work/venv/bin/python -c "
+    python -c "
     from data.sim import place_dataset
     from loopclosure.polygon import polygon_from_scan
     from loopclosure.cascade import CascadeConfig, calibrate_logistic
@@ -87,28 +79,10 @@ CLI::
     print(calibrate_logistic([polygon_from_scan(s) for _, s in ds], [l for l, _ in ds],
                              CascadeConfig(fusion='rank')))"
 
-(about 3 minutes of CPU) and paste the printed `LogisticFusion` into `CASCADE_LOGISTIC`
-(or into the ``logistic`` section of a config file).  The place database's
-`DEFAULT_LOGISTIC` is refitted the same way with ``PlaceDatabaseConfig(fusion='rank')``
-and ``top_k=50``.
-
-Measured (all pairs, `evaluation.retrieval`; Bull's eye % / ROC AUC / best F):
-    stage alone         Box seed 0          Box seed 1 (held out) Surface seed 0      MPEG-7 subset
-    fft (16)         94.58 .9723 .8693   92.95 .9658 .8515   99.73 .9976 .9386   88.97 .9178 .6002
-    ring (32)        99.63 .9966 .9333   97.84 .9893 .8266   99.30 .9965 .9165   71.97 .8569 .4646
-    fft + ring       99.32 .995  .956    98.06 .992  .901   100.00 1.000 .973    88.40 .936  .621
-    mrm              98.89 .9944 .9456   96.47 .9847 .8702   99.55 .9977 .9853   92.35 .9327 .7723
-    flirt           100.00 1.000 .9987   99.86 .9987 .9887  100.00 1.000 1.000    79.53 .8850 .6370
-    shape-context    99.07 .9587 .9478   98.74 .9514 .8389   99.07 .9678 .9584   91.85 .9615 .8132
-    cascade         100.00 1.000 .9991   99.90 .9999 .9900  100.00 1.000 1.000    93.35 .9768 .8591
-
-(Box/Surface: 231 scans, 11 places x 21; the 200-image MPEG-7 subset of ../shared/data, scale
-invariant, 10 classes; the cascade's logistic was fitted on Box seed 0, which is
-therefore not held out; the matchers as of this module's writing; the cascade row is
-from before verify_all_up_to and the anchor: K = 128, logistic on places.  After
-them, Robot set: cascade 74.65 .8865 .6392, FLIRT 74.65 .8856 .6401; the other
-columns are to be re-measured.)  Time per query:
-K = 128 verifications by three matchers, about 0.7 s on Box (CPU, one core).
+and paste the printed `LogisticFusion` into `CASCADE_LOGISTIC` (or into the
+``logistic`` section of a config file).  The place database's `DEFAULT_LOGISTIC`
+is refitted the same way with ``PlaceDatabaseConfig(fusion='rank')`` and
+``top_k=50``.
 """
 
 from __future__ import annotations
@@ -123,11 +97,8 @@ from numpy.typing import ArrayLike, NDArray
 from data.errors import UserError
 from loopclosure.fusion import LogisticFusion, fit_logistic, log_features
 from loopclosure.matchers.base import Matcher
-from loopclosure.place_database import (
-    Descriptors,
-    PlaceDatabase,
-    PlaceDatabaseConfig,
-)
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_database import Descriptors, PlaceDatabase
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -207,7 +178,7 @@ class CascadeMatcher(Matcher):
             known = {f.name for f in fields(CascadeConfig)}
             unknown = set(overrides) - known
             if unknown:
-                raise TypeError(f"unknown CascadeConfig fields: {', '.join(sorted(unknown))}")
+                raise UserError(f"unknown CascadeConfig fields: {', '.join(sorted(unknown))}")
             cfg = replace(cfg, **overrides)
         self.config = cfg
         self._template = PlaceDatabase(cfg, matchers=matchers)
@@ -273,7 +244,7 @@ def candidate_pairs(
     """
     lab = np.asarray(labels)
     if len(lab) != len(shapes):
-        raise ValueError(f"{len(lab)} labels for {len(shapes)} shapes")
+        raise UserError(f"candidate_pairs: {len(lab)} labels for {len(shapes)} shapes")
     cfg = config or CascadeConfig()
     db = PlaceDatabase(cfg, matchers=matchers)
     descs = [s if isinstance(s, dict) else db.describe(s) for s in shapes]

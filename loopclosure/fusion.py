@@ -43,10 +43,9 @@ g = F^T (y - p) - lambda w, Hessian H = -F^T diag(p (1 - p)) F - lambda I (no
 penalty on b), step solved exactly with a backtracking line search; converges in
 about 10 iterations.  The ridge keeps the weights finite on separable data.
 
-Default coefficients (`DEFAULT_LOGISTIC`) and how to refit them: see
-`loopclosure.cascade` (module docstring), which calibrates them on the simulated
-Box data set with `loopclosure.cascade.calibrate_logistic` and reports the
-held-out quality.
+Default coefficients (`loopclosure.place_config.DEFAULT_LOGISTIC`) and how to refit
+them: see `loopclosure.cascade` (module docstring), which calibrates them on the
+simulated Box data set with `loopclosure.cascade.calibrate_logistic`.
 """
 
 from __future__ import annotations
@@ -56,6 +55,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from data.errors import UserError
 
 Array = NDArray[np.float64]
 
@@ -86,7 +87,7 @@ def log_features(distances: ArrayLike, scales: ArrayLike, eps: float = DEFAULT_E
     d = np.asarray(distances, dtype=float)
     s = np.asarray(scales, dtype=float)
     if np.any(~np.isfinite(s)) or np.any(s <= 0):
-        raise ValueError(f"scales must be positive and finite, got {s}")
+        raise UserError(f"log_features: scales must be positive and finite, got {s}")
     d = np.nan_to_num(d, nan=np.finfo(float).max, posinf=np.finfo(float).max)
     ratio = np.minimum(np.maximum(d, 0.0) / s, 1e300)
     return np.log(ratio + eps)
@@ -96,7 +97,7 @@ def ranks(distances: ArrayLike) -> Array:
     """``(S, K)`` ranks 1..K of each row's entries (ascending; ties share the lowest rank)."""
     d = np.asarray(distances, dtype=float)
     if d.ndim != 2:
-        raise ValueError(f"expected an (S, K) array of distances, got shape {d.shape}")
+        raise UserError(f"ranks: distances must be an (S, K) array, got shape {d.shape}")
     s, k = d.shape
     if k == 0:
         return np.zeros((s, 0))
@@ -115,11 +116,11 @@ def ranks(distances: ArrayLike) -> Array:
 def reciprocal_rank_fusion(distances: ArrayLike, constant: float = DEFAULT_RANK_CONSTANT) -> Array:
     """``(K,)`` RRF scores in (0, 1] of K candidates from ``(S, K)`` per-matcher distances."""
     if constant < 0:
-        raise ValueError(f"rank constant must be >= 0, got {constant}")
+        raise UserError(f"rank fusion: constant must be >= 0, got {constant}")
     r = ranks(distances)
     s = r.shape[0]
     if s == 0:
-        raise ValueError("rank fusion needs at least one matcher")
+        raise UserError("rank fusion needs at least one matcher (distances has 0 rows)")
     return (1.0 / (constant + r)).sum(axis=0) * ((constant + 1.0) / s)
 
 
@@ -142,20 +143,22 @@ class LogisticFusion:
 
     def __post_init__(self) -> None:
         if len(self.names) != len(self.coefficients):
-            raise ValueError(
+            raise UserError(
                 f"logistic fusion: {len(self.names)} names but {len(self.coefficients)} "
                 "coefficients"
             )
         if not np.all(np.isfinite(self.coefficients)) or not np.isfinite(self.intercept):
-            raise ValueError("logistic fusion: coefficients and intercept must be finite")
+            raise UserError("logistic fusion: coefficients and intercept must be finite")
         if not self.eps > 0:
-            raise ValueError(f"logistic fusion: eps must be > 0, got {self.eps}")
+            raise UserError(f"logistic fusion: eps must be > 0, got {self.eps}")
 
     def logit(self, features: ArrayLike) -> Array:
         """``(n,)`` log-odds ``b + w . f`` of ``(n, S)`` features."""
         f = np.asarray(features, dtype=float)
         if f.ndim != 2 or f.shape[1] != len(self.names):
-            raise ValueError(f"expected (n, {len(self.names)}) features, got shape {f.shape}")
+            raise UserError(
+                f"logistic fusion: features must be (n, {len(self.names)}), got shape {f.shape}"
+            )
         return self.intercept + f @ np.asarray(self.coefficients, dtype=float)
 
     def probability(self, features: ArrayLike) -> Array:
@@ -190,18 +193,22 @@ def fit_logistic(
         tol: stop when the largest parameter change is below this.
 
     Raises:
-        ValueError: shapes disagree, non-finite features, or only one class present.
+        UserError: shapes disagree, non-finite features, or only one class present.
     """
     f = np.asarray(features, dtype=float)
     y = np.asarray(same_place, dtype=bool).astype(float)
     if f.ndim != 2 or len(f) != len(y):
-        raise ValueError(f"features (n, S) and labels (n,) disagree: {f.shape}, {y.shape}")
+        raise UserError(
+            f"fit_logistic: features (n, S) and same_place (n,) disagree: {f.shape}, {y.shape}"
+        )
     if not np.isfinite(f).all():
-        raise ValueError("features must be finite")
+        raise UserError("fit_logistic: features must be finite")
     if y.min(initial=1.0) == y.max(initial=0.0):
-        raise ValueError("fitting needs both same-place and different-place pairs")
+        raise UserError(
+            "fit_logistic: fitting needs both same-place and different-place pairs in same_place"
+        )
     if ridge < 0:
-        raise ValueError(f"ridge must be >= 0, got {ridge}")
+        raise UserError(f"fit_logistic: ridge must be >= 0, got {ridge}")
     n, s = f.shape
     x = np.hstack([np.ones((n, 1)), f])
     penalty = np.full(s + 1, float(ridge))
@@ -236,5 +243,5 @@ def fit_logistic(
             break
     labels = tuple(names) if names is not None else tuple(f"f{i}" for i in range(s))
     if len(labels) != s:
-        raise ValueError(f"{len(labels)} names for {s} features")
+        raise UserError(f"fit_logistic: {len(labels)} names for {s} features")
     return LogisticFusion(labels, tuple(float(v) for v in theta[1:]), float(theta[0]), eps)

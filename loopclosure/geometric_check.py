@@ -5,7 +5,9 @@ check registers b's local submap (points in b's sensor frame) onto a's local
 submap (points in a's sensor frame) from several initial guesses — the relative
 pose predicted by the current pose estimates, headings from the FFT
 cross-correlation of the two places' range functions, each with a few
-translation offsets — and keeps the best run (`loopclosure.registration.register_multi`).
+translation offsets — and keeps the best run (`loopclosure.multi_start.register_multi`).
+Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
+the query in the candidate's frame.
 
 It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
 
@@ -15,18 +17,22 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   thresholds are the lower ``min_fitness_gated`` / ``min_inlier_ratio_gated``: the
   prior is independent evidence, and two passes through a place in different
   directions, or logs with one scan per metre, share only a part of their submaps
-  (orebro's true revisits: fitness 0.24-0.49 with poses right to a few cm, every
-  wrong pose below 0.26 there); such a partial overlap must also be well
-  constrained, ``degeneracy >= min_degeneracy_partial`` (Intel's corridor at scans
-  1,800-1,840 fits 0.37 m off along its axis with overlap 0.41 and degeneracy
-  0.046-0.053, orebro's partial revisits mostly 0.12-0.47);
+  (true revisits of real logs then overlap well below `min_fitness` with poses
+  right to a few centimetres); such a partial overlap must also be well
+  constrained, ``degeneracy >= min_degeneracy_partial`` (a corridor seen partly
+  fits off along its axis with a fair overlap and a degeneracy just above
+  `min_degeneracy`, while partial true revisits are well above it);
 - ``degeneracy >= min_degeneracy``: no direction left unconstrained (a corridor
   seen twice matches anywhere along its axis);
 - when a prior relative pose with covariance is given (a pose-gated, local
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
   (more than `ambiguity_distance` m or `ambiguity_angle_deg` away) by at least
-  `min_fitness_margin`: a symmetric room that fits two ways is ambiguous.
+  `min_fitness_margin`: a symmetric room that fits two ways is ambiguous;
+- a loop closure is a revisit: when the caller gives `max_distance` (the loop
+  detector's `LoopClosureConfig.max_distance`), a relative pose longer than that
+  is rejected, "not a revisit (D m apart)": the two keyframes see overlapping but
+  distinct places.
 
 The result carries the relative pose (pose of b in a's frame) and its covariance:
 ICP's Gauss-Newton covariance, which is optimistic, never below `covariance_floor`.
@@ -40,12 +46,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data import se2
+from loopclosure.multi_start import initial_guesses, register_multi
 from loopclosure.registration import (
     IcpConfig,
     IcpResult,
     RegistrationTarget,
-    initial_guesses,
-    register_multi,
     voxel_downsample,
 )
 
@@ -155,6 +160,7 @@ def verify(
     headings: ArrayLike | None = None,
     translation: ArrayLike | None = None,
     offsets: float | None = None,
+    max_distance: float | None = None,
     config: GeometricCheckConfig | None = None,
 ) -> LoopVerification:
     """Check that the query submap (its frame) fits the candidate's submap (see module doc).
@@ -165,11 +171,14 @@ def verify(
         prior: ``(3,)`` predicted pose of the query in the candidate's frame (from the
             current estimates), or None for a purely appearance-based candidate.
         prior_covariance: ``3x3`` uncertainty of `prior`; enables the prior gate.
-        headings: extra absolute headings [rad] to try (e.g. FFT cross-correlation).
+        headings: extra absolute headings [rad] of the query in the candidate's frame
+            to try (`loopclosure.headings`, e.g. FFT cross-correlation).
         translation: ``(2,)`` translation used with the extra headings when there is
             no prior (e.g. from aligning the two places' centroids).
         offsets: translation offset of the extra guesses [m] (None: the config's;
             0: none, e.g. when the prior is already good to a few centimetres).
+        max_distance: a verified relative pose longer than this is not a revisit
+            [m] (None: no limit).
     """
     cfg = config or GeometricCheckConfig()
     base = np.zeros(3) if prior is None else np.asarray(prior, dtype=float).reshape(3)
@@ -207,6 +216,10 @@ def verify(
         m2 = float(d @ np.linalg.solve(cov + np.eye(3) * 1e-12, d))
         if np.sqrt(max(m2, 0.0)) > cfg.max_prior_mahalanobis:
             reason = f"far from the predicted pose ({np.sqrt(m2):.1f} sigma)"
+    if reason == "accepted" and max_distance is not None:
+        distance = float(np.hypot(best.pose[0], best.pose[1]))
+        if distance > max_distance:
+            reason = f"not a revisit ({distance:.1f} m apart)"
     return LoopVerification(
         accepted=reason == "accepted",
         reason=reason,

@@ -1,16 +1,34 @@
 """The plugin's main object: feed keyframes, get verified loop closures.
 
-`LoopClosureDetector` owns the place database and the geometric check.  A host
-(our `slam.pipeline`, or anybody's mapper) calls, for every keyframe in order:
+`LoopClosureDetector` owns the place database and the geometric check.
 
-1. ``add_keyframe(key, stamp, scan, place_points)``: the keyframe is described once
-   (a 360-degree polygon: its own scan when the sensor covers the full circle,
-   else a virtual scan of `place_points`, the local map around it, see
+The host's side
+---------------
+A host (our `slam.pipeline`, or anybody's mapper) hands the detector its keyframes'
+local maps through one callback and, if those maps change, their version:
+
+- ``submap(key) -> points``: the local map of keyframe `key`, ``(N, 2)`` points [m]
+  in its sensor frame (the keyframe's own scan points will do).  The detector asks
+  for it whenever it needs it: to describe a keyframe whose sensor covers less than
+  a full circle (at `add_keyframe`, so it then holds what the host has so far), for
+  the query of every `detect`, and to verify a candidate.
+- ``submap_version(key) -> version`` (optional): any value, compared with ``==``,
+  that the host changes whenever ``submap(key)`` would return other points (e.g. the
+  newest keyframe its submap includes, or a counter).  The detector caches the
+  registration targets (KD-tree + normals) of recent candidates and rebuilds one
+  only when its version changed.  Without it, submaps are taken to be fixed: each
+  is built into a target once (until it drops out of the `target_cache`).
+
+and calls, for every keyframe:
+
+1. ``add_keyframe(key, stamp, scan)`` (keys 0, 1, 2, ... in order): the keyframe is
+   described once (a 360-degree polygon: its own scan when the sensor covers the
+   full circle, else a virtual scan of ``submap(key)``, see
    `loopclosure.virtual_scan`) and stored in the place database;
 2. ``detect(key, poses, covariance)`` with the host's current pose estimates of all
-   keyframes so far: two searches, both verified by the geometric check
-   (`loopclosure.geometric_check.verify`) on local submaps that the host supplies
-   through the `submap` callback:
+   keyframes so far (any added key may be queried, in any order; the pipeline asks
+   right after adding it): two searches, both verified by the geometric check
+   (`loopclosure.geometric_check.verify`) on the submaps:
 
    - **local** (pose-gated): older keyframes whose estimated position lies within
      ``local_radius + local_sigmas * sigma`` of the query (sigma: the largest
@@ -22,39 +40,54 @@
      uncertainty exceeds `global_sigma` when that is set): the place database's cascade (prefilter
      over every older keyframe, verifier on the top K, fused score) — candidates
      with a fused score of at least `min_score`, the best `global_verify` of them —
-     each from the FFT heading hypotheses and a centroid-aligned translation, with no
-     pose prior: this is what closes loops after large drift or a kidnap.
+     each from the heading hypotheses of the database (`loopclosure.headings`: the
+     heading of the query in the candidate's frame) and a centroid-aligned
+     translation, with no pose prior: this is what closes loops after large drift or
+     a kidnap.
 
    Keyframes newer than `exclude_recent` keyframes or `exclude_recent_s` seconds are
    never candidates (they are odometry's business); the time rule is dropped for the
    rest of the run once two keyframes share a stamp (logs whose stamps are all 0, as
-   some corrected Radish logs, would otherwise never close a loop).  A loop closure is a revisit: a
-   verified relative pose longer than `max_distance` is rejected.  At most
-   `max_loops` are accepted per query, local and global alike.
+   some corrected Radish logs, would otherwise never close a loop).  A loop closure is
+   a revisit: the geometric check rejects a verified relative pose longer than
+   `max_distance`.  At most `max_loops` are accepted per query, local and global alike.
 
-Every candidate tried is returned (accepted or not, with the reason), so the host
-can report them all (``loops.csv``).
+Every candidate tried is returned (accepted or not, with the reason and the figures
+of each stage), so the host can report them all (``loops.csv``).
+
+Example (a host whose submaps are the keyframes' own scans, which never change)::
+
+    detector = LoopClosureDetector(submap=lambda key: keyframes[key].points())
+    for key, scan in enumerate(keyframes):
+        detector.add_keyframe(key, scan.stamp, scan)
+        for loop in detector.detect(key, poses[: key + 1]):
+            ...  # loop.relative, loop.covariance: a BetweenFactorPose2(match, query)
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data import se2
+from data.errors import UserError
 from data.types import Scan
 from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, verify
-from loopclosure.place_database import PlaceDatabase, PlaceDatabaseConfig
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_database import PlaceDatabase, PlaceMatch
 from loopclosure.polygon import DegeneratePolygonError, PolygonConfig, polygon_from_scan
 from loopclosure.registration import RegistrationTarget
 from loopclosure.virtual_scan import virtual_scan
 
 Array = NDArray[np.float64]
-SubmapFn = Callable[[int], Array]
+SubmapFn = Callable[[int], ArrayLike]
+"""``submap(key) -> (N, 2)`` points of keyframe `key`'s local map, its sensor frame [m]."""
+SubmapVersionFn = Callable[[int], Hashable]
+"""``submap_version(key) -> version`` of that local map (module docstring)."""
 
 
 @dataclass(slots=True)
@@ -65,7 +98,8 @@ class LoopClosureConfig:
         exclude_recent: keyframes this close in sequence are never candidates.
         exclude_recent_s: ... nor keyframes this close in time [s].
         max_distance: a loop closure is a revisit: a verified relative pose longer than
-            this is rejected (the two keyframes see overlapping but distinct places) [m].
+            this is rejected (the two keyframes see overlapping but distinct places) [m];
+            passed to the geometric check (`verify`'s ``max_distance``).
         local_radius: base search radius of the pose-gated search [m].
         local_sigmas: radius grows by this many position standard deviations.
         local_max: candidates verified per query by the local search.
@@ -114,64 +148,109 @@ class LoopCandidate:
         query: the new keyframe's key.
         match: the older keyframe's key.
         source: ``"local"`` (pose-gated) or ``"global"`` (place recognition).
-        scores: per stage: ``prefilter`` (normalised distance), ``prefilter_rank``, each
-            verifier's distance, ``fused`` score (global); ``distance`` [m] between
-            the estimates (local).
         accepted: the geometric check accepted it.
         reason: why not (or ``"accepted"``).
         relative: ``(3,)`` pose of the query keyframe in the match's frame.
         covariance: ``3x3`` covariance of `relative` (floored).
         verification: the full geometric-check result.
+        predicted_distance: local: distance [m] between the two keyframes' current
+            estimates (NaN for global candidates).
+        prefilter_distance: global: combined normalised prefilter distance (unitless;
+            NaN for local candidates).
+        prefilter_rank: global: 0-based rank by prefilter distance (-1 for local).
+        fused_score: global: fused place-recognition score in [0, 1] (NaN for local).
+        verifier_distances: global: each verifier's distance, by matcher name, in that
+            matcher's unit (empty for local).
     """
 
     query: int
     match: int
     source: str
-    scores: dict[str, float]
     accepted: bool
     reason: str
     relative: Array
     covariance: Array
     verification: LoopVerification | None = None
+    predicted_distance: float = float("nan")
+    prefilter_distance: float = float("nan")
+    prefilter_rank: int = -1
+    fused_score: float = float("nan")
+    verifier_distances: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def checked(
+        cls,
+        query: int,
+        match: int,
+        source: str,
+        result: LoopVerification,
+        *,
+        predicted_distance: float = float("nan"),
+        prefilter_distance: float = float("nan"),
+        prefilter_rank: int = -1,
+        fused_score: float = float("nan"),
+        verifier_distances: dict[str, float] | None = None,
+    ) -> LoopCandidate:
+        """The candidate as the geometric check judged it, with its search's figures."""
+        return cls(
+            query=query, match=match, source=source, accepted=result.accepted,
+            reason=result.reason, relative=result.relative, covariance=result.covariance,
+            verification=result, predicted_distance=predicted_distance,
+            prefilter_distance=prefilter_distance, prefilter_rank=prefilter_rank,
+            fused_score=fused_score, verifier_distances=dict(verifier_distances or {}),
+        )
 
 
 class LoopClosureDetector:
     """Place database + geometric check behind one call per keyframe (module docstring)."""
 
-    def __init__(self, config: LoopClosureConfig | None = None, submap: SubmapFn | None = None):
+    def __init__(
+        self,
+        config: LoopClosureConfig | None = None,
+        submap: SubmapFn | None = None,
+        submap_version: SubmapVersionFn | None = None,
+    ):
         self.config = config or LoopClosureConfig()
         self.database = PlaceDatabase(self.config.database)
         self._submap = submap
+        self._submap_version = submap_version
         self._stamps: list[float] = []
         self._clock = True  # stamps tell time (see `eligible`)
         self._centroids: list[Array] = []
         self._described: list[bool] = []
-        self._targets: OrderedDict[int, RegistrationTarget] = OrderedDict()
+        # key -> (submap version it was built from, target), least recently used first.
+        self._targets: OrderedDict[int, tuple[Hashable, RegistrationTarget]] = OrderedDict()
         self._since_global = 0
         self._since_loop = 0
-        self._query: tuple[int, dict] | None = None  # descriptors of the newest keyframe
 
     # -- keyframes -------------------------------------------------------------------
 
-    def add_keyframe(
-        self, key: int, stamp: float, scan: Scan, place_points: ArrayLike | None = None
-    ) -> bool:
+    def add_keyframe(self, key: int, stamp: float, scan: Scan) -> bool:
         """Describe and store keyframe `key` (keys are 0, 1, 2, ... in order).
+
+        A sensor covering less than `full_circle_deg` is described by a virtual scan
+        of ``submap(key)`` (its own scan when there is no `submap` callback).
 
         Returns False when no polygon could be made (all beams invalid, a degenerate
         local map): the keyframe is then never a candidate, but keys stay aligned.
+
+        Raises:
+            UserError: `key` is not the next key.
         """
         if key != len(self._stamps):
-            raise ValueError(f"keyframes must be added in order: expected {len(self._stamps)}")
+            raise UserError(
+                f"add_keyframe: keyframes must be added in order 0, 1, 2, ...: expected key "
+                f"{len(self._stamps)}, got {key}"
+            )
         cfg = self.config
         if self._stamps and float(stamp) == self._stamps[-1]:
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._stamps.append(float(stamp))
         try:
-            if np.degrees(scan.fov) >= cfg.full_circle_deg or place_points is None:
+            if np.degrees(scan.fov) >= cfg.full_circle_deg or self._submap is None:
                 polygon = polygon_from_scan(scan, cfg.polygon)
             else:
-                pts = np.asarray(place_points, dtype=float).reshape(-1, 2)
+                pts = self._submap_points(key)
                 virtual = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
                 polygon = polygon_from_scan(virtual, cfg.polygon)
         except DegeneratePolygonError:
@@ -180,34 +259,36 @@ class LoopClosureDetector:
             return False
         self._centroids.append(polygon.centroid())
         self._described.append(True)
-        self._query = (key, self.database.describe(polygon))
-        self.database.add_descriptors(key, self._query[1], stamp=stamp)
+        self.database.add_descriptors(key, self.database.describe(polygon), stamp=stamp)
         return True
 
     def _target(self, key: int) -> RegistrationTarget:
-        target = self._targets.get(key)
-        if target is None:
-            target = RegistrationTarget(self._submap_points(key), self.config.check.icp)
-            self._targets[key] = target
-            while len(self._targets) > self.config.target_cache:
-                self._targets.popitem(last=False)
-        else:
+        """The registration target of `key`'s submap, rebuilt when its version changed."""
+        version = None if self._submap_version is None else self._submap_version(key)
+        cached = self._targets.get(key)
+        if cached is not None and cached[0] == version:
             self._targets.move_to_end(key)
+            return cached[1]
+        target = RegistrationTarget(self._submap_points(key), self.config.check.icp)
+        self._targets[key] = (version, target)
+        self._targets.move_to_end(key)
+        while len(self._targets) > self.config.target_cache:
+            self._targets.popitem(last=False)
         return target
-
-    def forget_target(self, key: int) -> None:
-        """Drop the cached registration target of `key` (its submap changed)."""
-        self._targets.pop(key, None)
 
     def _submap_points(self, key: int) -> Array:
         if self._submap is None:
-            raise RuntimeError("LoopClosureDetector needs a submap callback to verify loops")
+            raise UserError(
+                "LoopClosureDetector needs a submap callback to verify loops: pass "
+                "submap=lambda key: <(N, 2) points of keyframe key in its sensor frame>"
+            )
         return np.asarray(self._submap(key), dtype=float).reshape(-1, 2)
 
     # -- detection -------------------------------------------------------------------
 
     def eligible(self, key: int) -> NDArray[np.bool_]:
         """Boolean mask over keys ``0..key-1`` of keyframes old enough to be candidates."""
+        self._check_key(key)
         cfg = self.config
         stamps = np.asarray(self._stamps[:key])
         ids = np.arange(key)
@@ -216,19 +297,31 @@ class LoopClosureDetector:
             ok &= np.abs(stamps - self._stamps[key]) >= cfg.exclude_recent_s
         return ok & np.asarray(self._described[:key], dtype=bool)
 
+    def _check_key(self, key: int) -> None:
+        if not 0 <= key < len(self._stamps):
+            raise UserError(
+                f"keyframe {key} was never added (added: 0..{len(self._stamps) - 1})"
+            )
+
     def detect(
         self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None
     ) -> list[LoopCandidate]:
         """Candidates of keyframe `key`, each verified (see the module docstring).
 
         Args:
-            key: the query (already added).
-            poses: ``(key + 1, 3)`` current estimates of keyframes ``0..key`` (map frame).
+            key: the query (any added keyframe).
+            poses: ``(n, 3)`` current estimates of keyframes ``0..n-1`` (map frame),
+                ``n > key``.
             covariance: ``3x3`` marginal covariance of the query's pose, or None.
+
+        Raises:
+            UserError: `key` was never added, or `poses` does not reach it.
         """
         cfg = self.config
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         eligible = self.eligible(key)
+        if len(poses) <= key:
+            raise UserError(f"detect: poses has {len(poses)} rows, keyframe {key} needs {key + 1}")
         if not eligible.any() or not self._described[key]:
             return []
         cov = None if covariance is None else np.asarray(covariance, dtype=float)
@@ -286,16 +379,18 @@ class LoopClosureDetector:
         self, key: int, cand: int, poses: Array, cov: Array | None, sigma: float,
         query_points: Array,
     ) -> LoopCandidate:
+        cfg = self.config
         prior = se2.between(poses[cand], poses[key])
         prior_cov = None if cov is None else 2.0 * cov
         # A prior good to better than the offset step needs no offset guesses.
-        offsets = 0.0 if sigma < 0.5 * self.config.check.offsets else None
+        offsets = 0.0 if sigma < 0.5 * cfg.check.offsets else None
         result = verify(
             query_points, self._target(cand), prior=prior, prior_covariance=prior_cov,
-            offsets=offsets, config=self.config.check,
+            offsets=offsets, max_distance=cfg.max_distance, config=cfg.check,
         )
-        scores = {"distance": float(np.hypot(prior[0], prior[1]))}
-        return _candidate(key, cand, "local", scores, result, self.config.max_distance)
+        return LoopCandidate.checked(
+            key, cand, "local", result, predicted_distance=float(np.hypot(prior[0], prior[1]))
+        )
 
     def _global(
         self, key: int, eligible: NDArray[np.bool_], tried: set[int], query_points: Array
@@ -303,47 +398,29 @@ class LoopClosureDetector:
         cfg = self.config
         mask = eligible.copy()
         mask[list(tried)] = False
-        if not mask.any() or self._query is None or self._query[0] != key:
+        if not mask.any():
             return []
-        matches = self.database.query(self._query[1], allowed=np.flatnonzero(mask))
-        out: list[LoopCandidate] = []
+        matches = self.database.query(
+            self.database.descriptors(key), allowed=np.flatnonzero(mask)
+        )
         good = [m for m in matches if m.score >= cfg.min_score][: cfg.global_verify]
-        for m in good:
-            cand = int(m.key)
-            # angle = heading(stored) - heading(query): the query's heading in the
-            # stored frame is -angle; align the two places' centroids.
-            headings = [-a for a, _ in m.headings] or [0.0]
-            c, s = np.cos(headings[0]), np.sin(headings[0])
-            rot = np.array([[c, -s], [s, c]])
-            translation = self._centroids[cand] - rot @ self._centroids[key]
-            result = verify(
-                query_points, self._target(cand), headings=headings,
-                translation=translation, config=cfg.check,
-            )
-            scores = {
-                "prefilter": m.prefilter_distance,
-                "prefilter_rank": float(m.prefilter_rank),
-                "fused": m.score,
-                **{f"{k}": v for k, v in m.verifier_distances.items()},
-            }
-            out.append(_candidate(key, cand, "global", scores, result, cfg.max_distance))
-        return out
+        return [self._check_global(key, m, query_points) for m in good]
 
-
-def _candidate(
-    key: int,
-    cand: int,
-    source: str,
-    scores: dict[str, float],
-    result: LoopVerification,
-    max_distance: float,
-) -> LoopCandidate:
-    accepted, reason = result.accepted, result.reason
-    distance = float(np.hypot(result.relative[0], result.relative[1]))
-    if accepted and distance > max_distance:
-        accepted, reason = False, f"not a revisit ({distance:.1f} m apart)"
-    return LoopCandidate(
-        query=key, match=cand, source=source, scores=scores, accepted=accepted,
-        reason=reason, relative=result.relative, covariance=result.covariance,
-        verification=result,
-    )
+    def _check_global(self, key: int, m: PlaceMatch, query_points: Array) -> LoopCandidate:
+        cfg = self.config
+        cand = int(m.key)
+        # Headings of the query in the candidate's frame (`loopclosure.headings`); align
+        # the two places' centroids under the best one.
+        headings = [h for h, _ in m.headings] or [0.0]
+        c, s = np.cos(headings[0]), np.sin(headings[0])
+        rot = np.array([[c, -s], [s, c]])
+        translation = self._centroids[cand] - rot @ self._centroids[key]
+        result = verify(
+            query_points, self._target(cand), headings=headings, translation=translation,
+            max_distance=cfg.max_distance, config=cfg.check,
+        )
+        return LoopCandidate.checked(
+            key, cand, "global", result, prefilter_distance=m.prefilter_distance,
+            prefilter_rank=m.prefilter_rank, fused_score=m.score,
+            verifier_distances=m.verifier_distances,
+        )

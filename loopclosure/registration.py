@@ -1,7 +1,9 @@
 """2D registration: point-to-line ICP of a source point set onto a target with normals.
 
 Used by the odometry front end (scan to local map, `slam.odometry.icp2d`) and by the
-loop-closure geometric check (keyframe submap to keyframe submap, `register_multi`).
+loop-closure geometric check (keyframe submap to keyframe submap); both start ICP
+from several guesses with `loopclosure.multi_start`, whose headings come from
+`loopclosure.headings`.
 
 Frames and units
 ----------------
@@ -88,18 +90,6 @@ were found; otherwise they are searched again at the final pose):
   ``sum w`` (the trace of the translational block, since normals are unit): 0 when
   one direction is unconstrained (a corridor), at most 0.5 (isotropic).
   ``degenerate_axis`` is the unit vector (target frame) of that direction.
-
-Multi-hypothesis (`register_multi`)
------------------------------------
-ICP from several initial guesses (`initial_guesses`: headings, e.g. from
-`heading_hypotheses`, times translation offsets); the best result is the one with
-the highest ``fitness``; ties (within 1e-9) go to the lower ``rms``.  Many guesses
-can first be ranked without ICP by `overlap_scores` (one KD-tree query for all
-guesses) and only the best `keep` refined.
-`heading_hypotheses` proposes headings by circular FFT cross-correlation of the two
-clouds' range functions (nearest return per bearing sector, seen from each frame's
-origin), or of their histograms of normal directions (translation invariant;
-each peak gives two headings, ``phi`` and ``phi + pi``).
 """
 
 from __future__ import annotations
@@ -111,6 +101,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from data import se2
+from data.errors import UserError
 
 Array = NDArray[np.float64]
 
@@ -174,7 +165,7 @@ class IcpConfig:
 
     def __post_init__(self) -> None:
         if self.kernel not in KERNEL_CONSTANTS:
-            raise ValueError(
+            raise UserError(
                 f"unknown ICP kernel {self.kernel!r}: choose one of {', '.join(KERNEL_CONSTANTS)}"
             )
         positive = (
@@ -189,12 +180,17 @@ class IcpConfig:
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"ICP {name} must be a positive number, got {value}")
+                raise UserError(f"ICP {name} must be a positive number, got {value}")
         if self.max_iterations < 1 or self.min_correspondences < 3:
-            raise ValueError("ICP needs max_iterations >= 1 and min_correspondences >= 3")
+            raise UserError(
+                "ICP needs max_iterations >= 1 and min_correspondences >= 3, got "
+                f"{self.max_iterations} and {self.min_correspondences}"
+            )
         if self.normal_neighbors < 3 or not 2 <= self.min_normal_neighbors <= self.normal_neighbors:
-            raise ValueError("ICP normals need normal_neighbors >= 3 and "
-                             "2 <= min_normal_neighbors <= normal_neighbors")
+            raise UserError(
+                "ICP normals need normal_neighbors >= 3 and 2 <= min_normal_neighbors <= "
+                f"normal_neighbors, got {self.normal_neighbors} and {self.min_normal_neighbors}"
+            )
 
 
 @dataclass(slots=True)
@@ -235,12 +231,14 @@ class IcpResult:
     initial: Array = field(default_factory=lambda: np.zeros(3))
 
 
-def _as_points(points: ArrayLike, what: str) -> Array:
+def as_points(points: ArrayLike, what: str) -> Array:
+    """`points` as a float ``(N, 2)`` array of finite coordinates [m]; `what` names them
+    in the `UserError` otherwise."""
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 2:
-        raise ValueError(f"{what} must be an (N, 2) array of points, got shape {pts.shape}")
+        raise UserError(f"{what} must be an (N, 2) array of points, got shape {pts.shape}")
     if not np.all(np.isfinite(pts)):
-        raise ValueError(f"{what} holds non-finite coordinates")
+        raise UserError(f"{what} holds non-finite coordinates")
     return pts
 
 
@@ -320,7 +318,7 @@ class RegistrationTarget:
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None) -> None:
         self.config = config or IcpConfig()
-        pts = _as_points(points, "target points")
+        pts = as_points(points, "target points")
         self.points = pts
         self.tree = cKDTree(pts) if len(pts) else None
         if self.tree is not None and len(pts) >= self.config.min_normal_neighbors:
@@ -479,7 +477,7 @@ def register(
         the prior's, or ``FAILED_VARIANCE * I``).
     """
     cfg = config or target.config
-    src = _as_points(source, "source points")
+    src = as_points(source, "source points")
     x = np.asarray(initial, dtype=float).reshape(3).copy()
     x0 = x.copy()
     lam = np.zeros((3, 3))
@@ -487,7 +485,7 @@ def register(
     prior_cov = None
     if prior is not None:
         if prior_covariance is None:
-            raise ValueError("a prior needs its prior_covariance")
+            raise UserError("register: a prior needs its prior_covariance (got None)")
         x_prior = np.asarray(prior, dtype=float).reshape(3)
         prior_cov = np.asarray(prior_covariance, dtype=float).reshape(3, 3)
         lam = np.linalg.inv(prior_cov)
@@ -591,212 +589,3 @@ def body_covariance(pose: ArrayLike, covariance: ArrayLike) -> Array:
     b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     out = b.T @ np.asarray(covariance, dtype=float).reshape(3, 3) @ b
     return 0.5 * (out + out.T)
-
-
-# --------------------------------------------------------------------------------------
-# Multi-hypothesis registration
-# --------------------------------------------------------------------------------------
-
-
-def range_function(points: ArrayLike, bins: int) -> Array:
-    """``(bins,)`` nearest range per bearing sector seen from the origin [m]; 0 if empty.
-
-    Sector ``k`` covers bearings ``[-pi + k * 2 pi / bins, -pi + (k + 1) * 2 pi / bins)``.
-    """
-    pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    out = np.full(bins, np.inf)
-    if len(pts):
-        bearing = np.arctan2(pts[:, 1], pts[:, 0])
-        sector = np.clip(((bearing + np.pi) / (2 * np.pi) * bins).astype(int), 0, bins - 1)
-        np.minimum.at(out, sector, np.hypot(pts[:, 0], pts[:, 1]))
-    out[~np.isfinite(out)] = 0.0
-    return out
-
-
-def direction_histogram(normals: Array, bins: int) -> Array:
-    """``(bins,)`` histogram of normal directions modulo pi (sign-free), unit-sum.
-
-    Bin ``k`` covers ``[k pi / bins, (k + 1) pi / bins)``.
-    """
-    ang = np.mod(np.arctan2(normals[:, 1], normals[:, 0]), np.pi)
-    hist = np.bincount(np.clip((ang / np.pi * bins).astype(int), 0, bins - 1), minlength=bins)
-    hist = hist.astype(float)
-    total = hist.sum()
-    return hist / total if total > 0 else hist
-
-
-def _circular_correlation(f: Array, g: Array) -> Array:
-    """``c[k] = sum_i f[i] g[i + k]`` (circular), by FFT, after removing the means."""
-    f = f - f.mean()
-    g = g - g.mean()
-    return np.fft.irfft(np.conj(np.fft.rfft(f)) * np.fft.rfft(g), n=len(f))
-
-
-def _peaks(corr: Array, count: int, separation: int) -> NDArray[np.intp]:
-    """Indices of up to `count` highest circular local maxima, `separation` bins apart."""
-    n = len(corr)
-    order = np.argsort(-corr, kind="stable")
-    chosen: list[int] = []
-    for k in order[: max(4 * count * separation, count)]:  # a few candidates only
-        if all(min(abs(k - c), n - abs(k - c)) >= separation for c in chosen):
-            chosen.append(int(k))
-            if len(chosen) == count:
-                break
-    return np.array(chosen, dtype=np.intp)
-
-
-def heading_hypotheses(
-    source: ArrayLike,
-    target: ArrayLike,
-    *,
-    count: int = 4,
-    bins: int = 360,
-    method: str = "range",
-    config: IcpConfig | None = None,
-) -> Array:
-    """Candidate headings [rad] of the source frame in the target frame, best first.
-
-    ``method="range"``: peaks of the circular cross-correlation of the range
-    functions (`range_function`) of the source and the target, each seen from its
-    frame's origin: a source scanned at heading theta sees at bearing phi what the
-    target sees at ``phi + theta``.  Good when the two origins are close (keyframes
-    of a loop closure).  ``method="normals"``: peaks of the correlation of the
-    direction histograms of the PCA normals (`direction_histogram`, modulo pi;
-    translation invariant); each peak phi yields ``phi`` and ``phi + pi``.
-    Peaks are at least 10 degrees apart; the result is wrapped to ``[-pi, pi)``.
-    """
-    src = _as_points(source, "source points")
-    tgt = _as_points(target, "target points")
-    if method == "range":
-        corr = _circular_correlation(range_function(src, bins), range_function(tgt, bins))
-        sep = max(1, round(bins / 36))
-        idx = _peaks(corr, count, sep)
-        return se2.wrap_angle(idx * 2.0 * np.pi / bins)
-    if method == "normals":
-        cfg = config or IcpConfig()
-        heads: list[float] = []
-        hists = []
-        for pts in (src, tgt):
-            normals, ok, _ = estimate_normals(pts, cKDTree(pts), cfg)
-            hists.append(direction_histogram(normals[ok], bins // 2))
-        corr = _circular_correlation(hists[0], hists[1])
-        sep = max(1, round(bins / 36))
-        for k in _peaks(corr, max(1, (count + 1) // 2), sep):
-            phi = k * np.pi / (bins // 2)
-            heads.extend([phi, phi + np.pi])
-        return se2.wrap_angle(np.array(heads[:count]))
-    raise ValueError(f"unknown heading method {method!r}: choose 'range' or 'normals'")
-
-
-def initial_guesses(
-    initial: ArrayLike = (0.0, 0.0, 0.0),
-    headings: ArrayLike | None = None,
-    offsets: ArrayLike | None = None,
-) -> Array:
-    """``(K, 3)`` start poses: every heading times every translation offset.
-
-    Args:
-        initial: ``(3,)`` base guess; its heading is used when `headings` is None.
-        headings: ``(H,)`` absolute headings [rad] to try (the base heading is
-            always tried first).
-        offsets: ``(T, 2)`` translation offsets [m] added to the base translation
-            (``(0, 0)`` is always tried first).
-    """
-    base = np.asarray(initial, dtype=float).reshape(3)
-    heads = [float(base[2])]
-    if headings is not None:
-        heads += [float(h) for h in np.atleast_1d(np.asarray(headings, dtype=float))]
-    offs = np.zeros((1, 2))
-    if offsets is not None:
-        offs = np.vstack([offs, np.asarray(offsets, dtype=float).reshape(-1, 2)])
-    hh, oo = np.meshgrid(np.arange(len(heads)), np.arange(len(offs)), indexing="ij")
-    guesses = np.column_stack(
-        [base[0] + offs[oo.ravel(), 0], base[1] + offs[oo.ravel(), 1],
-         np.asarray(heads)[hh.ravel()]]
-    )
-    # Drop duplicates (same heading twice).
-    key = np.round(np.column_stack([guesses[:, :2], se2.wrap_angle(guesses[:, 2])]), 9)
-    _, first = np.unique(key, axis=0, return_index=True)
-    return guesses[np.sort(first)]
-
-
-@dataclass(slots=True)
-class MultiResult:
-    """Best of several ICP runs (`register_multi`).
-
-    Attributes:
-        best: the winning `IcpResult` (highest fitness, then lowest rms).
-        results: every run, in the order of the guesses.
-        guesses: ``(K, 3)`` the initial guesses.
-    """
-
-    best: IcpResult
-    results: list[IcpResult]
-    guesses: Array
-
-
-def _better(a: IcpResult, b: IcpResult) -> bool:
-    """True if `a` ranks above `b` (ok first, then fitness, then rms)."""
-    if a.ok != b.ok:
-        return a.ok
-    if abs(a.fitness - b.fitness) > 1e-9:
-        return a.fitness > b.fitness
-    return a.rms < b.rms
-
-
-def overlap_scores(
-    source: ArrayLike, target: RegistrationTarget, guesses: ArrayLike, tolerance: float
-) -> Array:
-    """``(K,)`` coarse score of each guess without ICP (for pre-screening many guesses).
-
-    ``mean_i max(0, 1 - (d_i / tolerance)^2)`` with ``d_i`` the distance of source
-    point i, moved by the guess, to its nearest target point if that is
-    `RegistrationTarget.matchable` (0 otherwise and beyond `tolerance`).  One
-    KD-tree query for all guesses together (vectorised over guesses and points).
-    """
-    g = np.asarray(guesses, dtype=float).reshape(-1, 3)
-    src = _as_points(source, "source points")
-    if target.tree is None or len(src) == 0 or len(g) == 0:
-        return np.zeros(len(g))
-    c, s = np.cos(g[:, 2]), np.sin(g[:, 2])
-    x = c[:, None] * src[None, :, 0] - s[:, None] * src[None, :, 1] + g[:, 0, None]
-    y = s[:, None] * src[None, :, 0] + c[:, None] * src[None, :, 1] + g[:, 1, None]
-    moved = np.stack([x, y], axis=-1).reshape(-1, 2)
-    dist, idx = target.tree.query(moved, k=1, distance_upper_bound=tolerance)
-    found = np.isfinite(dist)
-    found[found] = target.matchable[idx[found]]
-    score = np.where(found, 1.0 - (np.where(found, dist, 0.0) / tolerance) ** 2, 0.0)
-    return score.reshape(len(g), len(src)).mean(axis=1)
-
-
-def register_multi(
-    source: ArrayLike,
-    target: RegistrationTarget,
-    guesses: ArrayLike,
-    *,
-    config: IcpConfig | None = None,
-    keep: int | None = None,
-    prescreen_tolerance: float = 0.2,
-) -> MultiResult:
-    """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
-
-    Ranking (documented score): `IcpResult.fitness` (truncated-quadratic overlap at
-    a fixed tolerance, comparable between runs), ties broken by the lower `rms`;
-    failed runs rank last.  With `keep`, the guesses are first ranked by
-    `overlap_scores` (tolerance `prescreen_tolerance` [m]) and ICP runs from the
-    best `keep` only (`MultiResult.results` and `guesses` then hold those).  One
-    Python loop over the hypotheses that run ICP (not over points).
-    """
-    g = np.asarray(guesses, dtype=float).reshape(-1, 3)
-    if len(g) == 0:
-        raise ValueError("register_multi needs at least one initial guess")
-    src = _as_points(source, "source points")
-    if keep is not None and keep < len(g):
-        scores = overlap_scores(src, target, g, prescreen_tolerance)
-        g = g[np.sort(np.argsort(-scores, kind="stable")[: max(keep, 1)])]
-    results = [register(src, target, guess, config=config) for guess in g]
-    best = results[0]
-    for res in results[1:]:
-        if _better(res, best):
-            best = res
-    return MultiResult(best=best, results=results, guesses=g)

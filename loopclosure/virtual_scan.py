@@ -7,7 +7,7 @@ in the local map (the keyframe's scan plus its neighbours' scans, registered).
 
 Frames and units: the keyframe's sensor frame, x forward, counter-clockwise
 angles [rad], metres.  Beams: ``N`` bearings from ``-pi`` to ``pi - 2 pi / N`` in
-steps of ``2 pi / N`` (the 360-degree layout of `data.sim.raycast.LaserModel`).
+steps of ``2 pi / N`` (the 360-degree layout of `data.raycast.LaserModel`).
 Output: a `data.types.Scan` with ``max_range`` as the no-return reading, so
 `loopclosure.polygon.polygon_from_scan` closes it without the origin vertex.
 
@@ -43,13 +43,12 @@ From the scans themselves (`virtual_scan_from_scans`)
 When the local map is still a set of scans, each scan's consecutive returns
 (neighbouring beams, both valid) at most `link_dist` apart are joined into wall
 segments, and the virtual beams are ray-cast exactly against all segments
-(`data.sim.raycast.trace`, vectorised); segments passing within `min_range` of the
+(`data.raycast.trace`, vectorised); segments passing within `min_range` of the
 virtual sensor are dropped.  Returns without a linked neighbour (mostly samples
 of surfaces seen at grazing incidence, whose range along a nearby beam is
 ill-defined) are left out.  This blocks the view through sparse surfaces and
-keeps object edges where the scans saw them; on the simulator (180-degree laser,
-81 scans around each keyframe) it gives about a third as many ranges that are
-too short by over 0.2 m as `virtual_scan` on the same points.
+keeps object edges where the scans saw them, so far fewer ranges come out too
+short than with `virtual_scan` on the same points.
 
 From an occupancy grid (`virtual_scan_from_grid`)
 -------------------------------------------------
@@ -59,9 +58,9 @@ beams at once).  The first *occupied* cell (``grid.occupied()``) whose exit lies
 beyond `min_range` stops the beam.  A wall in a grid is a band of occupied cells
 one or two cells thick (range noise, discretisation), so the range is the middle
 of the run of consecutive occupied cells the beam crosses from there, counted at
-most two cells deep (a beam grazing along a wall would otherwise run on).  On the
-simulator this halves the median error of taking the first cell's centre, to
-about a fifth of a cell, and removes its bias towards the sensor.  Unknown and
+most two cells deep (a beam grazing along a wall would otherwise run on).  Unlike
+the first cell's centre, the middle of the run is not biased towards the sensor
+and errs by a fraction of a cell.  Unknown and
 free cells do not stop a beam; a beam that leaves the grid or reaches
 `max_range` is a no-return.  The grid is anything with ``resolution`` [m],
 ``origin`` (lower-left corner of cell (0, 0) in the map frame [m]) and
@@ -81,7 +80,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError, warn
-from data.sim.raycast import trace
+from data.raycast import trace
 from data.types import Scan
 
 Array = NDArray[np.float64]

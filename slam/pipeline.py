@@ -16,7 +16,10 @@ keyframe's pose is its odometry pose and is held fixed).  All poses are planar
 Submaps: a keyframe's local map is the union of the points of keyframes
 ``k - n .. k + n`` (those that exist), placed by their odometry poses relative to
 ``k`` (odometry is locally accurate), voxel-downsampled, in k's sensor frame.  A
-new keyframe's place is described from its trailing submap (``k - n .. k``).
+new keyframe's place is described from its trailing submap (``k - n .. k``).  The
+loop detector pulls them through `Mapper.submap`; their version
+(`Mapper.submap_version`: the newest keyframe they include) tells it when a cached
+registration target is out of date.
 """
 
 from __future__ import annotations
@@ -112,7 +115,9 @@ class Mapper:
             raise UserError(
                 f"unknown uncertainty {cfg.uncertainty!r}; choose since-loop or marginal"
             )
-        self.detector = LoopClosureDetector(cfg.loops, submap=self.submap)
+        self.detector = LoopClosureDetector(
+            cfg.loops, submap=self.submap, submap_version=self.submap_version
+        )
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
         self.status: dict[str, int] = {}
@@ -174,7 +179,7 @@ class Mapper:
             self._drift = _propagate_drift(self._drift, self._estimate[kf.id - 1], kf.delta, cov)
         self.timings["keyframes"] += time.perf_counter() - start
         start = time.perf_counter()
-        self.detector.add_keyframe(kf.id, kf.stamp, kf.scan, self.submap(kf.id))
+        self.detector.add_keyframe(kf.id, kf.stamp, kf.scan)
         self.timings["loop_detection"] += time.perf_counter() - start
         self._update()
         start = time.perf_counter()
@@ -215,16 +220,19 @@ class Mapper:
 
     # -- submaps ----------------------------------------------------------------------
 
+    def submap_version(self, key: int) -> int:
+        """Version of `submap(key)`: the newest keyframe it includes (it grows until
+        ``key + n`` exists, then never changes)."""
+        return min(key + self.config.submap_neighbours(), len(self.keyframes.keyframes) - 1)
+
     def submap(self, key: int) -> Array:
         """Local map of keyframe `key` in its sensor frame (module docstring), cached."""
         kfs = self.keyframes.keyframes
         n = self.config.submap_neighbours()
-        hi = min(key + n, len(kfs) - 1)
+        hi = self.submap_version(key)
         cached = self._submaps.get(key)
         if cached is not None and cached[0] == hi:
             return cached[1]
-        if cached is not None:
-            self.detector.forget_target(key)
         centre = kfs[key].odom_pose
         parts = []
         for j in range(max(0, key - n), hi + 1):

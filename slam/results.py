@@ -9,6 +9,9 @@ from typing import Any
 import numpy as np
 
 from data.g2o import write_g2o
+from data.trajectory_io import write_tum
+from data.types import Trajectory
+from slam.json_io import write_json
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
 from slam.pipeline import MappingResult, peak_rss_mb
@@ -29,13 +32,10 @@ def loop_records(result: MappingResult) -> list[LoopRecord]:
                 stage=c.source,
                 accepted=c.accepted and not e.rejected_by_gnc,
                 reason="rejected by GNC" if e.rejected_by_gnc else c.reason,
-                prefilter_distance=c.scores.get("prefilter", float("nan")),
-                prefilter_rank=int(c.scores.get("prefilter_rank", -1)),
-                verifier_distance=min(
-                    (val for k, val in c.scores.items() if k in ("mrm", "flirt", "shape-context")),
-                    default=float("nan"),
-                ),
-                score=c.scores.get("fused", float("nan")),
+                prefilter_distance=c.prefilter_distance,
+                prefilter_rank=c.prefilter_rank,
+                verifier_distance=min(c.verifier_distances.values(), default=float("nan")),
+                score=c.fused_score,
                 fitness=v.fitness if v else float("nan"),
                 rms=v.rms if v else float("nan"),
                 inlier_ratio=v.inlier_ratio if v else float("nan"),
@@ -56,8 +56,6 @@ def write_results(
     map_config: MapConfig | None = None,
 ) -> dict[str, Any]:
     """Write every output file of a run; returns the summary (also in summary.json)."""
-    from slam.cli.common import write_json
-
     start = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     stamps, stamp_rule = output_stamps(result.scan_stamps, source)
@@ -66,9 +64,6 @@ def write_results(
         files.update({k: str(v) for k, v in write_trajectories(
             out, stamps, result.scan_poses).items()})
         write_trajectories_odometry = out / "odometry.tum"
-        from data.trajectory_io import write_tum
-        from data.types import Trajectory
-
         order = np.argsort(stamps, kind="stable")
         write_tum(write_trajectories_odometry,
                   Trajectory.from_xytheta(stamps[order], result.odometry_poses[order]))

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from data.errors import UserError
 from data.sim import place_dataset
 from evaluation.retrieval import best_fscore, bullseye, roc_auc
+from loopclosure import matcher_registry
 from loopclosure.cascade import (
     CASCADE_LOGISTIC,
     CascadeConfig,
@@ -21,8 +22,8 @@ from loopclosure.cascade import (
     candidate_pairs,
 )
 from loopclosure.fusion import LogisticFusion
-from loopclosure.matchers import get_matcher
-from loopclosure.place_database import DEFAULT_LOGISTIC, PlaceDatabaseConfig
+from loopclosure.matchers import MATCHER_NAMES, get_matcher
+from loopclosure.place_config import DEFAULT_LOGISTIC, PlaceDatabaseConfig
 from loopclosure.polygon import Polygon, polygon_from_scan
 from tests.helpers import shared_file
 
@@ -212,3 +213,16 @@ def test_cascade_reaches_flirt_on_real_robot_places() -> None:
     flirt = get_matcher("flirt")
     f = flirt.pairwise([flirt.describe(p) for p in polys])
     assert bullseye(cascade, labels) >= bullseye(f, labels)
+
+
+def test_the_registry_above_the_matchers_builds_the_cascade() -> None:
+    assert "cascade" not in MATCHER_NAMES  # the paper's eight only: no cycle back up
+    assert matcher_registry.MATCHER_NAMES == (*MATCHER_NAMES, "cascade")
+    cascade = matcher_registry.get_matcher("cascade", top_k=5)
+    assert isinstance(cascade, CascadeMatcher) and cascade.config.top_k == 5
+    assert matcher_registry.matcher_class("mrm") is type(get_matcher("mrm"))
+    for lookup in (matcher_registry.matcher_class, get_matcher):
+        with pytest.raises(UserError, match="unknown matcher 'nope'"):
+            lookup("nope")
+    with pytest.raises(UserError, match="CascadeConfig fields"):
+        CascadeMatcher(nonsense=1)

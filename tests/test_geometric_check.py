@@ -117,3 +117,18 @@ def test_partial_overlap_must_be_well_constrained() -> None:
     result = verify(query, RegistrationTarget(_seen_from(ROOM, a)), prior=truth,
                     prior_covariance=np.diag([0.1, 0.1, 0.02]) ** 2, config=cfg)
     assert not result.accepted and result.reason.startswith("partial overlap")
+
+
+def test_a_fit_farther_than_max_distance_is_not_a_revisit() -> None:
+    rng = np.random.default_rng(0)
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    target = RegistrationTarget(_seen_from(ROOM, a, rng, 0.005))
+    truth = se2.between(a, b)
+    query = _seen_from(ROOM, b, rng, 0.005)
+    prior_cov = np.diag([0.1, 0.1, 0.02]) ** 2 * 4
+    near = verify(query, target, prior=truth, prior_covariance=prior_cov, max_distance=1.0)
+    assert near.accepted, near.reason
+    far = verify(query, target, prior=truth, prior_covariance=prior_cov, max_distance=0.5)
+    assert not far.accepted
+    assert far.reason == f"not a revisit ({np.hypot(*far.relative[:2]):.1f} m apart)"
+    np.testing.assert_array_equal(far.relative, near.relative)

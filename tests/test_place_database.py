@@ -1,4 +1,5 @@
-"""Place database (loopclosure.place_database) and the shared vector search."""
+"""Place database (loopclosure.place_database), its headings and recall@k, and the
+shared vector search."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from hypothesis import strategies as st
 
 from data.errors import UserError
 from data.sim import place_dataset
+from loopclosure.headings import headings_from_range_functions
 from loopclosure.matchers.fft import FFTMatcher, heading_from_range_functions
 from loopclosure.matchers.vector_search import (
     VectorStore,
@@ -16,12 +18,10 @@ from loopclosure.matchers.vector_search import (
     smallest_k,
     stack_vectors,
 )
-from loopclosure.place_database import (
-    PlaceDatabase,
-    PlaceDatabaseConfig,
-    heading_hypotheses,
-)
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_database import PlaceDatabase
 from loopclosure.polygon import Polygon, polygon_from_scan
+from loopclosure.recall import prefilter_recall_at_k
 
 
 def star_polygon(rng: np.random.Generator, n: int = 90, size: float = 5.0) -> Polygon:
@@ -158,7 +158,7 @@ def test_storage_grows_without_restacking(polygons: list[Polygon]) -> None:
     # 60 keyframes fit the initial 64 rows: the buffer is never replaced or re-stacked.
     assert len(set(ids)) == 1
     assert len(db) == 60 and "kf3" in db and db.keys[3] == "kf3"
-    with pytest.raises(KeyError):
+    with pytest.raises(UserError, match="already"):
         db.add("kf3", polygons[0])
 
 
@@ -194,9 +194,9 @@ def test_allowed_keys_mask_and_exclusions(polygons: list[Polygon]) -> None:
     assert all(m.key not in (10, 11) for m in got) and len(got) == 5
     assert db.query(q, allowed=np.zeros(60, bool)) == []
     assert [m.key for m in db.query(q, allowed=[7])] == [7]
-    with pytest.raises(KeyError):
+    with pytest.raises(UserError, match="not in the place database"):
         db.query(q, allowed=[1000])
-    with pytest.raises(ValueError):
+    with pytest.raises(UserError, match="shape"):
         db.query(q, allowed=np.ones(3, bool))
 
 
@@ -208,7 +208,7 @@ def test_prefilter_recall_on_simulated_places(places) -> None:
     db = PlaceDatabase(verifiers=(), fusion="prefilter")
     for i, p in enumerate(polys):
         db.add(i, p)
-    rec = {r.k: r for r in db.prefilter_recall_at_k(labels, ks=(1, 5, 7, 20))}
+    rec = {r.k: r for r in prefilter_recall_at_k(db, labels, ks=(1, 5, 7, 20))}
     assert rec[1].hit_rate >= 0.95 and rec[1].queries == 40
     assert rec[7].recall >= 0.85  # 7 other scans of the same place exist
     assert rec[20].recall == 1.0 or rec[20].recall >= rec[7].recall
@@ -217,7 +217,7 @@ def test_prefilter_recall_on_simulated_places(places) -> None:
     sub = PlaceDatabase(verifiers=(), fusion="prefilter")
     for i, p in enumerate(polys[1:]):
         sub.add(i, p)
-    r = sub.prefilter_recall_at_k(labels[1:], ks=(1,), queries=[(labels[0], polys[0])])
+    r = prefilter_recall_at_k(sub, labels[1:], ks=(1,), queries=[(labels[0], polys[0])])
     assert r[0].queries == 1 and r[0].hit_rate == 1.0
 
 
@@ -226,11 +226,13 @@ def test_heading_hypotheses_first_equals_scalar_version() -> None:
     fft = FFTMatcher()
     q = fft.describe(star_polygon(rng))
     stored = [fft.describe(star_polygon(rng)) for _ in range(6)]
-    angles, scores = heading_hypotheses(q.range_function,
-                                        np.stack([d.range_function for d in stored]), 3)
+    angles, scores = headings_from_range_functions(
+        q.range_function, np.stack([d.range_function for d in stored]), 3
+    )
     for j, d in enumerate(stored):
+        # heading(stored) - heading(query), negated: the query's heading in the stored frame.
         a, s = heading_from_range_functions(d.range_function, q.range_function)
-        assert angles[j, 0] == pytest.approx(a, abs=1e-9)
+        assert -angles[j, 0] == pytest.approx(a, abs=1e-9)
         assert scores[j, 0] == pytest.approx(s, abs=1e-9)
         assert np.all(np.diff(scores[j][np.isfinite(scores[j])]) <= 1e-12)
 
@@ -242,9 +244,10 @@ def test_heading_recovers_rotation(angle: float, seed: int) -> None:
     db = PlaceDatabase(verifiers=(), fusion="prefilter", n_headings=2)
     db.add("a", p)
     m = db.query(p.rotated(angle))[0]
-    err = (m.headings[0][0] - angle + np.pi) % (2 * np.pi) - np.pi
-    # query = R(angle) stored, so heading(stored) - heading(query) = angle; 1.4-degree
-    # bins, sub-bin refined by the parabola.
+    err = (m.headings[0][0] + angle + np.pi) % (2 * np.pi) - np.pi
+    # query = R(angle) stored, so the query's heading in the stored frame,
+    # heading(query) - heading(stored), is -angle; 1.4-degree bins, sub-bin refined by
+    # the parabola.
     assert abs(err) < np.radians(1.5)
     assert m.headings[0][1] > 0.95
 
@@ -258,7 +261,7 @@ def test_headings_match_true_poses_of_simulated_scans(places) -> None:
     for j, p in enumerate(polys):
         for m in db.query(p, exclude_keys=[j]):
             if labels[m.key] == labels[j]:
-                want = m.pose[2] - poses[j][2]
+                want = poses[j][2] - m.pose[2]  # the query's heading in the stored frame
                 errors.append(abs((m.headings[0][0] - want + np.pi) % (2 * np.pi) - np.pi))
     assert len(errors) > 60
     assert np.degrees(np.median(errors)) < 3.0
@@ -291,7 +294,7 @@ def test_bad_configs_are_user_errors() -> None:
         PlaceDatabaseConfig(fusion="vote")
     with pytest.raises(UserError, match="top_k"):
         PlaceDatabaseConfig(top_k=0)
-    with pytest.raises(TypeError):
+    with pytest.raises(UserError, match="nonsense"):
         PlaceDatabase(nonsense=1)
 
 
@@ -313,7 +316,18 @@ def test_headings_without_an_fft_stage(polygons: list[Polygon]) -> None:
         db.add(i, p)
     m = db.query(polygons[2].rotated(0.5))[0]
     assert m.key == 2 and "fft" not in m.distances
-    assert abs((m.headings[0][0] - 0.5 + np.pi) % (2 * np.pi) - np.pi) < np.radians(1.5)
+    assert abs((m.headings[0][0] + 0.5 + np.pi) % (2 * np.pi) - np.pi) < np.radians(1.5)
     no = PlaceDatabase(prefilter=("ring",), verifiers=(), fusion="prefilter", n_headings=0)
     no.add(0, polygons[0])
     assert no.query(polygons[0])[0].headings == ()
+
+
+def test_stored_descriptors_query_like_the_polygon(polygons: list[Polygon]) -> None:
+    db = PlaceDatabase(top_k=5)  # defaults: headings on, FLIRT + MRM verifiers
+    for i, p in enumerate(polygons[:12]):
+        db.add(i, p)
+    stored = db.query(db.descriptors(7), exclude_keys=[7])
+    fresh = db.query(polygons[7], exclude_keys=[7])
+    assert stored == fresh  # every key, distance, score and heading bit for bit
+    with pytest.raises(UserError, match="not in the place database"):
+        db.descriptors(99)

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from data.carmen import write_log
 from data.errors import DataError, UserError
-from data.sim.raycast import LaserModel, cast
+from data.raycast import LaserModel, cast
 from evaluation.place_datasets import (
     RobotPlacesConfig,
     _capped,

@@ -1,4 +1,5 @@
-"""Tests of `loopclosure.registration`: point-to-line ICP, normals, multi-hypothesis."""
+"""Tests of `loopclosure.registration` (point-to-line ICP, normals),
+`loopclosure.multi_start` and the point-set headings of `loopclosure.headings`."""
 
 from __future__ import annotations
 
@@ -10,19 +11,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data import se2
+from loopclosure.headings import direction_histogram, heading_hypotheses, range_function
+from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
 from loopclosure.registration import (
     FAILED_VARIANCE,
     IcpConfig,
     RegistrationTarget,
     body_covariance,
-    direction_histogram,
     estimate_normals,
-    heading_hypotheses,
-    initial_guesses,
-    overlap_scores,
-    range_function,
     register,
-    register_multi,
     voxel_downsample,
 )
 

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
-from data.sim.raycast import LaserModel, cast
+from data.raycast import LaserModel, cast
 from data.sim.run import STREAM_LASER, STREAM_PLACES, STREAM_WORLD, check_world, streams
 from data.sim.worlds import World, make_world
 from data.types import Scan

@@ -29,9 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data import se2
-from data.errors import DataError, UserError
+from data.errors import UserError
+from data.raycast import LaserModel, cast
 from data.sim.motion import MotionConfig, OdometryNoise, drive, wheel_odometry
-from data.sim.raycast import LaserModel, cast
 from data.sim.worlds import WORLDS, World, make_world
 from data.types import Scan, Trajectory
 
@@ -194,16 +194,11 @@ def write_run(run: SimulatedRun, out_dir: str | os.PathLike[str]) -> dict[str, P
 
     `out_dir` is created if needed.  Each file is written atomically.
     """
+    from data.atomic_write import output_dir, write_text_atomic
     from data.carmen import write_log
-    from data.trajectory_io import write_text_atomic, write_tum
+    from data.trajectory_io import write_tum
 
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(out, f"cannot create output folder: {exc.strerror or exc}") from exc
-    if not out.is_dir():
-        raise DataError(out, "output path exists and is not a folder")
+    out = output_dir(out_dir)
     paths = {
         "log": out / "simulation.clf",
         "groundtruth": out / "groundtruth.tum",

@@ -1,9 +1,10 @@
 """The eight shape matchers of the place-recognition paper behind one interface.
 
 `get_matcher(name)` builds one by its CLI name; `MATCHER_NAMES` lists them in the
-paper's order, followed by ``cascade`` (`loopclosure.cascade`: prefilter, verifiers
-and score fusion behind the same interface).  Modules are imported lazily so a user
-of one matcher does not pay for the others.
+paper's order.  Modules are imported lazily so a user of one matcher does not pay
+for the others.  The cascade (`loopclosure.cascade`: prefilter, verifiers and score
+fusion behind the same interface) is built from these matchers, so it is not one of
+them: `loopclosure.matcher_registry` lists all nine.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 
 _REGISTRY: dict[str, tuple[str, str]] = {
@@ -22,18 +24,19 @@ _REGISTRY: dict[str, tuple[str, str]] = {
     "mrm": ("loopclosure.matchers.mrm", "MRMMatcher"),
     "tangent": ("loopclosure.matchers.tangent_space", "TangentSpaceMatcher"),
     "flirt": ("loopclosure.matchers.flirt", "FlirtMatcher"),
-    "cascade": ("loopclosure.cascade", "CascadeMatcher"),
 }
 
 MATCHER_NAMES: tuple[str, ...] = tuple(_REGISTRY)
 
 
 def matcher_class(name: str) -> type[Matcher]:
-    """The matcher class registered under `name` (raises KeyError listing the names)."""
+    """The matcher class registered under `name` (`UserError` listing the names)."""
     try:
         module, cls = _REGISTRY[name]
     except KeyError:
-        raise KeyError(f"unknown matcher {name!r}; known: {', '.join(MATCHER_NAMES)}") from None
+        raise UserError(
+            f"unknown matcher {name!r}; known: {', '.join(MATCHER_NAMES)}"
+        ) from None
     return getattr(import_module(module), cls)
 
 

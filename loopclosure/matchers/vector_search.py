@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from data.errors import UserError
+
 Array = NDArray[np.float64]
 Array32 = NDArray[np.float32]
 
@@ -65,7 +67,7 @@ def stack_vectors(rows: Sequence[ArrayLike], dim: int) -> VectorStack:
         return VectorStack(np.zeros((0, dim), np.float32), np.zeros(0, np.float32))
     m = np.ascontiguousarray(np.stack([np.asarray(r, np.float32) for r in rows]), np.float32)
     if m.ndim != 2 or m.shape[1] != dim:
-        raise ValueError(f"expected rows of length {dim}, got shape {m.shape}")
+        raise UserError(f"stack_vectors: expected rows of length dim={dim}, got shape {m.shape}")
     return VectorStack(m, np.einsum("ij,ij->i", m, m))
 
 
@@ -142,7 +144,7 @@ class VectorStore:
 
     def __init__(self, dim: int, capacity: int = 64) -> None:
         if dim < 1:
-            raise ValueError(f"dim must be >= 1, got {dim}")
+            raise UserError(f"VectorStore: dim must be >= 1, got {dim}")
         self.dim = int(dim)
         self._rows = np.zeros((max(int(capacity), 1), self.dim), np.float32)
         self._sqnorms = np.zeros(len(self._rows), np.float32)
@@ -180,9 +182,11 @@ class VectorStore:
         """Store ``(n, D)`` vectors at once."""
         v = np.asarray(vectors, dtype=float)
         if v.ndim != 2 or v.shape[1] != self.dim:
-            raise ValueError(f"expected vectors of length {self.dim}, got shape {v.shape}")
+            raise UserError(
+                f"VectorStore: expected vectors of length {self.dim}, got shape {v.shape}"
+            )
         if not np.isfinite(v).all():
-            raise ValueError("descriptor vectors must be finite")
+            raise UserError("VectorStore: descriptor vectors must be finite")
         if self._ref is None and len(v):
             self._ref = v[0].copy()
         n = len(v)

@@ -91,15 +91,14 @@ from numpy.typing import NDArray
 from data import se2
 from data.errors import UserError
 from data.types import Scan
+from loopclosure.headings import heading_hypotheses
+from loopclosure.multi_start import initial_guesses, register_multi
 from loopclosure.registration import (
     IcpConfig,
     IcpResult,
     RegistrationTarget,
     body_covariance,
-    heading_hypotheses,
-    initial_guesses,
     register,
-    register_multi,
     voxel_downsample,
 )
 from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry

@@ -1,5 +1,11 @@
 """Vectorised ray casting of a planar laser against line-segment walls.
 
+Plain geometry, below every user: the simulator (`data.sim`) casts its laser with it
+and the plugin's virtual scans (`loopclosure.virtual_scan`) ray-cast wall segments
+with `trace`.  Walls are ``(S, 2, 2)`` segment arrays, or anything with such a
+``segments`` attribute (a `data.sim.worlds.World`); nothing here imports the
+simulator.
+
 Frames and units: poses are ``(x, y, theta)`` of the *sensor* in the world frame
 [m, m, rad]; beam angles are in the sensor frame (0 along the sensor x axis,
 counter-clockwise positive), as in `data.types.Scan`; ranges are metres.
@@ -34,12 +40,12 @@ loop over beams or segments.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
-from data.sim.worlds import World
 from data.types import Scan
 
 Array = NDArray[np.float64]
@@ -48,6 +54,13 @@ _PAIR_BUDGET = 400_000  # (pose, segment) pairs per chunk
 _EPS_ANGLE = 1e-9  # [rad] widening of segment intervals (beams through end points)
 _EPS_U = 1e-9  # tolerance on the segment parameter u
 _MIN_RETURN = 1e-3  # [m] smallest noisy return
+
+
+class Walls(Protocol):
+    """Anything holding ``(S, 2, 2)`` wall segments [m] (world frame), e.g. a
+    `data.sim.worlds.World`."""
+
+    segments: Array
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,7 +158,7 @@ def trace(
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     segments = np.asarray(segments, dtype=float).reshape(-1, 2, 2)
     if not (np.isfinite(poses).all() and np.isfinite(segments).all()):
-        raise ValueError("ray casting needs finite poses and segments")
+        raise UserError("trace: ray casting needs finite poses and segments")
     segments = segments[np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1) > 1e-12]
     out = np.full((len(poses), beams), np.inf)
     if len(segments) == 0 or len(poses) == 0:
@@ -231,7 +244,7 @@ def _trace_chunk(
 
 
 def cast(
-    world_or_segments: World | Array,
+    world_or_segments: Walls | Array,
     poses: Array,
     laser: LaserModel,
     rng: np.random.Generator | None = None,
@@ -239,8 +252,8 @@ def cast(
     """Simulated readings ``(K, N)`` [m] of `laser` at sensor poses ``(K, 3)``.
 
     Args:
-        world_or_segments: a `data.sim.worlds.World` or a ``(S, 2, 2)`` segment array
-            (world frame, metres).
+        world_or_segments: `Walls` (e.g. a `data.sim.worlds.World`) or a ``(S, 2, 2)``
+            segment array (world frame, metres).
         poses: ``(K, 3)`` sensor poses ``(x, y, theta)`` in the world frame.
         laser: the sensor model.
         rng: source of noise and dropouts; None gives exact, complete readings.
@@ -249,9 +262,7 @@ def cast(
         Ranges: misses read exactly ``laser.max_range``, dropouts 0.0, returns the
         exact distance plus Gaussian noise (see module docstring).
     """
-    segments = world_or_segments.segments if isinstance(world_or_segments, World) else (
-        world_or_segments
-    )
+    segments = getattr(world_or_segments, "segments", world_or_segments)
     exact = trace(
         np.asarray(segments, dtype=float),
         poses,

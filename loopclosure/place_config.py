@@ -1,0 +1,140 @@
+"""Parameters of the place database (`loopclosure.place_database`) in one frozen object.
+
+`PlaceDatabaseConfig` names the stages (prefilter vectors screening every keyframe,
+verifiers run on the K candidates), the fusion of their distances into one score,
+the heading hypotheses and the descriptor sizes; `__post_init__` rejects a bad
+combination with a `UserError` naming the field.  `DEFAULT_LOGISTIC` is the
+calibrated logistic fusion of the default stages.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from data.errors import UserError
+from loopclosure.fusion import DEFAULT_RANK_CONSTANT, LogisticFusion
+from loopclosure.matchers import MATCHER_NAMES
+
+PREFILTER_STAGES = ("fft", "ring")
+"""Matchers whose descriptors are Euclidean vectors, usable as prefilter stages."""
+
+FUSION_MODES = ("logistic", "rank", "verifier", "prefilter", "auto")
+
+# Default logistic model of the place database: fitted by
+# `loopclosure.cascade.calibrate_logistic(polygons, labels, PlaceDatabaseConfig(fusion="rank"),
+# top_k=50)` on the simulated Box set (seed 0, 231 scans, leave-one-out candidate pairs:
+# K = 50 rather than the query's 10 so the fit sees the hard negatives ranked 21-50).
+DEFAULT_LOGISTIC = LogisticFusion(
+    names=("fft", "ring", "flirt", "mrm"),
+    coefficients=(-0.5891, -1.344, -13.52, -5.142),
+    intercept=-7.119,
+)
+
+
+@dataclass(slots=True, frozen=True)
+class PlaceDatabaseConfig:
+    """Parameters of the place database (the rules are in `loopclosure.place_database`).
+
+    Attributes:
+        prefilter: Euclidean-vector stages screening every keyframe ("fft", "ring").
+        prefilter_weights: weight of each prefilter stage in the normalised sum
+            (empty: all 1).
+        verifiers: matchers run on the K candidates (any registered name, e.g.
+            "mrm", "shape-context", "integral"); may be empty.
+        top_k: K, candidates verified per query.
+        fusion: "logistic", "rank", "verifier", "prefilter", or "auto" (logistic
+            unless ``scale_invariant``, then rank: see `resolved_fusion`).
+        logistic: the logistic model (its names must be the stages, in any order).
+        rank_constant: c of reciprocal rank fusion.
+        n_headings: heading hypotheses per candidate (0: none, FFT not computed
+            unless it is a stage).
+        fft_harmonics: FFT amplitudes kept by the FFT stage (`FFTConfig.n_harmonics`).
+        ring_rings: circles of the ring stage (`RingConfig.n_rings`).
+        scale_invariant: passed to every matcher (True for MPEG-7, never for places).
+        fixed_scales: per stage (prefilter then verifiers), fixed scales instead of
+            the database estimate (empty: estimated).
+        scale_pairs: random stored pairs per verifier scale estimate.
+        seed: seed of the pair sampling.
+    """
+
+    prefilter: tuple[str, ...] = ("fft", "ring")
+    prefilter_weights: tuple[float, ...] = ()
+    verifiers: tuple[str, ...] = ("flirt", "mrm")
+    top_k: int = 10
+    fusion: str = "logistic"
+    logistic: LogisticFusion = field(default_factory=lambda: DEFAULT_LOGISTIC)
+    rank_constant: float = DEFAULT_RANK_CONSTANT
+    n_headings: int = 3
+    fft_harmonics: int = 8
+    ring_rings: int = 12
+    scale_invariant: bool = False
+    fixed_scales: tuple[float, ...] = ()
+    scale_pairs: int = 64
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.prefilter:
+            raise UserError("place database: at least one prefilter stage is needed")
+        for s in self.prefilter:
+            if s not in PREFILTER_STAGES:
+                raise UserError(
+                    f"place database: prefilter stage {s!r} is not a vector descriptor; "
+                    f"use {' or '.join(PREFILTER_STAGES)}"
+                )
+        for s in self.verifiers:
+            if s not in MATCHER_NAMES:
+                raise UserError(
+                    f"place database: unknown verifier {s!r}; known: {', '.join(MATCHER_NAMES)}"
+                )
+        stages = self.stages
+        if len(set(stages)) != len(stages):
+            raise UserError(f"place database: a stage is listed twice: {', '.join(stages)}")
+        if self.prefilter_weights and len(self.prefilter_weights) != len(self.prefilter):
+            raise UserError("place database: one prefilter weight per prefilter stage")
+        if any(not (np.isfinite(w) and w >= 0) for w in self.prefilter_weights):
+            raise UserError("place database: prefilter weights must be finite and >= 0")
+        if self.top_k < 1:
+            raise UserError(f"place database: top_k must be >= 1, got {self.top_k}")
+        if self.fusion not in FUSION_MODES:
+            raise UserError(
+                f"place database: fusion {self.fusion!r} unknown; use {', '.join(FUSION_MODES)}"
+            )
+        if self.fusion == "verifier" and not self.verifiers:
+            raise UserError("place database: fusion 'verifier' needs at least one verifier")
+        if self.resolved_fusion == "logistic" and sorted(self.logistic.names) != sorted(stages):
+            raise UserError(
+                "place database: the logistic model is fitted for stages "
+                f"{', '.join(self.logistic.names) or '(none)'} but the stages are "
+                f"{', '.join(stages)}; refit it (loopclosure.cascade.calibrate_logistic) "
+                "or use fusion 'rank'"
+            )
+        if self.fixed_scales and (
+            len(self.fixed_scales) != len(stages)
+            or any(not (np.isfinite(s) and s > 0) for s in self.fixed_scales)
+        ):
+            raise UserError("place database: fixed_scales needs one positive scale per stage")
+        if self.fft_harmonics < 1 or self.ring_rings < 1:
+            raise UserError("place database: fft_harmonics and ring_rings must be >= 1")
+        if self.n_headings < 0 or self.scale_pairs < 1:
+            raise UserError("place database: n_headings must be >= 0 and scale_pairs >= 1")
+
+    @property
+    def stages(self) -> tuple[str, ...]:
+        """Prefilter stages then verifiers."""
+        return tuple(self.prefilter) + tuple(self.verifiers)
+
+    @property
+    def resolved_fusion(self) -> str:
+        """The fusion mode in use: "auto" is "logistic" for places (not scale
+        invariant), "rank" for scale-invariant shape sets (MPEG-7), where the
+        logistic calibrated on laser places does not transfer: which matcher is
+        reliable differs between the domains (FLIRT is perfect on the simulated
+        places and the weakest verifier on MPEG-7)."""
+        if self.fusion != "auto":
+            return self.fusion
+        return "rank" if self.scale_invariant else "logistic"
+
+
+__all__ = ["DEFAULT_LOGISTIC", "FUSION_MODES", "PREFILTER_STAGES", "PlaceDatabaseConfig"]

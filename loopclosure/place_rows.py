@@ -1,0 +1,119 @@
+"""Row storage of the place database: growing float32 rows and the key -> row index.
+
+Every stored keyframe is one row, numbered in insertion order.  Two structures keep
+that bookkeeping out of `loopclosure.place_database.PlaceDatabase`:
+
+- `FloatRows`: a float32 ``(M, D)`` array grown by amortised doubling (appending never
+  re-stacks the stored rows), e.g. the range functions behind the heading hypotheses.
+  The prefilter vectors use `loopclosure.matchers.vector_search.VectorStore`, the same
+  growth with squared norms for the distance arithmetic.
+- `KeyIndex`: the keys (any hashable values, e.g. keyframe ids) in insertion order and
+  their row numbers.  Integer keys added in increasing order are looked up in bulk
+  with ``np.searchsorted``; any other key sequence falls back to a dict.
+
+An unknown or repeated key is the caller's mistake: `UserError` naming the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterable
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from data.errors import UserError
+
+
+class FloatRows:
+    """A float32 ``(M, D)`` array grown by amortised doubling."""
+
+    def __init__(self, dim: int, capacity: int = 64) -> None:
+        self._data = np.zeros((capacity, dim), np.float32)
+        self._size = 0
+
+    def append(self, row: ArrayLike) -> None:
+        """Store one ``(D,)`` row (cast to float32)."""
+        if self._size == len(self._data):
+            grown = np.zeros((2 * len(self._data), self._data.shape[1]), np.float32)
+            grown[: self._size] = self._data
+            self._data = grown
+        self._data[self._size] = row
+        self._size += 1
+
+    @property
+    def data(self) -> NDArray[np.float32]:
+        """``(M, D)`` view of the stored rows."""
+        return self._data[: self._size]
+
+
+class KeyIndex:
+    """Keys in insertion order and the row number of each (module docstring)."""
+
+    def __init__(self) -> None:
+        self._keys: list[Hashable] = []
+        self._index: dict[Hashable, int] = {}
+        self._int_keys: list[int] | None = []  # None once a key is not an increasing int
+        self._int_key_array: NDArray[np.int64] | None = None
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    def __contains__(self, key: Hashable) -> bool:
+        return key in self._index
+
+    @property
+    def keys(self) -> list[Hashable]:
+        """Stored keys in insertion order (a copy)."""
+        return list(self._keys)
+
+    def key(self, row: int) -> Hashable:
+        """The key stored at `row`."""
+        return self._keys[row]
+
+    def check_new(self, key: Hashable) -> None:
+        """Raise `UserError` if `key` is already stored."""
+        if key in self._index:
+            raise UserError(f"key {key!r} is already in the place database")
+
+    def add(self, key: Hashable) -> int:
+        """Store a new `key` (see `check_new`); returns its row."""
+        self.check_new(key)
+        row = len(self._keys)
+        self._keys.append(key)
+        self._index[key] = row
+        if self._int_keys is not None:
+            if isinstance(key, int | np.integer) and (
+                not self._int_keys or int(key) > self._int_keys[-1]
+            ):
+                self._int_keys.append(int(key))
+            else:
+                self._int_keys = None
+        self._int_key_array = None
+        return row
+
+    def row(self, key: Hashable) -> int:
+        """The row of `key` (`UserError` if it is not stored)."""
+        try:
+            return self._index[key]
+        except KeyError:
+            raise UserError(f"key {key!r} is not in the place database") from None
+
+    def rows(self, keys: Iterable[Hashable]) -> NDArray[np.intp]:
+        """Rows of `keys` (an unknown key raises `UserError`)."""
+        arr = np.asarray(keys if not isinstance(keys, set | frozenset) else list(keys))
+        if arr.size == 0:
+            return np.zeros(0, np.intp)
+        if self._int_keys is not None and np.issubdtype(arr.dtype, np.integer):
+            if self._int_key_array is None:
+                self._int_key_array = np.asarray(self._int_keys, np.int64)
+            table = self._int_key_array
+            idx = np.searchsorted(table, arr.ravel())
+            ok = idx < len(table)
+            ok[ok] = table[idx[ok]] == arr.ravel()[ok]
+            if not ok.all():
+                raise UserError(f"key {arr.ravel()[~ok][0]!r} is not in the place database")
+            return idx.astype(np.intp)
+        return np.fromiter((self.row(k) for k in arr.ravel().tolist()), np.intp)
+
+
+__all__ = ["FloatRows", "KeyIndex"]
