@@ -64,7 +64,6 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from os import PathLike
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -238,21 +237,6 @@ class OccupancyGrid:
         img[p < self.config.free_thresh] = PIXEL_FREE
         img[p > self.config.occupied_thresh] = PIXEL_OCCUPIED
         return img[::-1].copy()
-
-    # ------------------------------------------------------------------ output
-
-    def write_map(
-        self,
-        out_dir: PathArg,
-        stem: str = "map",
-        trajectory_xy: ArrayLike | None = None,
-        loops: ArrayLike | None = None,
-    ) -> dict[str, Path]:
-        """Write ``<stem>.pgm``, ``<stem>.yaml`` and ``<stem>.png`` into `out_dir`
-        (see `slam.map_io.write_map`)."""
-        from slam.map_io import write_map
-
-        return write_map(self, out_dir, stem=stem, trajectory_xy=trajectory_xy, loops=loops)
 
 
 # ---------------------------------------------------------------------- building

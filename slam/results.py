@@ -12,6 +12,7 @@ from data.g2o import write_g2o
 from data.trajectory_io import write_tum
 from data.types import Trajectory
 from slam.json_io import write_json
+from slam.map_io import write_map as write_map_files
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
 from slam.pipeline import MappingResult, peak_rss_mb
@@ -89,7 +90,7 @@ def write_results(
                   result.keyframe_poses[e.candidate.query][:2]]
             for e in result.accepted_loops
         ]).reshape(-1, 4)
-        paths = grid.write_map(out, trajectory_xy=result.scan_poses[:, :2], loops=loops)
+        paths = write_map_files(grid, out, trajectory_xy=result.scan_poses[:, :2], loops=loops)
         files.update({f"map_{k}": str(v) for k, v in paths.items()})
     accepted = [e for e in result.loops if e.candidate.accepted]
     timings = dict(result.timings)

@@ -2,7 +2,7 @@
 
 `simulate_run` is the embedded demo of the project: a robot drives two laps of a
 figure-eight through a Box or Surface world (`data.sim.worlds`), scanning with a
-360-degree laser (`data.sim.raycast`) while its wheel odometry drifts
+360-degree laser (`data.raycast`) while its wheel odometry drifts
 (`data.sim.motion`).  Defaults: arena 24 m x 18 m, a route of about 63 m per lap,
 0.5 m/s, 4 Hz, hence about 1,000 scans of 360 beams over 250 s; every place is
 revisited on the second lap after a ~63 m excursion (and the figure-eight's crossing

@@ -26,7 +26,7 @@ with it in closed form, and the nearest hit per (scan, beam) wins (one lexsort).
 Python loop over beams, triangles or points: the loops are over objects and chunks
 of scans.  Returns within `grazing_deg` of the surface tangent are lost; then
 Gaussian range noise (`noise_sigma`) and random dropouts (range 0.0) as in
-`data.sim.raycast`.
+`data.raycast`.
 
 What is not simulated: walls and boxes of the planar world.  The fan never reaches
 them because the world is built with a route clearance larger than the fan's reach

@@ -38,7 +38,7 @@ a multi-hypothesis search runs (`_search`): headings {prediction, previous,
 prediction + `search_turns_deg`, `search_headings` hypotheses from the normal
 directions of scan and map} times positions {prediction + a grid of
 `search_offsets` along and across the heading, previous position}, pre-screened
-by `loopclosure.registration.overlap_scores`, ICP from the best `search_keep`,
+by `loopclosure.multi_start.overlap_scores`, ICP from the best `search_keep`,
 ranked by ``fitness * exp(-m^2 / 2)`` with ``m`` the deviation from the
 prediction in units of `search_sigma` (a broad motion prior, so a symmetric
 flip far from the prediction loses).  It matters for logs without odometry or
