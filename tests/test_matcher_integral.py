@@ -1,46 +1,21 @@
-"""Integral invariant matcher: the invariant, the elastic DP, invariances, batching."""
+"""Integral invariant matcher: the invariant by hand, the elastic DP, the cyclic start.
+
+The clauses all matchers share, rotation invariance to 1e-9 among them, are tested
+in test_matcher_contract.py.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
-from loopclosure.matchers import get_matcher
 from loopclosure.matchers.integral_invariant import (
-    IntegralConfig,
     IntegralInvariantMatcher,
     elastic_match,
     integral_invariant,
 )
 from loopclosure.polygon import Polygon
-from tests.helpers import shared_file
-
-SQUARE = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
-
-
-def regular(n: int, radius: float) -> Polygon:
-    t = np.arange(n) * 2 * np.pi / n
-    return Polygon(radius * np.column_stack([np.cos(t), np.sin(t)]))
-
-
-def star_polygon(rng: np.random.Generator, n: int = 40) -> Polygon:
-    a = np.sort(rng.uniform(0, 2 * np.pi, n))
-    r = rng.uniform(2, 6, n)
-    return Polygon(np.column_stack([r * np.cos(a), r * np.sin(a)]))
-
-
-def room(kind: int, rng: np.random.Generator) -> Polygon:
-    base = {
-        0: np.array([[0, 0], [8, 0], [8, 5], [0, 5]], float),
-        1: np.array([[0, 0], [8, 0], [8, 3], [3, 3], [3, 8], [0, 8]], float),
-        2: np.array([[0, 0], [12, 0], [12, 2], [0, 2]], float),
-    }[kind]
-    # Random start vertex too: the matcher must find the cyclic correspondence.
-    pts = np.roll(Polygon(base).resample(120), rng.integers(120), axis=0)
-    pts = pts + rng.normal(0, 0.03, (120, 2))
-    return Polygon(pts).rotated(rng.uniform(-np.pi, np.pi)).translated(rng.normal(0, 1, 2))
+from tests.matcher_shapes import SQUARE, random_star, regular
 
 
 def brute_force_dp(q: np.ndarray, t: np.ndarray, alpha: float, w: int) -> tuple[float, float]:
@@ -127,47 +102,13 @@ def test_dp_absorbs_a_local_stretch() -> None:
 
 def test_cyclic_start_is_found() -> None:
     m = IntegralInvariantMatcher()
-    p = star_polygon(np.random.default_rng(5))
+    p = random_star(np.random.default_rng(5))
     d = m.describe(p)
     for shift in (1, 7, 30):
         assert m.distance(d, np.roll(d, shift)) < 1e-12
 
 
-# --- invariances ------------------------------------------------------------------------------
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), angle=st.floats(-np.pi, np.pi))
-def test_distance_to_rotated_copy_is_zero(seed: int, angle: float) -> None:
-    m = IntegralInvariantMatcher()
-    p = star_polygon(np.random.default_rng(seed))
-    # Rotation is an isometry and keeps vertex 0: only rounding differs.
-    assert m.distance(m.describe(p), m.describe(p.rotated(angle))) < 1e-9
-
-
-@settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), angle=st.floats(-np.pi, np.pi))
-def test_distance_unchanged_when_one_polygon_rotates(seed: int, angle: float) -> None:
-    m = IntegralInvariantMatcher()
-    rng = np.random.default_rng(seed)
-    p, q = star_polygon(rng), star_polygon(rng)
-    a, b, b_rot = m.describe(p), m.describe(q), m.describe(q.rotated(angle))
-    assert m.distance(a, b) == pytest.approx(m.distance(a, b_rot), abs=1e-9)
-
-
-# --- batched distances ------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("n_starts", [1, 3])
-def test_batched_equals_single(n_starts: int) -> None:
-    m = IntegralInvariantMatcher(n_starts=n_starts)
-    rng = np.random.default_rng(0)
-    descs = [m.describe(star_polygon(rng)) for _ in range(12)]
-    d = m.distances(descs[0], m.stack(descs))
-    single = np.array([m.distance(descs[0], x) for x in descs])
-    np.testing.assert_allclose(d, single, rtol=1e-12, atol=1e-15)
-    assert d[0] == 0.0 and np.all(d[1:] > 0)
-    assert m.distances(descs[0], m.stack([])).shape == (0,)
+# --- chunked database ------------------------------------------------------------------------
 
 
 def test_chunked_database_equals_unchunked(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -175,70 +116,8 @@ def test_chunked_database_equals_unchunked(monkeypatch: pytest.MonkeyPatch) -> N
 
     m = IntegralInvariantMatcher()
     rng = np.random.default_rng(4)
-    descs = [m.describe(star_polygon(rng)) for _ in range(9)]
+    descs = [m.describe(random_star(rng)) for _ in range(9)]
     stacked = m.stack(descs)
     whole = m.distances(descs[1], stacked)
     monkeypatch.setattr(mod, "_CHUNK_VALUES", 1)  # one entry per chunk
     np.testing.assert_array_equal(m.distances(descs[1], stacked), whole)
-
-
-# --- degenerate polygons ----------------------------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    "vertices",
-    [
-        np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
-        np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 0.01], [0.0, 0.01]]),
-        SQUARE * 1e6,
-        SQUARE * 1e-3,
-        np.array([[0, 0], [1, 0], [1, 0], [1, 1], [0, 1], [0, 0]], float),
-    ],
-)
-@pytest.mark.parametrize("scale_invariant", [False, True])
-def test_degenerate_polygons_give_finite_descriptors(
-    vertices: np.ndarray, scale_invariant: bool
-) -> None:
-    m = IntegralInvariantMatcher(scale_invariant=scale_invariant)
-    d = m.describe(Polygon(vertices))
-    assert d.shape == (48,) and np.all(np.isfinite(d))
-    dist = m.distance(d, m.describe(Polygon(SQUARE)))
-    assert np.isfinite(dist) and dist >= 0
-    assert m.distance(d, d) == 0.0
-
-
-def test_registry_and_config_errors() -> None:
-    m = get_matcher("integral", n_points=32, alpha=0.01)
-    assert isinstance(m, IntegralInvariantMatcher)
-    assert m.describe(Polygon(SQUARE)).shape == (32,)
-    assert IntegralInvariantMatcher(IntegralConfig(band=0.5)).config.band == 0.5
-    with pytest.raises(TypeError):
-        IntegralInvariantMatcher(points=3)
-    with pytest.raises(ValueError):
-        IntegralInvariantMatcher(alpha=-1.0)
-    with pytest.raises(ValueError):
-        IntegralInvariantMatcher(band=0.0)
-
-
-# --- retrieval --------------------------------------------------------------------------------
-
-
-def test_nearest_neighbour_is_same_kind_of_room() -> None:
-    m = IntegralInvariantMatcher()
-    rng = np.random.default_rng(11)
-    kinds = np.repeat(np.arange(3), 6)
-    d = m.pairwise([m.describe(room(k, rng)) for k in kinds])
-    np.fill_diagonal(d, np.inf)
-    assert np.all(kinds[d.argmin(axis=1)] == kinds)
-
-
-def test_mpeg7_retrieval_on_real_shapes() -> None:
-    folder = shared_file("mpeg7-subset")
-    from data.mpeg7 import load_silhouettes
-
-    shapes = [s for s in load_silhouettes(folder) if s.label in ("apple", "bone", "key")]
-    labels = np.array([s.label for s in shapes])
-    m = IntegralInvariantMatcher(scale_invariant=True)
-    d = m.pairwise([m.describe(Polygon(s.contour)) for s in shapes])
-    np.fill_diagonal(d, np.inf)
-    assert np.mean(labels[d.argmin(axis=1)] == labels) > 0.8

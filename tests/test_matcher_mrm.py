@@ -1,4 +1,8 @@
-"""MRM (multi-scale convexity/concavity) matcher: formulas, DP, invariances, retrieval."""
+"""MRM (multi-scale convexity/concavity) matcher: formulas, the cyclic DP, start, scale.
+
+The invariances (exact up to rounding), batching and the other shared clauses:
+test_matcher_contract.py.
+"""
 
 from __future__ import annotations
 
@@ -7,25 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from data.errors import UserError
-from loopclosure.matchers import get_matcher
-from loopclosure.matchers.mrm import MRMConfig, MRMMatcher, _dtw_cyclic
+from loopclosure.matchers.mrm import MRMMatcher, _dtw_cyclic
 from loopclosure.polygon import Polygon
-
-
-def star(seed: int, n: int = 150) -> Polygon:
-    """Random smooth star-shaped polygon, radius 3 m +- lobes of 2..6 cycles (up to 0.8 m)."""
-    rng = np.random.default_rng(seed)
-    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
-    k = np.arange(2, 7)
-    amp, phase = rng.uniform(-0.8, 0.8, 5), rng.uniform(0, 2 * np.pi, 5)
-    r = 3.0 + (amp[:, None] * np.cos(k[:, None] * ang[None, :] + phase[:, None])).sum(axis=0)
-    return Polygon(np.column_stack([r * np.cos(ang), r * np.sin(ang)]))
-
-
-def regular(n: int, radius: float) -> Polygon:
-    a = 2 * np.pi * np.arange(n) / n
-    return Polygon(radius * np.column_stack([np.cos(a), np.sin(a)]))
+from tests.matcher_shapes import blob, regular
 
 
 def test_circle_displacements_by_hand() -> None:
@@ -96,25 +84,12 @@ def test_dp_hand_checked() -> None:
     assert _dtw_cyclic(cost, 1, 0)[0] == 0.0
 
 
-@settings(max_examples=20, deadline=None)
-@given(seed=st.integers(0, 10_000), angle=st.floats(-np.pi, np.pi))
-def test_rotation_invariance(seed: int, angle: float) -> None:
-    m = MRMMatcher()
-    a, b = star(seed), star(seed + 1)
-    da = m.describe(a)
-    # The descriptor only uses displacement lengths and their side: exact up to rounding.
-    assert m.distance(da, m.describe(a.rotated(angle))) < 1e-9
-    assert m.distance(da, m.describe(b.rotated(angle))) == pytest.approx(
-        m.distance(da, m.describe(b)), rel=1e-9, abs=1e-12
-    )
-
-
 @settings(max_examples=10, deadline=None)
 @given(seed=st.integers(0, 10_000), shift=st.integers(1, 99))
 def test_start_vertex_and_translation(seed: int, shift: int) -> None:
     # A rolled descriptor (another start sample) matches exactly: the DP searches start offsets.
     m = MRMMatcher()
-    a = star(seed)
+    a = blob(seed)
     da = m.describe(a)
     rolled = type(da)(np.roll(da.mcc, shift, axis=0), None, da.complexity)
     assert m.distance(da, rolled) < 1e-12
@@ -122,26 +97,21 @@ def test_start_vertex_and_translation(seed: int, shift: int) -> None:
     # is sampling noise of the N = 100 samples (median 22 %, at most 34 % of the distance
     # between two different random stars over 30 seeds), never near a different shape.
     moved = Polygon(np.roll(a.vertices, shift, axis=0) + np.array([3.0, -7.0]))
-    other = m.distance(da, m.describe(star(seed + 1)))
+    other = m.distance(da, m.describe(blob(seed + 1)))
     assert m.distance(da, m.describe(moved)) < 0.5 * other
 
 
-def test_batched_equals_single_and_registry() -> None:
-    m = get_matcher("mrm")
-    assert isinstance(m, MRMMatcher) and m.rotation_invariant
-    descs = [m.describe(star(s)) for s in range(7)]
+def test_chunked_distances_equal_unchunked() -> None:
+    m = MRMMatcher()
+    descs = [m.describe(blob(s)) for s in range(7)]
     stacked = m.stack(descs)
-    for q in descs[:3]:
-        batched = m.distances(q, stacked)
-        single = [m.distance(q, d) for d in descs]
-        np.testing.assert_allclose(batched, single, rtol=1e-12)
     chunked = MRMMatcher(chunk=2)
     np.testing.assert_allclose(chunked.distances(descs[0], stacked), m.distances(descs[0], stacked))
     assert m.stack([]).mcc.shape == (0, 100, 10)
 
 
-def test_scale_handling() -> None:
-    a = star(5)
+def test_metric_distance_of_a_scaled_copy_is_bounded_by_the_unwarped_cost() -> None:
+    a = blob(5)
     big = Polygon(a.vertices * 2.5)
     metric = MRMMatcher()
     da = metric.describe(a)
@@ -149,12 +119,10 @@ def test_scale_handling() -> None:
     # mean|1.5 d_a| [m]; warping can only lower it.
     unwarped = 1.5 * np.abs(da.mcc).mean()
     assert 0.5 * unwarped < metric.distance(da, metric.describe(big)) <= unwarped + 1e-12
-    inv = MRMMatcher(scale_invariant=True)
-    assert inv.distance(inv.describe(a), inv.describe(big)) < 1e-9
 
 
 def test_mirror_option() -> None:
-    a = star(11)
+    a = blob(11)
     # Mirror image, vertex 0 kept first (so both resample the same points): counter-clockwise
     # order of the mirrored vertices is the reversed order.
     image = (a.vertices * [-1.0, 1.0])[::-1]
@@ -162,49 +130,3 @@ def test_mirror_option() -> None:
     plain, mirror = MRMMatcher(), MRMMatcher(mirror=True)
     assert plain.distance(plain.describe(a), plain.describe(mirrored)) > 0.005
     assert mirror.distance(mirror.describe(a), mirror.describe(mirrored)) < 1e-9
-
-
-@pytest.mark.parametrize(
-    "vertices",
-    [
-        [[0, 0], [1, 0], [0, 1]],  # 3 vertices
-        [[0, 0], [10, 0], [10, 0.001], [0, 0.001]],  # very thin
-        [[0, 0], [1e5, 0], [1e5, 1e5], [0, 1e5]],  # huge
-        [[0, 0], [1e-5, 0], [1e-5, 1e-5], [0, 1e-5]],  # tiny
-        [[0, 0], [1, 0], [1, 0], [1, 1], [1, 1], [0, 1]],  # duplicate points
-    ],
-)
-@pytest.mark.parametrize("scale_invariant", [False, True])
-def test_degenerate_polygons_finite(vertices: list[list[float]], scale_invariant: bool) -> None:
-    m = MRMMatcher(scale_invariant=scale_invariant)
-    d = m.describe(Polygon(np.array(vertices, float)))
-    assert np.isfinite(d.mcc).all() and np.isfinite(d.complexity) and d.complexity > 0
-    ref = m.describe(star(1))
-    dist = m.distances(d, m.stack([d, ref]))
-    assert np.isfinite(dist).all() and (dist >= 0).all() and dist[0] < 1e-9
-
-
-def test_retrieval_nearest_neighbour_same_kind() -> None:
-    rng = np.random.default_rng(0)
-    kinds = [star(100), star(200), star(300)]
-
-    def noisy(p: Polygon) -> Polygon:
-        v = p.vertices + rng.normal(0, 0.05, p.vertices.shape)
-        return Polygon(v).rotated(rng.uniform(-np.pi, np.pi))
-
-    shapes = [noisy(k) for k in kinds for _ in range(4)]
-    labels = np.repeat(np.arange(3), 4)
-    m = MRMMatcher()
-    descs = [m.describe(s) for s in shapes]
-    d = m.pairwise(descs)
-    np.fill_diagonal(d, np.inf)
-    assert (labels[d.argmin(axis=1)] == labels).all()
-
-
-def test_config_validation() -> None:
-    with pytest.raises(UserError):
-        MRMConfig(n_points=3)
-    with pytest.raises(UserError):
-        MRMConfig(band=0.0)
-    with pytest.raises(UserError):
-        MRMMatcher(bogus=1)

@@ -52,7 +52,7 @@ def test_trim_range():
     assert tuple(map(int, trim_range(10, 6))) == (2, 8)
     assert tuple(map(int, trim_range(5, 5))) == (0, 5)
     assert tuple(map(int, trim_range(5, 0))) == (3, 3)
-    with pytest.raises(ValueError):
+    with pytest.raises(UserError, match="0 <= n <= m"):
         trim_range(3, 4)
 
 

@@ -1,10 +1,12 @@
 """FFT matcher: Fourier descriptors of the polar range function (paper Section II.A.1).
 
-Paper: "shape-matching-place-recognition" (Section II.A.1, Table I "Fft"), after its
-reference [8] (Fourier descriptors; Zhang & Lu, "A comparative study of Fourier
-descriptors for shape representation and retrieval", 2002).  This is THE prefilter of
-the SLAM pipeline: cheap to describe, a fixed-length vector, compared with one
-matrix-vector product against the whole database.
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.1
+("Fourier Transformation", "Fft" in its tables), after its reference [8] (Fourier
+descriptors; Zhang & Lu, "A comparative study of Fourier descriptors for shape
+representation and retrieval", 2002).  This is THE prefilter of the SLAM pipeline: cheap
+to describe, a fixed-length vector, compared with one matrix-vector product against the
+whole database.
 
 Equations (plain text)
 ----------------------
@@ -56,11 +58,9 @@ Parameters (`FFTConfig`)
 - ``n_bins`` B = 256: angle bins of the range function (1.4 degrees each, about the
   resolution of a 360-beam scan; a power of two keeps the FFT fast).
 - ``n_harmonics`` K = 16: amplitudes kept.  Low harmonics carry the coarse shape, high
-  ones mostly noise (paper, Fig. 1 used k = 30 for a reconstruction).  On the
-  simulated Box set K = 8 / 16 / 32 gave Bull's eye 93.8 / 94.6 / 94.6: 16 keeps the
-  accuracy and halves the database scan of 32.
-- ``ray_hit`` = "farthest": which boundary hit a ray keeps (see above); "nearest"
-  retrieved worse (simulated Box 93.4 against 94.6, Surface 96.9 against 99.7).
+  ones mostly noise (paper, Fig. 1 used k = 30 for a reconstruction); the database scan
+  costs O(K) per entry.
+- ``ray_hit`` = "farthest": which boundary hit a ray keeps (see above).
 - ``scale_invariant`` = False: places must not be scale invariant (rooms differing
   only in size are different places); True for MPEG-7.
 
@@ -87,6 +87,7 @@ import numpy as np
 import scipy.fft
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
 from loopclosure.polygon import Polygon
@@ -114,11 +115,14 @@ class FFTConfig:
 
     def __post_init__(self) -> None:
         if self.n_bins < 8:
-            raise ValueError(f"n_bins must be >= 8, got {self.n_bins}")
+            raise UserError(f"n_bins must be >= 8, got {self.n_bins}")
         if not 1 <= self.n_harmonics <= self.n_bins // 2:
-            raise ValueError(f"n_harmonics must be in 1..n_bins/2, got {self.n_harmonics}")
+            raise UserError(
+                f"n_harmonics must be in 1..n_bins/2 (1..{self.n_bins // 2} for n_bins = "
+                f"{self.n_bins}), got {self.n_harmonics}"
+            )
         if self.ray_hit not in ("farthest", "nearest"):
-            raise ValueError(f"ray_hit must be 'farthest' or 'nearest', got {self.ray_hit!r}")
+            raise UserError(f"ray_hit must be 'farthest' or 'nearest', got {self.ray_hit!r}")
 
 
 @dataclass(slots=True, frozen=True)
@@ -271,7 +275,10 @@ def heading_from_range_functions(r_a: Array, r_b: Array) -> tuple[float, float]:
     a = np.asarray(r_a, dtype=float)
     b = np.asarray(r_b, dtype=float)
     if a.shape != b.shape or a.ndim != 1:
-        raise ValueError(f"range functions must be equal-length 1-D, got {a.shape}, {b.shape}")
+        raise UserError(
+            f"r_a and r_b must be equal-length 1-D range functions, got shapes {a.shape} "
+            f"and {b.shape}"
+        )
     n = len(a)
     a = a - a.mean()
     b = b - b.mean()
@@ -303,7 +310,10 @@ class FFTMatcher(Matcher):
         known = {f.name for f in fields(FFTConfig)}
         unknown = set(overrides) - known
         if unknown:
-            raise TypeError(f"unknown FFTConfig fields: {', '.join(sorted(unknown))}")
+            raise UserError(
+                f"unknown FFTConfig fields: {', '.join(sorted(unknown))} "
+                f"(known: {', '.join(sorted(known))})"
+            )
         self.config = replace(cfg, **overrides)
 
     def describe(self, polygon: Polygon) -> FFTDescriptor:

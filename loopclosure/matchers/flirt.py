@@ -1,11 +1,12 @@
 """FLIRT place matcher: interest points, beta-grids and RANSAC (the feature-based baseline).
 
 Reference: G. D. Tipaldi and K. O. Arras, "FLIRT - Interest regions for 2D range
-data", ICRA 2010, as summarised in Section II.B of the place-recognition paper
-(shared/papers/shape-matching-place-recognition.txt): curvature-detector interest
-points, beta-grid descriptors, and place recognition by RANSAC between two scans,
-the re-projection error as the measure, and "different place" when the inlier set
-is smaller than n_min.  Written from the papers; no FLIRTLib code was read or used.
+data", ICRA 2010, as summarised in Section II.B ("Feature-based method") of Kosnar,
+Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for place
+recognition" (``papers/shape-matching-place-recognition.txt``): curvature-detector
+interest points, beta-grid descriptors, and place recognition by RANSAC between two
+scans, the re-projection error as the measure, and "different place" when the inlier
+set is smaller than n_min.  Written from the papers; no FLIRTLib code was read or used.
 Detection and description are in `loopclosure.matchers.flirt_features` (see its
 docstring for those equations and parameters).
 
@@ -17,9 +18,8 @@ Matching one query scan A (features a_i) with a database scan B (features b_j):
         eucl(a, b) = sqrt(sum_j (occ_a,j - occ_b,j)^2)
         chi2(a, b) = sum_j (occ_a,j - occ_b,j)^2 / (occ_a,j + occ_b,j)
 
-   (Euclidean is the default: the same Bull's eye as chi2 on our MPEG-7, robot and
-   simulated place sets, and 2.5x faster because it batches as a matrix product.
-   The bins' variances are part of the descriptor but not of this distance.)
+   (Euclidean is the default because it batches as a matrix product.  The bins'
+   variances are part of the descriptor but not of this distance.)
    Pairs whose scales differ by more than `scale_ratio` are not compatible (the
    transform is rigid, so a feature keeps its scale).  Each a_i keeps its
    `candidates` nearest compatible b_j (k-NN, not only the nearest: repetitive
@@ -96,6 +96,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.flirt_features import (
     FlirtFeatureConfig,
@@ -143,13 +144,19 @@ class FlirtConfig:
 
     def __post_init__(self) -> None:
         if self.descriptor_distance not in ("chi2", "euclidean"):
-            raise ValueError(
+            raise UserError(
                 f"descriptor_distance must be chi2 or euclidean, got {self.descriptor_distance!r}"
             )
         if self.candidates < 1 or self.max_hypotheses < 1 or self.min_inliers < 1:
-            raise ValueError("candidates, max_hypotheses and min_inliers must be >= 1")
+            raise UserError(
+                "candidates, max_hypotheses and min_inliers must be >= 1, got "
+                f"{self.candidates}, {self.max_hypotheses} and {self.min_inliers}"
+            )
         if self.scale_ratio < 1 or self.inlier_factor <= 0 or self.orientation_tolerance <= 0:
-            raise ValueError("need scale_ratio >= 1, inlier_factor > 0, orientation_tolerance > 0")
+            raise UserError(
+                "need scale_ratio >= 1, inlier_factor > 0, orientation_tolerance > 0 [rad], got "
+                f"{self.scale_ratio}, {self.inlier_factor} and {self.orientation_tolerance}"
+            )
         self.features()  # validates the detection parameters
 
     def features(self) -> FlirtFeatureConfig:
@@ -211,7 +218,10 @@ class FlirtMatcher(Matcher):
             known = {f.name for f in fields(FlirtConfig)}
             unknown = set(overrides) - known
             if unknown:
-                raise TypeError(f"unknown FLIRT option(s): {', '.join(sorted(unknown))}")
+                raise UserError(
+                    f"unknown FLIRT option(s): {', '.join(sorted(unknown))} "
+                    f"(known: {', '.join(sorted(known))})"
+                )
             cfg = FlirtConfig(**{**{n: getattr(cfg, n) for n in known}, **overrides})
         self.config = cfg
         self._features = cfg.features()

@@ -1,12 +1,13 @@
 """FLIRT interest points and beta-grid descriptors of a polygon (detection + description).
 
 Reference: G. D. Tipaldi and K. O. Arras, "FLIRT - Interest regions for 2D range
-data", ICRA 2010 (ref. [3] of the place-recognition comparison in
-shared/papers/shape-matching-place-recognition.txt, Section II.B, which
-summarises it).  Written from the papers' descriptions; no FLIRTLib code was read
-or used.  The full text of the ICRA paper was not available to us, so where the
-summary leaves a choice open the choice is ours and is stated below.  This module
-does the per-scan work (`describe`); RANSAC matching is in `loopclosure.matchers.flirt`.
+data", ICRA 2010 (ref. [3] of Kosnar, Vonasek, Kulich, Preucil, "Comparison of
+shape matching techniques for place recognition",
+``papers/shape-matching-place-recognition.txt``, Section II.B, which summarises it).
+Written from the papers' descriptions; no FLIRTLib code was read or used.  The full
+text of the ICRA paper was not available to us, so where the summary leaves a choice
+open the choice is ours and is stated below.  This module does the per-scan work
+(`describe`); RANSAC matching is in `loopclosure.matchers.flirt`.
 
 Frames and units: the polygon is in the sensor frame, lengths in its units (metres
 for scans, pixels for MPEG-7), angles in radians.  Every length parameter below is
@@ -99,6 +100,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -149,15 +151,23 @@ class FlirtFeatureConfig:
 
     def __post_init__(self) -> None:
         if self.n_samples < 16:
-            raise ValueError(f"n_samples must be >= 16, got {self.n_samples}")
+            raise UserError(f"n_samples must be >= 16, got {self.n_samples}")
         if self.viewpoint not in ("auto", "origin", "centroid"):
-            raise ValueError(f"viewpoint must be auto, origin or centroid, got {self.viewpoint!r}")
+            raise UserError(f"viewpoint must be auto, origin or centroid, got {self.viewpoint!r}")
         if min(self.rings, self.sectors, self.levels_per_octave, self.max_features) < 1:
-            raise ValueError("rings, sectors, levels_per_octave and max_features must be >= 1")
+            raise UserError(
+                "rings, sectors, levels_per_octave and max_features must be >= 1, got "
+                f"{self.rings}, {self.sectors}, {self.levels_per_octave} and {self.max_features}"
+            )
         if self.sigma_0 <= 0 or self.support_factor <= 0 or self.max_scale_fraction <= 0:
-            raise ValueError("sigma_0, support_factor and max_scale_fraction must be > 0")
+            raise UserError(
+                "sigma_0, support_factor and max_scale_fraction must be > 0, got "
+                f"{self.sigma_0}, {self.support_factor} and {self.max_scale_fraction}"
+            )
         if self.prior_hit <= 0 or self.prior_miss <= 0:
-            raise ValueError("prior_hit and prior_miss must be > 0")
+            raise UserError(
+                f"prior_hit and prior_miss must be > 0, got {self.prior_hit} and {self.prior_miss}"
+            )
 
 
 @dataclass(slots=True)

@@ -1,8 +1,9 @@
 """Integral invariant matcher: distance integral invariant and elastic (DP) correspondence.
 
-Paper: "shape-matching-place-recognition" (Section II.A.2, Table I "Integral"), after its
-reference [23]: S. Manay, D. Cremers, B.-W. Hong, A. Yezzi, S. Soatto, "Integral
-invariants for shape matching", IEEE PAMI 28(10), 2006.
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.2
+("Integral Invariant"), after its reference [23]: S. Manay, D. Cremers, B.-W. Hong, A.
+Yezzi, S. Soatto, "Integral invariants for shape matching", IEEE PAMI 28(10), 2006.
 
 Equations (plain text)
 ----------------------
@@ -55,12 +56,10 @@ the coarse alignment.
 
 Parameters (`IntegralConfig`)
 -----------------------------
-- ``n_points`` n = 48: boundary samples.  The DP costs O(n^2); on our place and
-  MPEG-7 sets n = 64 retrieved within a point of n = 48, n = 32 lost 1-4 points.
-- ``alpha`` = 0.002 [log-units^2]: weight of the stretching penalty (0 to 0.01 changed
-  Bull's eye by less than a point; the invariant is smooth, so warps are small).
-- ``n_starts`` = 1: coarse cyclic alignments refined by the DP (2, 3 or 6 starts did
-  not retrieve better than the single best rigid alignment).
+- ``n_points`` n = 48: boundary samples.  The DP costs O(n^2) per pair.
+- ``alpha`` = 0.002 [log-units^2]: weight of the stretching penalty (the invariant is
+  smooth, so warps are small).
+- ``n_starts`` = 1: coarse cyclic alignments refined by the DP.
 - ``band`` = 0.25: half-width w of the DP band as a fraction of n (w = 12 for n = 48).
 - ``scale_invariant`` = False (places); True subtracts mean(I) (MPEG-7).
 
@@ -82,6 +81,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.polygon import Polygon
 
@@ -111,13 +111,15 @@ class IntegralConfig:
 
     def __post_init__(self) -> None:
         if self.n_points < 4:
-            raise ValueError(f"n_points must be >= 4, got {self.n_points}")
+            raise UserError(f"n_points must be >= 4, got {self.n_points}")
         if not (np.isfinite(self.alpha) and self.alpha >= 0):
-            raise ValueError(f"alpha must be >= 0, got {self.alpha}")
+            raise UserError(f"alpha must be a finite number >= 0, got {self.alpha}")
         if not 1 <= self.n_starts <= self.n_points:
-            raise ValueError(f"n_starts must be in 1..n_points, got {self.n_starts}")
+            raise UserError(
+                f"n_starts must be in 1..n_points ({self.n_points}), got {self.n_starts}"
+            )
         if not 0.0 < self.band <= 1.0:
-            raise ValueError(f"band must be in (0, 1], got {self.band}")
+            raise UserError(f"band must be in (0, 1], got {self.band}")
 
 
 def integral_invariant(points: Array) -> Array:
@@ -218,7 +220,10 @@ class IntegralInvariantMatcher(Matcher):
         known = {f.name for f in fields(IntegralConfig)}
         unknown = set(overrides) - known
         if unknown:
-            raise TypeError(f"unknown IntegralConfig fields: {', '.join(sorted(unknown))}")
+            raise UserError(
+                f"unknown IntegralConfig fields: {', '.join(sorted(unknown))} "
+                f"(known: {', '.join(sorted(known))})"
+            )
         self.config = replace(cfg, **overrides)
 
     def describe(self, polygon: Polygon) -> Array:

@@ -1,8 +1,10 @@
 """Ring projection matcher: how much of each circle around the centroid lies inside.
 
-Paper: "shape-matching-place-recognition" (Section II.A.6, Table I "Ring"), after its
-reference [19] (ring-projection transform; Tang, Cheng & Suen, "Transformation-ring-
-projection (TRP) algorithm and its VLSI implementation", 1991).
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.6
+("Ring Projection"), after its reference [19] (ring-projection transform; Tang, Cheng &
+Suen, "Transformation-ring-projection (TRP) algorithm and its VLSI implementation",
+1991).
 
 Equations (plain text)
 ----------------------
@@ -37,34 +39,26 @@ meets the circle |x| = gamma where |e|^2 u^2 + 2 (p.e) u + |p|^2 - gamma^2 = 0; 
 u+ = (-p.e + sqrt(disc)) / |e|^2 is the outward crossing (entry), u- the inward one
 (exit).  Only the (edge, ring) pairs whose radius lies between the edge's nearest and
 farthest distance from the centroid are solved (``np.repeat`` over the rings each edge
-spans), so the cost is O(N + crossings), not O(R N).  Measured on a 356-vertex
-simulated scan, 32 rings: 0.14 ms CPU, against 17 ms for sampling 90 angles per circle
-with a vectorised point-in-polygon test (error up to 0.17 rad) and 64 ms for 360
-angles (error 0.02 rad).
+spans), so the cost is O(N + crossings), not O(R N), and there is no sampling error.
 
 Parameters (`RingConfig`)
 -------------------------
-- ``n_rings`` R = 32: number of circles (0.625 m apart for max_radius 20 m).  24, 32
-  and 48 rings retrieved within a point of each other on the simulated Box/Surface
-  sets and MPEG-7; 32 keeps a query against 100,000 stored profiles near 1.5 ms.
+- ``n_rings`` R = 32: number of circles (0.625 m apart for max_radius 20 m); a query
+  costs O(R) per stored profile.
 - ``max_radius`` = 20.0 m: radius of the outermost ring (places; rooms 2-30 m, the scan
   polygon is capped at 30 m, and the far field is the least repeatable part of a scan
-  taken from a displaced position; 12 / 20 / 30 m gave Bull's eye 96.7 / 97.0 / 97.5
-  on the simulated Box set with fraction profiles).  Unused when scale invariant, which
-  pixel-unit shape sets such as MPEG-7 need.
+  taken from a displaced position).  Unused when scale invariant, which pixel-unit
+  shape sets such as MPEG-7 need.
 - ``scale_invariant`` = False: when True the rings span the polygon's own extent,
   max_radius = the largest centroid-to-vertex distance, and arc lengths are divided by
   it (so the descriptor does not change with scale); for MPEG-7.
 - ``norm`` = "l2": Euclidean distance, because ring projection is a prefilter: a query
   against the whole database is one float32 BLAS matrix-vector product with precomputed
-  norms (||q||^2 + ||x||^2 - 2 q.x).  "l1" retrieved slightly better on our sets (+0.5
-  Bull's eye on places, +4 on MPEG-7) but needs a full |x - q| pass over the database,
-  several times slower.
+  norms (||q||^2 + ||x||^2 - 2 q.x).  "l1" needs a full |x - q| pass over the
+  database instead.
 - ``arc_length`` = True: the profile is the arc length gamma * f(gamma) [m] (the
   paper's implementation); False gives the fraction f / (2 pi), which weighs every ring
-  equally.  Arc lengths weigh the outer rings more; on the simulated Box set they
-  retrieved better (Bull's eye 99.7 against 97.0), on Surface and MPEG-7 both were
-  within a point.
+  equally.  Arc lengths weigh the outer rings more.
 
 Departures from the paper
 -------------------------
@@ -83,6 +77,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
 from loopclosure.polygon import Polygon
@@ -112,11 +107,11 @@ class RingConfig:
 
     def __post_init__(self) -> None:
         if self.norm not in ("l1", "l2"):
-            raise ValueError(f"norm must be 'l1' or 'l2', got {self.norm!r}")
+            raise UserError(f"norm must be 'l1' or 'l2', got {self.norm!r}")
         if self.n_rings < 1:
-            raise ValueError(f"n_rings must be >= 1, got {self.n_rings}")
+            raise UserError(f"n_rings must be >= 1, got {self.n_rings}")
         if not (np.isfinite(self.max_radius) and self.max_radius > 0):
-            raise ValueError(f"max_radius must be a positive length [m], got {self.max_radius}")
+            raise UserError(f"max_radius must be a positive length [m], got {self.max_radius}")
 
 
 RingStack = VectorStack
@@ -192,7 +187,10 @@ class RingProjectionMatcher(Matcher):
         known = {f.name for f in fields(RingConfig)}
         unknown = set(overrides) - known
         if unknown:
-            raise TypeError(f"unknown RingConfig fields: {', '.join(sorted(unknown))}")
+            raise UserError(
+                f"unknown RingConfig fields: {', '.join(sorted(unknown))} "
+                f"(known: {', '.join(sorted(known))})"
+            )
         self.config = replace(cfg, **overrides)
 
     def describe(self, polygon: Polygon) -> NDArray[np.float32]:

@@ -1,7 +1,8 @@
 """Scan-line matcher: intersection-interval descriptor of a family of lines.
 
-Paper: Kosnar et al., shape matching for laser place recognition (Section II.A.5,
-"Scan Line", its reference [18]).
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.5
+("Scan Line"), after its reference [18].
 
 Definitions (the paper's, with the garbled extraction restored):
 
@@ -32,9 +33,8 @@ sampled), ``u`` fixed uniform jitters in [0, 1) from ``seed`` (stratified random
 sampling: no aliasing with walls parallel to a grid direction).  Each line
 carries the weight ``h / K``, so ``D`` estimates the integral above whatever R
 is.  Rotating P by alpha only shifts the directions by alpha relative to P: the
-estimate is rotation invariant up to this quadrature noise (default 64 x 64
-lines: on the Box data set a rotated scan lies at 9 % (median, 15 % at most) of
-the distance to the nearest other place; see also tests/test_matcher_scanline.py).
+estimate is rotation invariant up to this quadrature noise, which shrinks as the
+number of lines (default 64 x 64) grows.
 
 Vectorisation: all edges x all directions at once.  For direction m an edge
 crosses exactly the parallel lines whose offsets lie between the projections of
@@ -93,11 +93,17 @@ class ScanLineConfig:
 
     def __post_init__(self) -> None:
         if self.n_directions < 1 or self.n_offsets < 1:
-            raise UserError("n_directions and n_offsets must be >= 1")
+            raise UserError(
+                f"n_directions and n_offsets must be >= 1, got {self.n_directions} and "
+                f"{self.n_offsets}"
+            )
         if self.n_xi < 1:
             raise UserError(f"n_xi must be >= 1, got {self.n_xi}")
         if not (self.xi_max > 0 and self.xi_max_normalised > 0):
-            raise UserError("xi_max and xi_max_normalised must be > 0")
+            raise UserError(
+                f"xi_max and xi_max_normalised must be > 0, got {self.xi_max} and "
+                f"{self.xi_max_normalised}"
+            )
 
 
 def intersection_function(points: Array, xi: Array) -> Array:
@@ -124,7 +130,10 @@ class ScanLineMatcher(Matcher):
             known = {f.name for f in fields(ScanLineConfig)}
             unknown = set(overrides) - known
             if unknown:
-                raise UserError(f"unknown scan-line option(s): {', '.join(sorted(unknown))}")
+                raise UserError(
+                    f"unknown scan-line option(s): {', '.join(sorted(unknown))} "
+                    f"(known: {', '.join(sorted(known))})"
+                )
             cfg = replace(cfg, **overrides)  # type: ignore[arg-type]
         self.config = cfg
         rng = np.random.default_rng(cfg.seed)

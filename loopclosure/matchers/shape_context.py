@@ -1,9 +1,10 @@
 """Shape context matcher: log-polar histograms, chi^2 costs, optimal assignment.
 
-Paper: Kosnar et al., shape matching for laser place recognition (Section II.A.3,
-"Shape context"), which cites the original method: S. Belongie, J. Malik and
-J. Puzicha, "Shape matching and object recognition using shape contexts",
-IEEE Trans. PAMI 24(4):509-522, 2002.
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.3
+("Shape context"), which cites the original method: S. Belongie, J. Malik and J.
+Puzicha, "Shape matching and object recognition using shape contexts", IEEE Trans. PAMI
+24(4):509-522, 2002.
 
 Descriptor (``describe``), for a polygon P:
 
@@ -69,11 +70,9 @@ one float32 product of an (n, bins * rank) matrix with the stack's
 (M * n, bins * rank) features (`stack` builds them once); the float32 rounding
 (about 1e-7 of a cost) is the only approximation.  The assignment is solved per
 pair: the Hungarian method is an augmenting-path algorithm with no useful
-vectorisation over independent problems, and scipy's C implementation is the
-fastest exact option here (figures in the engineer's report).  Timing note: the
-product is a BLAS call; on a loaded machine a multi-threaded BLAS spins, so
-benchmarks should pin one thread (OPENBLAS_NUM_THREADS=1) as the paper's
-single-core figures do.
+vectorisation over independent problems, and scipy's C implementation is an exact
+solver.  The chi^2 product is a BLAS call: time it with one BLAS thread
+(OPENBLAS_NUM_THREADS=1), as the paper's single-core timings are.
 
 Departures from the paper, and why:
 - Rotation invariance through tangent-relative angles (Belongie's option) is always
@@ -120,7 +119,9 @@ class ShapeContextConfig:
         if self.n_points < 4:
             raise UserError(f"n_points must be >= 4, got {self.n_points}")
         if self.n_radial < 1 or self.n_angular < 1:
-            raise UserError("n_radial and n_angular must be >= 1")
+            raise UserError(
+                f"n_radial and n_angular must be >= 1, got {self.n_radial} and {self.n_angular}"
+            )
         if not 0 < self.r_inner < self.r_outer:
             raise UserError(f"need 0 < r_inner < r_outer, got {self.r_inner}, {self.r_outer}")
         if not self.mean_distance > 0:
@@ -178,7 +179,10 @@ class ShapeContextMatcher(Matcher):
             known = {f.name for f in fields(ShapeContextConfig)}
             unknown = set(overrides) - known
             if unknown:
-                raise UserError(f"unknown shape-context option(s): {', '.join(sorted(unknown))}")
+                raise UserError(
+                    f"unknown shape-context option(s): {', '.join(sorted(unknown))} "
+                    f"(known: {', '.join(sorted(known))})"
+                )
             cfg = replace(cfg, **overrides)  # type: ignore[arg-type]
         self.config = cfg
         self._edges = np.geomspace(cfg.r_inner, cfg.r_outer, cfg.n_radial)

@@ -1,11 +1,12 @@
 """Tangent space (turning function) matcher.
 
-Paper: "shape-matching-place-recognition" (Section II.A.4, Table I "Tangent"), after its
-reference [13] (tangent space of polygons as used by Latecki & Lakamper, "Shape
-similarity measure based on correspondence of visual parts", PAMI 2000) and the
-turning-function metric of E. M. Arkin, L. P. Chew, D. P. Huttenlocher, K. Kedem,
-J. S. B. Mitchell, "An efficiently computable metric for comparing polygonal shapes",
-PAMI 13(3), 1991.
+Paper: Kosnar, Vonasek, Kulich, Preucil, "Comparison of shape matching techniques for
+place recognition" (``papers/shape-matching-place-recognition.txt``), Section II.A.4
+("Tangent Space"), after its reference [13] (tangent space of polygons as used by
+Latecki & Lakamper, "Shape similarity measure based on correspondence of visual parts",
+PAMI 2000) and the turning-function metric of E. M. Arkin, L. P. Chew, D. P.
+Huttenlocher, K. Kedem, J. S. B. Mitchell, "An efficiently computable metric for
+comparing polygonal shapes", PAMI 13(3), 1991.
 
 Equations (plain text)
 ----------------------
@@ -56,14 +57,11 @@ Parameters (`TangentConfig`)
 ----------------------------
 - ``n_points`` n = 64: arc-length samples of the turning function.  Resampling also
   low-passes the laser noise that would otherwise make the raw turning function of a
-  360-vertex scan polygon a random walk; 64 retrieved as well as 128 and keeps the
-  O(n^2) L1 search fast.
+  360-vertex scan polygon a random walk; the L1 search costs O(n^2) per pair.
 - ``norm`` = "l1": the paper's formula (optimal rotation = median, all n shifts), or
-  "l2": Arkin's metric (closed-form rotation, FFT over shifts; about 100x faster per
-  comparison, but 3-7 Bull's eye points lower on our test place sets and MPEG-7).
+  "l2": Arkin's metric (closed-form rotation, FFT over shifts: O(n log n) per pair).
 - ``scale_invariant`` = False, ``scale_weight`` = 1.0 [rad per unit log-ratio]: weight
-  of the perimeter term when not scale invariant (simulated Box Bull's eye with weight
-  0 / 0.3 / 1 / 3: 86.4 / 88.9 / 90.5 / 87.1).
+  of the perimeter term when not scale invariant.
 
 Departures from the paper
 -------------------------
@@ -82,6 +80,7 @@ import numpy as np
 import scipy.fft
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.polygon import Polygon
 
@@ -108,11 +107,11 @@ class TangentConfig:
 
     def __post_init__(self) -> None:
         if self.n_points < 4:
-            raise ValueError(f"n_points must be >= 4, got {self.n_points}")
+            raise UserError(f"n_points must be >= 4, got {self.n_points}")
         if self.norm not in ("l1", "l2"):
-            raise ValueError(f"norm must be 'l1' or 'l2', got {self.norm!r}")
+            raise UserError(f"norm must be 'l1' or 'l2', got {self.norm!r}")
         if not (np.isfinite(self.scale_weight) and self.scale_weight >= 0):
-            raise ValueError(f"scale_weight must be >= 0, got {self.scale_weight}")
+            raise UserError(f"scale_weight must be a finite number >= 0, got {self.scale_weight}")
 
 
 @dataclass(slots=True, frozen=True)
@@ -174,7 +173,10 @@ class TangentSpaceMatcher(Matcher):
         known = {f.name for f in fields(TangentConfig)}
         unknown = set(overrides) - known
         if unknown:
-            raise TypeError(f"unknown TangentConfig fields: {', '.join(sorted(unknown))}")
+            raise UserError(
+                f"unknown TangentConfig fields: {', '.join(sorted(unknown))} "
+                f"(known: {', '.join(sorted(known))})"
+            )
         self.config = replace(cfg, **overrides)
 
     def describe(self, polygon: Polygon) -> TangentDescriptor:

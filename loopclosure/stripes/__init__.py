@@ -1,6 +1,6 @@
 """Stripe-based object matching (the stripes paper): extraction, descriptor, matching, database.
 
-Paper: "Stripes-based Object Matching" (``../shared/papers/stripes-object-matching.txt``).
+Paper: "Stripes-based Object Matching" (``papers/stripes-object-matching.txt``).
 An object is an ordered list of stripes (2D point paths, one per laser line); each
 stripe becomes ``[l, d, o]`` (Eq. 1-3, `descriptor`); two objects are compared by the
 Bhattacharyya distances of Gaussian fits of each feature after trimming (Eq. 4-6,

@@ -78,7 +78,9 @@ class StripeDatabase:
         self.weights = tuple(float(w) for w in weights)
         self.var_floor = float(var_floor)
         if len(self.weights) != 3:
-            raise UserError("stripe weights need three values (l, d, o)")
+            raise UserError(
+                f"stripe weights need three values (l, d, o), got {len(self.weights)}"
+            )
         counts = np.array([len(d) for d in self.descriptors], dtype=np.int64)
         if np.any(counts == 0):
             bad = next(d for d in self.descriptors if len(d) == 0)

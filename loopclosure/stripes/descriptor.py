@@ -1,6 +1,6 @@
 """The point-context stripe descriptor ``[l, d, o]`` (stripes paper, Section IV, Eq. 1-3).
 
-Paper: "Stripes-based Object Matching" (``../shared/papers/stripes-object-matching.txt``).
+Paper: "Stripes-based Object Matching" (``papers/stripes-object-matching.txt``).
 
 A stripe is an ordered 2D point path ``C = p_1 .. p_H`` (for camera stripes: image pixels,
 ``(column, row)``, row pointing down; for point-cloud stripes: the slice profile in
@@ -23,8 +23,8 @@ Choices where the paper is silent, and differences from it:
   the stripe path", cost ``O(H^2)``): a stripe longer than `max_samples` is described
   by `max_samples` of its points, evenly spaced by index (always keeping both ends).
   Both means are pair averages, so subsampling changes them little: the pairs at lags
-  shorter than the sample stride are missing, which biases ``d`` up by about 1 % (64
-  samples) or 2.5 % (32) on a 400-pixel arc, and ``o`` by a few hundredths of a radian.
+  shorter than the sample stride are missing, which biases ``d`` slightly up (the more,
+  the fewer the samples) and moves ``o`` slightly.
   ``max_samples=None`` uses every point (the exact definition).  ``l`` always uses the
   full count ``H``.
 - Very short stripes: the authors' code zeroes the features of stripes of three
@@ -37,7 +37,7 @@ Choices where the paper is silent, and differences from it:
 
 - Known property of Eq. 2 (not a choice): pair angles of a nearly horizontal stripe
   (a flat surface: book covers) sit at the 0 / pi boundary, so one pixel of tilt moves
-  ``o`` between about 0 and about pi; the paper's weak book class (48 %) shows it too.
+  ``o`` between about 0 and about pi; the paper's weak book class shows it too.
 
 Everything is vectorised over all pairs of all stripes with the same sample count (pair
 terms in float32, means accumulated in float64); the only Python loop is over the

@@ -248,13 +248,14 @@ def stripes_from_points(
     if rings is not None:
         ring = np.asarray(rings).reshape(-1)
         if len(ring) != len(p):
-            raise UserError(f"{len(ring)} ring numbers for {len(p)} points")
+            raise UserError(f"rings must hold one ring number per point: {len(ring)} ring "
+                            f"numbers for {len(p)} points")
         ring = ring[finite]
     p = p[finite]
     if len(p) == 0:
         raise DataError(name, "point cluster has no finite point")
     if resolution <= 0:
-        raise UserError("resolution must be positive")
+        raise UserError(f"resolution must be positive [m], got {resolution}")
     if rings is not None:
         slice_id = np.asarray(ring, dtype=np.int64)
         horiz = np.hypot(p[:, 0], p[:, 1])
@@ -267,7 +268,7 @@ def stripes_from_points(
         v = -horiz
     else:
         if spacing is None or spacing <= 0:
-            raise UserError("slice spacing must be positive")
+            raise UserError(f"slice spacing must be positive [m], got {spacing}")
         nrm = np.asarray(normal, dtype=float)
         nrm = nrm / np.linalg.norm(nrm)
         upv = np.asarray(up, dtype=float)

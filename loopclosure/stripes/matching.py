@@ -63,7 +63,10 @@ def trim_range(m: ArrayLike, n: ArrayLike) -> tuple[NDArray[np.int64], NDArray[n
     m = np.asarray(m, dtype=np.int64)
     n = np.asarray(n, dtype=np.int64)
     if np.any(n > m) or np.any(n < 0):
-        raise ValueError("trim_range needs 0 <= n <= m")
+        got = f"m={int(m)}, n={int(n)}" if m.ndim == n.ndim == 0 else "n outside 0..m"
+        raise UserError(
+            f"trim_range needs 0 <= n <= m (n: stripes kept, m: stripes in the set), got {got}"
+        )
     start = round_half_up((m - n) / 2.0)
     return start, start + n
 
