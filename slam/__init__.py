@@ -1,1 +1,79 @@
-"""The host: odometry front ends, the gtsam pose graph, the mapper pipeline, maps and the CLI."""
+"""The host: odometry front ends, the gtsam pose graph, the mapper pipeline, maps and the CLI.
+
+A library user maps a log in three lines::
+
+    from data import open_source
+    from slam import Mapper, write_results
+
+    result = Mapper().run(open_source("intel.clf.bz2"))
+
+`Mapper` runs the pipeline (odometry -> keyframes -> pose graph -> loop closures
+from `loopclosure` -> iSAM2 -> final GNC) under one `PipelineConfig`; the
+`MappingResult` it returns holds every pose, loop candidate and timing, and
+`write_results` writes it as the CLI does (TUM/KITTI trajectories, g2o, loops.csv,
+a ROS map_server map, summary.json).  `PoseGraph` with `slam.optimize.optimize` is
+the back end on its own (batch LM with a robust kernel, or GNC).
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from slam.config import BackendConfig, PipelineConfig, SubmapConfig
+    from slam.occupancy_map import MapConfig, OccupancyGrid, build_occupancy_grid
+    from slam.optimize import IncrementalSmoother, OptimizationResult
+    from slam.pipeline import LoopEvent, Mapper, MappingResult
+    from slam.pose_graph import PoseGraph, RobustKernel
+    from slam.results import write_results
+
+# Where each exported name lives.  Loaded on first use, so the CLI (which lives in
+# `slam.cli` and so imports this package first) starts without gtsam and scipy.
+_HOMES = {
+    "BackendConfig": "slam.config",
+    "PipelineConfig": "slam.config",
+    "SubmapConfig": "slam.config",
+    "MapConfig": "slam.occupancy_map",
+    "OccupancyGrid": "slam.occupancy_map",
+    "build_occupancy_grid": "slam.occupancy_map",
+    "IncrementalSmoother": "slam.optimize",
+    "OptimizationResult": "slam.optimize",
+    "LoopEvent": "slam.pipeline",
+    "Mapper": "slam.pipeline",
+    "MappingResult": "slam.pipeline",
+    "PoseGraph": "slam.pose_graph",
+    "RobustKernel": "slam.pose_graph",
+    "write_results": "slam.results",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'slam' has no attribute {name!r}")
+    value = getattr(import_module(home), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
+
+__all__ = [
+    "BackendConfig",
+    "IncrementalSmoother",
+    "LoopEvent",
+    "MapConfig",
+    "Mapper",
+    "MappingResult",
+    "OccupancyGrid",
+    "OptimizationResult",
+    "PipelineConfig",
+    "PoseGraph",
+    "RobustKernel",
+    "SubmapConfig",
+    "build_occupancy_grid",
+    "write_results",
+]
