@@ -17,8 +17,8 @@ For M3500 and INTEL (``g2o/input_*_g2o.g2o``) the script prints:
   (mean and the slowest 1%), and the position difference of its final estimate from
   the batch solution;
 
-and finally the ratio of incremental to batch time per graph.  The issue's goal:
-M3500 batch under 1 s.
+and finally the ratio of incremental to batch time per graph.  The goal: M3500 batch
+under 1 s.
 """
 
 from __future__ import annotations

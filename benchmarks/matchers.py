@@ -18,7 +18,7 @@ invariant; skipped with a note when absent) -- it measures, single-threaded
   a stack of all N shapes, Q queries;
 - ``pair``: ``2 x describe + compare``, the paper's "time to compare two places
   including creation of the descriptors" (Table I), next to the paper's figure
-  (Xeon 3.1 GHz, one core), the issue's target (10x below it) and our/paper ratio.
+  (Xeon 3.1 GHz, one core), the target (10x below it) and our/paper ratio.
 
 The cascade's ``compare`` is its cost per entry of a stack of N shapes: the prefilter
 runs over all N, its three verifiers over K of them (K = 128 by default, so all of
@@ -31,7 +31,7 @@ query (`PlaceDatabase.candidates` without verifier: float32 screening, normalise
 sum, selection of the top 10, their exact recomputation) for the database's default
 FFT (8) + ring (12), each alone, and the matchers' full 16 + 32; then a full `query`
 with the database defaults (FLIRT + MRM on K = 10, logistic fusion, 3 headings).
-Goal (issue 4): under 2 ms.
+Goal: under 2 ms.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ TARGET_MS: dict[str, float] = {
     "mrm": 8.76,
     "flirt": 19.1,
 }
-"""Issue 4's targets, 10x below the paper."""
+"""The targets: 10x below the paper's figures."""
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 MIN_CPU_S = 0.2

@@ -8,12 +8,12 @@ Each case is one function ``case(data_dir) -> (scans, label)`` timed end to end;
 the script prints wall-clock seconds, CPU seconds of the process (all threads),
 scans per second, and each case's ratio to the decompression floor measured in
 the same run (reading a compressed log can never beat decompressing it).  The
-goal of issue 2 is the whole Intel log in under 3 s.
+goal: the whole Intel log in under 3 s.
 
 Cases: ``decompress`` (bzip2 of intel.clf.bz2 alone, the floor), ``carmen``
 (`data.carmen.CarmenLog` over intel.clf.bz2), ``ros2-mcap`` and ``ros2-sqlite3``
 (`data.rosbag` over the Intel log converted to a ROS2 bag with
-`data.rosbag_write.write_ros2_bag`; the conversion is made once, in a temporary
+`data.rosbag.write_ros2_bag`; the conversion is made once, in a temporary
 folder deleted at exit, and is not timed).  Add a case by writing a function and
 listing it in `CASES`.
 """
@@ -65,7 +65,7 @@ _BAGS: dict[str, Path] = {}
 def _intel_bag(data: Path, storage: str) -> Path:
     """The Intel log as a ROS2 bag (made once per run, outside the timing)."""
     if storage not in _BAGS:
-        from data.rosbag_write import write_ros2_bag
+        from data.rosbag import write_ros2_bag
 
         folder = Path(tempfile.mkdtemp(prefix="read_logs_"))
         atexit.register(shutil.rmtree, folder, True)

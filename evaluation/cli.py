@@ -1,9 +1,11 @@
 """`loopclosure eval ...` and `loopclosure bench ...`: registered through an entry point.
 
-`register(app)` adds two command groups to the main app; `slam` never imports this
-module (it sits above `slam` in the dependency order).  Every `eval` command prints
-a summary (``--json``: one JSON object) and, with ``--out DIR``, writes
-``report.md``, ``results.json`` and PNG plots into DIR.
+`register(app)` adds two command groups to the main app, and the demo report to
+`loopclosure run` (`evaluation.demo_report`, through the run-reporter hook of
+`slam.cli.run_command`); `slam` never imports this module (it sits above `slam` in
+the dependency order).  Every `eval` command prints a summary (``--json``: one JSON
+object) and, with ``--out DIR``, writes ``report.md``, ``results.json`` and PNG
+plots into DIR.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ from typing import Annotated
 
 import typer
 
-from slam.cli.common import print_json, write_json
+from slam.cli.common import print_json
+from slam.json_io import write_json
 
 JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
 OutOption = Annotated[
@@ -31,9 +34,10 @@ bench_app = typer.Typer(
 
 
 def _ready(out: Path | None) -> Path | None:
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    return out
+    """`out` made ready for writing (`data.atomic_write.output_dir`), or None."""
+    from data.atomic_write import output_dir
+
+    return None if out is None else output_dir(out)
 
 
 @eval_app.command("relations")
@@ -219,9 +223,12 @@ def eval_robustness(
 
 
 def register(app: typer.Typer) -> None:
-    """Add the `eval` and `bench` command groups to `app`."""
+    """Add the `eval` and `bench` command groups to `app`, and the demo report to `run`."""
     from evaluation import cli_places, cli_slam, cli_stripes
+    from evaluation.demo_report import demo_reporter
+    from slam.cli.run_command import add_run_reporter
 
+    add_run_reporter("demo", demo_reporter)
     cli_places.register(bench_app)
     cli_stripes.register(bench_app)
     cli_slam.register(bench_app)

@@ -24,6 +24,7 @@ from typing import Annotated
 
 import typer
 
+from data.atomic_write import output_dir
 from data.errors import UserError
 from slam.cli.common import stage_progress
 
@@ -52,13 +53,9 @@ def places(
 ) -> None:
     """Every shape matcher on place data sets: Bull's eye, ROC AUC, F-score, time (Tables I-III)."""
     from evaluation.place_datasets import dataset_kind, load_dataset
-    from evaluation.places_benchmark import (
-        json_document,
-        parse_methods,
-        run_places,
-        summary_lines,
-        write_places_report,
-    )
+    from evaluation.places_benchmark import run_places
+    from evaluation.places_methods import parse_methods
+    from evaluation.places_report import json_document, summary_lines, write_places_report
     from slam.cli.common import print_json
 
     names = parse_methods(methods)
@@ -70,8 +67,8 @@ def places(
         raise UserError("--dataset is required: box, surface, mpeg7:DIR or robot:DIR")
     for spec in dataset:  # check every spec before the (slow) loading starts
         dataset_kind(spec)
-    if out is not None and out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
+    if out is not None:
+        output_dir(out)  # a bad --out fails now, not after the runs
     results = []
     with stage_progress() as update:
         for spec in dataset:

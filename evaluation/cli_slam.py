@@ -8,12 +8,13 @@ by `evaluation.cli`).  Contract::
         [--odometry-noise SEED] [--limit N] [--out DIR] [--json] [--no-map]
 
 The runner and every measure are in `evaluation.slam_benchmark` (read its docstring
-for the protocol).  The terminal gets one table, one column per method; ``--json``
-prints one JSON object ``{"input", "scans", "methods": [{"method", "wall_s",
-"ms_per_scan", "relations", "ate", "loops", ...}], ...}``.  ``--out DIR`` writes
-``report.md``, ``results.json``, ``trajectories.png``, ``<method>.tum`` and the
-pipeline's usual outputs in ``DIR/pipeline/``.  Progress bars go to stderr.  Bad
-input raises `UserError` / `DataError` (one ``error:`` line, exit 2).
+for the protocol), the table and the output folder in `evaluation.slam_report`.  The
+terminal gets one table, one column per method; ``--json`` prints one JSON object
+``{"input", "scans", "methods": [{"method", "wall_s", "ms_per_scan", "relations",
+"ate", "loops", ...}], ...}``.  ``--out DIR`` writes ``report.md``, ``results.json``,
+``trajectories.png``, ``<method>.tum`` and the pipeline's usual outputs in
+``DIR/pipeline/``.  Progress bars go to stderr.  Bad input raises `UserError` /
+`DataError` (one ``error:`` line, exit 2).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Annotated
 
 import typer
 
+from data.atomic_write import output_dir
 from data.errors import UserError
 from slam.cli.common import stage_progress
 
@@ -78,17 +80,11 @@ def slam(
     """Our pipeline, wheel odometry and KISS-ICP on one log: relations error, ATE, time, loops."""
     from data.relations import read_relations
     from data.trajectory_io import read_tum
-    from evaluation.slam_benchmark import (
-        json_document,
-        load_input,
-        logged_reference,
-        parse_methods,
-        run_slam_benchmark,
-        summary_lines,
-        table_rows,
-        warn_without_odometry,
-        write_outputs,
-    )
+    from evaluation.slam_benchmark import run_slam_benchmark
+    from evaluation.slam_input import load_input, warn_without_odometry
+    from evaluation.slam_methods import parse_methods
+    from evaluation.slam_reference import logged_reference
+    from evaluation.slam_report import json_document, summary_lines, table_rows, write_outputs
     from slam.cli.common import print_json
     from slam.config import PipelineConfig
     from slam.config_io import apply_overrides, load_config
@@ -97,8 +93,8 @@ def slam(
     names = parse_methods(methods)
     if reference is not None and reference_from_log:
         raise UserError("give either --reference FILE or --reference-from-log, not both")
-    if out is not None and out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
+    if out is not None:
+        output_dir(out)  # a bad --out fails now, not after the runs
     cfg = load_config(PipelineConfig, config) if config else PipelineConfig()
     cfg = apply_overrides(cfg, overrides or [])
     if cfg.odometry not in FRONT_ENDS:

@@ -1,4 +1,4 @@
-"""`loopclosure bench stripes` and `loopclosure bench landmarks` (issue 6).
+"""`loopclosure bench stripes` and `loopclosure bench landmarks`.
 
 ``register(bench)`` adds both commands to the ``bench`` command group (wired in by
 `evaluation.cli`).  Bad input raises `data.errors.UserError` / `DataError`, which the
@@ -13,6 +13,7 @@ from typing import Annotated
 
 import typer
 
+from data.atomic_write import output_dir
 from data.errors import UserError
 from slam.cli.common import stage_progress
 
@@ -66,11 +67,10 @@ def stripes(
         PAPER_TABLE_I,
         StripesBenchmarkConfig,
         baseline_matcher,
-        daily_objects,
-        mesh_folder_objects,
         run_stripes_benchmark,
-        write_stripes_report,
     )
+    from evaluation.stripes_objects import daily_objects, mesh_folder_objects
+    from evaluation.stripes_report import write_stripes_report
     from slam.cli.common import print_json
 
     if (dataset is None) == (meshes is None):
@@ -87,8 +87,8 @@ def stripes(
         raise UserError(f"--seed must be non-negative, got {seed}")
     if scans_per_object < 1:
         raise UserError(f"--scans-per-object must be at least 1, got {scans_per_object}")
-    if out is not None and out.exists() and not out.is_dir():
-        raise UserError(f"{out}: output path exists and is not a folder")
+    if out is not None:
+        output_dir(out)  # a bad --out fails now, not after the runs
     names = _names(baselines) or ()
     for name in names:
         try:
@@ -149,8 +149,8 @@ def landmarks(
         raise UserError(f"--seed must be non-negative, got {seed}")
     if not laps > 0:
         raise UserError(f"--laps must be positive, got {laps}")
-    if out is not None and out.exists() and not out.is_dir():
-        raise UserError(f"{out}: output path exists and is not a folder")
+    if out is not None:
+        output_dir(out)  # a bad --out fails now, not after the runs
     cfg = LandmarkRunConfig(laps=laps)
     with stage_progress() as progress:
         result = run_landmarks_benchmark(seed, cfg, progress)

@@ -30,7 +30,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data import se2
-from data.errors import DataError
 from data.types import Trajectory
 from evaluation.trajectory_error import TrajectoryErrors, trajectory_errors
 from slam.landmarks import LandmarkResult, LandmarkRunConfig, run_landmarks
@@ -171,7 +170,7 @@ def run_landmarks_benchmark(
 
 def _plot_map(bench: LandmarksBenchmarkResult, path: Path) -> Path:
     """World, true / odometry / with-landmarks trajectories, objects and landmark estimates."""
-    from evaluation.plots import plt
+    from evaluation.plots import plt, save_figure
 
     res = bench.result
     fig, ax = plt.subplots(figsize=(9, 7))
@@ -198,16 +197,12 @@ def _plot_map(bench: LandmarksBenchmarkResult, path: Path) -> Path:
     ax.set_title("objects: o known, x unknown; + landmark estimates")
     ax.legend(fontsize=8, loc="best")
     ax.grid(True, lw=0.3)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def _plot_stripes(bench: LandmarksBenchmarkResult, path: Path) -> Path:
     """Stripes of each correctly recognised object's first cluster beside its library entry."""
-    from evaluation.plots import plt
+    from evaluation.plots import plt, save_figure
     from slam.landmarks.segmentation import cluster_stripes
 
     res = bench.result
@@ -226,22 +221,16 @@ def _plot_stripes(bench: LandmarksBenchmarkResult, path: Path) -> Path:
         ax.axis("off")
     fig.suptitle("recognised clusters: push-broom stripes (lateral vs height, 2 mm units)",
                  fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def write_landmarks_report(bench: LandmarksBenchmarkResult, out: str | Path) -> dict[str, Path]:
     """``report.md``, ``results.json``, ``map.png``, ``stripes.png`` in `out`."""
+    from data.atomic_write import output_dir
     from evaluation.report import image, key_values, table, write_report
-    from slam.cli.common import write_json
+    from slam.json_io import write_json
 
-    out_dir = Path(out)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataError(out_dir, f"cannot create output folder: {exc.strerror or exc}") from exc
+    out_dir = output_dir(out)
     js = bench.to_json()
     paths = {
         "results": out_dir / "results.json",

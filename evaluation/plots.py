@@ -1,7 +1,12 @@
-"""Matplotlib figures of the evaluation reports (written as PNG, no display needed)."""
+"""Matplotlib figures of the evaluation reports (written as PNG, no display needed).
+
+Every figure is rendered in memory and written atomically (`data.atomic_write`):
+a failed write leaves the previous file, never half a PNG.
+"""
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -10,17 +15,42 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
+
+from data.atomic_write import output_dir, write_bytes_atomic
 
 Array = NDArray[np.float64]
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+def save_figure(fig: plt.Figure, path: Path, dpi: int = 120) -> Path:
+    """Lay out `fig`, write it to `path` (format from the suffix, PNG by default) and close it.
+
+    The folder of `path` is made if needed.
+
+    Raises:
+        DataError: the folder cannot be made or the file cannot be written.
+    """
+    try:
+        output_dir(path.parent)
+        fig.tight_layout()
+        buf = io.BytesIO()
+        fig.savefig(buf, format=path.suffix.lstrip(".").lower() or "png", dpi=dpi)
+        write_bytes_atomic(path, buf.getvalue())
+    finally:
+        plt.close(fig)
     return path
+
+
+def save_image(path: Path, image: ArrayLike, cmap: str = "gray") -> Path:
+    """Write the 2-D array `image` as a PNG (`matplotlib.pyplot.imsave`, colour map `cmap`).
+
+    Raises:
+        DataError: the folder cannot be made or the file cannot be written.
+    """
+    output_dir(path.parent)
+    buf = io.BytesIO()
+    plt.imsave(buf, image, cmap=cmap, format="png")
+    return write_bytes_atomic(path, buf.getvalue())
 
 
 def plot_trajectories(
@@ -41,7 +71,7 @@ def plot_trajectories(
     ax.set_title(title)
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, lw=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_error_series(path: Path, stamps: Array, errors: Array, ylabel: str, title: str) -> Path:
@@ -52,7 +82,7 @@ def plot_error_series(path: Path, stamps: Array, errors: Array, ylabel: str, tit
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, lw=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_histogram(path: Path, values: Array, xlabel: str, title: str, bins: int = 50) -> Path:
@@ -63,7 +93,7 @@ def plot_histogram(path: Path, values: Array, xlabel: str, title: str, bins: int
     ax.set_ylabel("count")
     ax.set_title(title)
     ax.grid(True, lw=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_curves(
@@ -87,7 +117,7 @@ def plot_curves(
     ax.set_title(title)
     ax.legend(loc="best", fontsize=8)
     ax.grid(True, lw=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_robustness(path: Path, rows: Sequence[Mapping[str, float | str]], title: str) -> Path:
@@ -106,4 +136,4 @@ def plot_robustness(path: Path, rows: Sequence[Mapping[str, float | str]], title
     ax.set_title(title)
     ax.legend(fontsize=8)
     ax.grid(True, which="both", lw=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)

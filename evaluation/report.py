@@ -6,6 +6,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from data.atomic_write import output_dir, write_bytes_atomic
+
 
 def fmt(value: Any, digits: int = 4) -> str:
     """A table cell: floats to `digits` significant digits, None as a dash."""
@@ -29,14 +31,18 @@ def key_values(values: Mapping[str, Any], digits: int = 5) -> str:
 
 
 def write_report(path: Path, title: str, sections: Sequence[tuple[str, str]]) -> Path:
-    """Write ``# title`` followed by ``## heading`` + body for each section."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``# title`` followed by ``## heading`` + body for each section (atomically).
+
+    The folder of `path` is made if needed.
+
+    Raises:
+        DataError: the folder cannot be made or the file cannot be written.
+    """
+    output_dir(path.parent)
     parts = [f"# {title}", ""]
     for heading, body in sections:
         parts += [f"## {heading}", "", body.rstrip(), ""]
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(parts))
-    tmp.replace(path)
+    write_bytes_atomic(path, "\n".join(parts).encode("utf-8"))
     return path
 
 

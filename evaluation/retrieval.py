@@ -25,6 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import rankdata
 
+from data.errors import UserError
+
 Array = NDArray[np.float64]
 
 
@@ -57,7 +59,10 @@ def roc_auc(distances: ArrayLike, labels: ArrayLike) -> float:
     score, positive = _pairs(distances, labels)
     n_pos, n_neg = int(positive.sum()), int((~positive).sum())
     if n_pos == 0 or n_neg == 0:
-        raise ValueError("ROC needs both same-class and different-class pairs")
+        raise UserError(
+            f"roc_auc: labels must give both same-class and different-class pairs, got "
+            f"{n_pos} same-class and {n_neg} different-class pairs"
+        )
     ranks = rankdata(-score)  # higher rank = smaller distance = more similar
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 

@@ -316,7 +316,7 @@ def test_icp2d_outdoors_registers_vegetation() -> None:
     registered and ends far closer to the logged (corrected) poses than the
     wheels; point to line alone fails on most scans (the map is ~70% clutter)."""
     from evaluation.robustness import aligned_position_error
-    from evaluation.slam_benchmark import load_input
+    from evaluation.slam_input import load_input
     from loopclosure.registration import IcpConfig
 
     log = shared_file("carmen-corrected/freiburg-campus-corrected.log.gz")

@@ -11,6 +11,7 @@ import typer
 
 import evaluation.places_benchmark as pb
 from data.errors import DataWarning, UserError
+from evaluation import places_methods, places_paper, places_report
 from evaluation.place_datasets import PlaceSet, sim_places
 from evaluation.retrieval import best_fscore, bullseye, roc_auc
 from loopclosure.matchers import get_matcher
@@ -30,29 +31,36 @@ def tiny() -> PlaceSet:
 
 
 def test_parse_methods() -> None:
-    assert pb.parse_methods("all") == list(pb.ALL_METHODS)
-    assert pb.ALL_METHODS[:8] == ("fft", "integral", "ring", "shape-context", "scanline",
-                                  "mrm", "tangent", "flirt")  # the paper's row order
-    assert pb.ALL_METHODS[-1] == "cascade"
-    assert pb.parse_methods(" ring, fft ,ring") == ["ring", "fft"]
+    assert places_methods.parse_methods("all") == list(places_methods.ALL_METHODS)
+    assert places_methods.ALL_METHODS[:8] == ("fft", "integral", "ring", "shape-context",
+                                              "scanline", "mrm", "tangent",
+                                              "flirt")  # the paper's row order
+    assert places_methods.ALL_METHODS[-1] == "cascade"
+    assert places_methods.parse_methods(" ring, fft ,ring") == ["ring", "fft"]
     with pytest.raises(UserError, match="unknown method"):
-        pb.parse_methods("fft,sift")
+        places_methods.parse_methods("fft,sift")
     with pytest.raises(UserError, match="cannot be combined"):
-        pb.parse_methods("all,fft")
+        places_methods.parse_methods("all,fft")
     with pytest.raises(UserError, match="at least one"):
-        pb.parse_methods(" , ")
+        places_methods.parse_methods(" , ")
+
+
+def test_an_unknown_method_class_is_a_user_error() -> None:
+    with pytest.raises(UserError, match="unknown method 'sift'"):
+        places_methods.method_class("sift")
+    assert places_methods.method_class("cascade").__name__ == "CascadeMatcher"
 
 
 def test_paper_figures() -> None:
     """Spot checks of the copied Tables I-III (column order Box, Surface, MPEG-7, Robot)."""
-    assert pb.paper_figure(pb.PAPER_BULLSEYE, "mrm", "mpeg7") == 77.95
-    assert pb.paper_figure(pb.PAPER_BULLSEYE, "ring", "box") == 98.80
-    assert pb.paper_figure(pb.PAPER_AUC, "shape-context", "surface") == 0.81
-    assert pb.paper_figure(pb.PAPER_FSCORE, "flirt", "robot") == 0.37
-    assert pb.PAPER_TIME_MS["flirt"] == 191.23
-    assert pb.paper_figure(pb.PAPER_BULLSEYE, "cascade", "box") is None
-    for table in (pb.PAPER_BULLSEYE, pb.PAPER_AUC, pb.PAPER_FSCORE):
-        assert list(table) == list(pb.ALL_METHODS[:8])
+    assert places_paper.paper_figure(places_paper.PAPER_BULLSEYE, "mrm", "mpeg7") == 77.95
+    assert places_paper.paper_figure(places_paper.PAPER_BULLSEYE, "ring", "box") == 98.80
+    assert places_paper.paper_figure(places_paper.PAPER_AUC, "shape-context", "surface") == 0.81
+    assert places_paper.paper_figure(places_paper.PAPER_FSCORE, "flirt", "robot") == 0.37
+    assert places_paper.PAPER_TIME_MS["flirt"] == 191.23
+    assert places_paper.paper_figure(places_paper.PAPER_BULLSEYE, "cascade", "box") is None
+    for table in (places_paper.PAPER_BULLSEYE, places_paper.PAPER_AUC, places_paper.PAPER_FSCORE):
+        assert list(table) == list(places_methods.ALL_METHODS[:8])
 
 
 # ---------------------------------------------------------------- runner
@@ -94,7 +102,7 @@ def test_workers_two_equal_one(tiny: PlaceSet) -> None:
 
 
 def test_unavailable_and_failed_methods(tiny: PlaceSet, monkeypatch) -> None:
-    real = pb.matcher_class
+    real = places_methods.matcher_class
 
     class NaNMatcher(Matcher):
         name = "nan"
@@ -115,7 +123,7 @@ def test_unavailable_and_failed_methods(tiny: PlaceSet, monkeypatch) -> None:
             return NaNMatcher
         return real(name)
 
-    monkeypatch.setattr(pb, "matcher_class", fake)
+    monkeypatch.setattr(places_methods, "matcher_class", fake)
     with pytest.warns(DataWarning) as caught:
         result = pb.run_places(tiny, ["mrm", "tangent", "fft"])
     assert set(result.methods) == {"fft"}
@@ -139,7 +147,7 @@ def test_scale_invariant_sets_turn_the_option_on(tiny: PlaceSet) -> None:
 def test_report_files(tiny: PlaceSet, tmp_path: Path) -> None:
     result = pb.run_places(tiny, ["fft", "ring"])
     result.unavailable["cascade"] = "ModuleNotFoundError: test"
-    files = pb.write_places_report(tmp_path, [result])
+    files = places_report.write_places_report(tmp_path, [result])
     text = (tmp_path / "report.md").read_text()
     for must in ("Table I", "Table II", "Table III", "Box ours", "Box paper", "78.54", "0.97",
                  "0.86", f"{result.methods['ring'].bullseye:.2f}", "roc_box.png", "n/a"):
@@ -150,11 +158,11 @@ def test_report_files(tiny: PlaceSet, tmp_path: Path) -> None:
     assert doc["dataset"] == "box" and set(doc["methods"]) == {"fft", "ring"}
     assert doc["paper"]["bullseye"]["fft"] == [78.54, 57.43, 65.40, 72.22]
     # several data sets: one column pair per set (2 sets x 3 tables)
-    two = pb.write_places_report(tmp_path / "two", [result, result])
+    two = places_report.write_places_report(tmp_path / "two", [result, result])
     text = two["report"].read_text()
     assert text.count("Box (box) ours") == 6 and (tmp_path / "two" / "roc_box2.png").exists()
     assert "datasets" in json.loads((tmp_path / "two" / "results.json").read_text())
-    lines = pb.summary_lines(result)
+    lines = places_report.summary_lines(result)
     assert lines[0].startswith("box: 12 shapes, 3 classes") and "unavailable" in lines[-1]
 
 

@@ -54,3 +54,10 @@ def test_ties_count_half_in_auc() -> None:
     assert roc_auc(d, labels) == pytest.approx(0.5)
     c = curves(d, labels)
     assert len(c.thresholds) == 1 and c.recall[-1] == 1.0
+
+
+def test_auc_of_a_single_class_is_a_user_error() -> None:
+    from data.errors import UserError
+
+    with pytest.raises(UserError, match="labels must give both"):
+        roc_auc(np.ones((3, 3)) - np.eye(3), np.array(["a", "a", "a"]))

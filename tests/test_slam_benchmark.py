@@ -1,4 +1,5 @@
-"""`loopclosure bench slam`: the runner (evaluation.slam_benchmark) and its command."""
+"""`loopclosure bench slam`: the runner (evaluation.slam_benchmark and its modules) and its
+command."""
 
 from __future__ import annotations
 
@@ -12,7 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import evaluation.loop_verdicts as lv
 import evaluation.slam_benchmark as sb
+import evaluation.slam_input as si
+import evaluation.slam_methods as sm
+import evaluation.slam_reference as sr
+import evaluation.slam_report as report
 from data import se2
 from data.carmen import write_log
 from data.errors import UserError
@@ -45,10 +51,10 @@ def ground_truth_relations(run: SimulatedRun, step: int = 5, long: int = 40,
             for i, j in pairs]
 
 
-def sim_input(run: SimulatedRun, name: str = "sim") -> sb.SlamInput:
+def sim_input(run: SimulatedRun, name: str = "sim") -> si.SlamInput:
     """The simulated scans as the benchmark's in-memory input."""
     logged = np.array([s.odom for s in run.scans])
-    return sb.SlamInput(name, list(run.scans), 0.0, logged)
+    return si.SlamInput(name, list(run.scans), 0.0, logged)
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +66,7 @@ def sim() -> SimulatedRun:
 def bench(sim: SimulatedRun) -> sb.SlamBenchmark:
     """All three methods on 665 simulated scans, with relations and the true trajectory."""
     return sb.run_slam_benchmark(
-        sim_input(sim), list(sb.METHODS), PipelineConfig(),
+        sim_input(sim), list(sm.METHODS), PipelineConfig(),
         relations=ground_truth_relations(sim), relations_file="sim.relations",
         reference=sim.ground_truth, reference_name="groundtruth.tum",
     )
@@ -70,24 +76,24 @@ def bench(sim: SimulatedRun) -> sb.SlamBenchmark:
 
 
 def test_parse_methods() -> None:
-    assert sb.parse_methods("all") == ["pipeline", "wheel", "kiss-icp"]
-    assert sb.parse_methods(" wheel, kiss ,wheel") == ["wheel", "kiss-icp"]
+    assert sm.parse_methods("all") == ["pipeline", "wheel", "kiss-icp"]
+    assert sm.parse_methods(" wheel, kiss ,wheel") == ["wheel", "kiss-icp"]
     with pytest.raises(UserError, match="unknown method"):
-        sb.parse_methods("pipeline,cartographer")
+        sm.parse_methods("pipeline,cartographer")
     with pytest.raises(UserError, match="at least one"):
-        sb.parse_methods(" , ")
+        sm.parse_methods(" , ")
 
 
 def test_evaluation_stamps_fall_back_to_the_scan_index() -> None:
-    stamps, rule = sb.evaluation_stamps(np.array([3.0, 2.0, 5.0]))
+    stamps, rule = si.evaluation_stamps(np.array([3.0, 2.0, 5.0]))
     assert rule == "scan stamps" and stamps.tolist() == [3.0, 2.0, 5.0]
-    stamps, rule = sb.evaluation_stamps(np.zeros(4))
+    stamps, rule = si.evaluation_stamps(np.zeros(4))
     assert rule == "scan index" and stamps.tolist() == [0.0, 1.0, 2.0, 3.0]
 
 
 def test_trajectory_at_stamps_sorts_and_keeps_the_first_duplicate() -> None:
     poses = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]])
-    traj = sb.trajectory_at_stamps(np.array([2.0, 1.0, 2.0, 0.5]), poses)
+    traj = sr.trajectory_at_stamps(np.array([2.0, 1.0, 2.0, 0.5]), poses)
     assert traj.stamps.tolist() == [0.5, 1.0, 2.0]
     assert traj.xytheta()[:, 0].tolist() == [3.0, 1.0, 0.0]
 
@@ -104,7 +110,7 @@ def test_relations_reference_hand_checked() -> None:
     odometry = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
     rels = [Relation(stamps[i], stamps[j], se2.to_se3(se2.between(truth[i], truth[j])))
             for i, j in ((0, 2), (2, 4), (4, 9))]
-    ref = sb.relations_reference(stamps, rels, [0, 1, 3, 6, 9], odometry)
+    ref = sr.relations_reference(stamps, rels, [0, 1, 3, 6, 9], odometry)
     assert ref.scan_index.tolist() == [0, 1, 3, 9]
     assert ref.nodes == 7 and ref.relations == 3 and ref.keyframes == 5
     # Weighted least squares along x: a relation (variance 1e-4 m^2) against the gap
@@ -125,7 +131,7 @@ def test_relations_reference_hand_checked() -> None:
 def test_relations_reference_without_relations_in_range_is_empty() -> None:
     stamps = np.arange(5.0)
     rel = [Relation(50.0, 51.0, np.eye(4))]
-    ref = sb.relations_reference(stamps, rel, [0, 2, 4], np.zeros((5, 3)))
+    ref = sr.relations_reference(stamps, rel, [0, 2, 4], np.zeros((5, 3)))
     assert len(ref.scan_index) == 0 and ref.nodes == 0
 
 
@@ -145,8 +151,8 @@ def test_relations_reference_follows_the_odometry_frame(x: float, y: float, th: 
     rels = [Relation(float(i), float(i + 4), se2.to_se3(se2.between(truth[i], truth[i + 4])))
             for i in range(0, 27, 4)]
     kfs = list(range(0, 31, 3))
-    base = sb.relations_reference(stamps, rels, kfs, odometry)
-    moved = sb.relations_reference(stamps, rels, kfs, se2.compose(np.array([x, y, th]),
+    base = sr.relations_reference(stamps, rels, kfs, odometry)
+    moved = sr.relations_reference(stamps, rels, kfs, se2.compose(np.array([x, y, th]),
                                                                   odometry))
     expect = se2.compose(np.array([x, y, th]), base.poses)
     np.testing.assert_allclose(moved.poses[:, :2], expect[:, :2], atol=1e-5)
@@ -157,17 +163,17 @@ def test_synthetic_odometry_and_logged_reference(sim: SimulatedRun) -> None:
     """A corrected log carries the reference in its odometry: --odometry-noise replaces it."""
     truth = sim.ground_truth.xytheta()[:50]
     scans = [dataclasses.replace(s, odom=p) for s, p in zip(sim.scans[:50], truth, strict=True)]
-    clean = sb.SlamInput("corrected", scans, 0.0, truth)
+    clean = si.SlamInput("corrected", scans, 0.0, truth)
     with pytest.raises(UserError, match="--odometry-noise"):
-        sb.logged_reference(clean)
-    noisy = sb.synthetic_odometry(scans, truth, seed=4)
+        sr.logged_reference(clean)
+    noisy = si.synthetic_odometry(scans, truth, seed=4)
     odom = np.array([s.odom for s in noisy])
     np.testing.assert_allclose(odom[0], truth[0])
     drift = np.hypot(*(odom[-1, :2] - truth[-1, :2]))
     assert 1e-3 < drift < 1.0
-    again = np.array([s.odom for s in sb.synthetic_odometry(scans, truth, seed=4)])
+    again = np.array([s.odom for s in si.synthetic_odometry(scans, truth, seed=4)])
     np.testing.assert_array_equal(odom, again)
-    ref = sb.logged_reference(sb.SlamInput("corrected", noisy, 0.0, truth, odometry_noise=4))
+    ref = sr.logged_reference(si.SlamInput("corrected", noisy, 0.0, truth, odometry_noise=4))
     np.testing.assert_allclose(ref.xytheta(), truth, atol=1e-9)
 
 
@@ -189,7 +195,7 @@ def test_pipeline_beats_wheel_odometry_on_relations_and_ate(bench: sb.SlamBenchm
 
 
 def test_json_document_keys(bench: sb.SlamBenchmark) -> None:
-    doc = json.loads(to_json_text(sb.json_document(bench)))
+    doc = json.loads(to_json_text(report.json_document(bench)))
     assert doc["scans"] == len(bench.input.scans) and doc["input"] == "sim"
     assert doc["relations"]["in_range"] == doc["relations"]["in_file"]
     for m in doc["methods"]:
@@ -237,21 +243,21 @@ def test_a_wrong_loop_transform_is_a_false_positive(bench: sb.SlamBenchmark) -> 
     kept = event.candidate.relative.copy()
     try:
         event.candidate.relative = se2.compose(kept, np.array([0.5, 0.0, 0.0]))
-        doc = sb.loop_evaluation(result, bench.relations_ref.trajectory())
+        doc = lv.loop_evaluation(result, bench.relations_ref.trajectory())
     finally:
         event.candidate.relative = kept
     assert doc["false_positives"] == 1 and doc["precision"] < 1.0
 
 
 def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
-    headers, rows = sb.table_rows(bench)
+    headers, rows = report.table_rows(bench)
     assert headers == ["measure", "pipeline", "wheel", "kiss-icp"]
     labels = [r[0] for r in rows]
     for label in ("wall [s]", "relations trans [m]", "ATE rmse [m]", "loops accepted",
                   "loop precision (reference)", "loop recall (relations)"):
         assert label in labels
     assert all(len(r) == 4 for r in rows)
-    paths = sb.write_outputs(bench, tmp_path, write_map=False)
+    paths = report.write_outputs(bench, tmp_path, write_map=False)
     for name in ("report.md", "results.json", "trajectories.png", "pipeline.tum", "wheel.tum",
                  "kiss-icp.tum", "pipeline/trajectory.tum", "pipeline/loops.csv",
                  "pipeline/summary.json", "pipeline/config.yaml"):
@@ -262,7 +268,7 @@ def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
 
 def test_loop_verdicts_agree_with_the_counts(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
     """The per-loop CSV says which loops were true, consistently with the JSON counts."""
-    sb.write_outputs(bench, tmp_path, write_map=False)
+    report.write_outputs(bench, tmp_path, write_map=False)
     loops = bench.reports[0]["loops"]
     for name in ("reference", "relations"):
         with (tmp_path / "pipeline" / f"loops_vs_{name}.csv").open() as f:
@@ -293,14 +299,14 @@ def test_bad_relations_and_reference_fail_before_any_run(sim: SimulatedRun) -> N
 
 def test_a_failing_method_is_reported_and_the_others_still_run(sim: SimulatedRun, monkeypatch,
                                                                tmp_path: Path) -> None:
-    real = sb.run_odometry
+    real = sm.run_odometry
 
-    def broken(name, scans, config, progress=sb._noop):
+    def broken(name, scans, config, progress=si.no_progress):
         if name == "kiss-icp":
             raise RuntimeError("Indeterminate linear system\nmore detail")
         return real(name, scans, config, progress)
 
-    monkeypatch.setattr(sb, "run_odometry", broken)
+    monkeypatch.setattr(sm, "run_odometry", broken)
     run = simulate_run("box", seed=5, motion=MotionConfig(laps=0.3), **SIM)
     with pytest.warns(UserWarning, match="kiss-icp failed on sim: RuntimeError: Indeterminate"):
         bench = sb.run_slam_benchmark(sim_input(run), ["kiss-icp", "wheel"], PipelineConfig(),
@@ -308,10 +314,10 @@ def test_a_failing_method_is_reported_and_the_others_still_run(sim: SimulatedRun
     kiss, wheel = bench.reports
     assert kiss["error"] == "RuntimeError: Indeterminate linear system" and kiss["ate"] is None
     assert wheel["error"] is None and wheel["ate"]["ate_rmse"] > 0
-    _, rows = sb.table_rows(bench)
+    _, rows = report.table_rows(bench)
     assert rows[0] == ["status", "failed (RuntimeError)", "ok"]
     assert next(r for r in rows if r[0] == "ATE rmse [m]")[1] == "-"
-    sb.write_outputs(bench, tmp_path)
+    report.write_outputs(bench, tmp_path)
     assert (tmp_path / "wheel.tum").is_file() and not (tmp_path / "kiss-icp.tum").exists()
 
 
@@ -389,6 +395,7 @@ def test_cli_corrected_log_with_synthetic_odometry(sim: SimulatedRun, tmp_path: 
         (["{log}", "--relations", "{tmp}/far.relations"], "none of its 1 relations"),
         (["{log}", "--reference", "{tmp}/missing.tum"], "missing.tum"),
         (["{log}", "--set", "loops.nonsense=1"], "nonsense"),
+        (["{log}", "--out", "{tmp}/far.relations"], "exists and is not a folder"),
     ],
 )
 def test_cli_bad_input_exits_2(sim_files: dict[str, Path], tmp_path: Path, capsys,
@@ -412,7 +419,7 @@ def test_intel_first_scans() -> None:
     rel_path = shared_file("carmen/intel.relations")
     from data.relations import read_relations
 
-    data = sb.load_input(log, limit=2000)  # the first revisits come after scan 1,800
+    data = si.load_input(log, limit=2000)  # the first revisits come after scan 1,800
     assert len(data.scans) == 2000 and data.logged_poses is not None
     relations = read_relations(rel_path)
     bench = sb.run_slam_benchmark(data, ["pipeline", "wheel"], PipelineConfig(),

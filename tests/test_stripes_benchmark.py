@@ -11,17 +11,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from data.stripe_scanner import ScannerConfig, StripeScan, daily_set, scan_meshes
-from evaluation.stripes_benchmark import (
-    PAPER_TABLE_I,
-    PAPER_TABLE_II,
-    class_accuracy,
+from evaluation.stripes_benchmark import PAPER_TABLE_I, PAPER_TABLE_II
+from evaluation.stripes_objects import (
     daily_objects,
     mesh_folder_objects,
+    scan_objects,
+    silhouette_polygon,
+)
+from evaluation.stripes_retrieval import (
+    class_accuracy,
     query_accuracy,
     retrieval_counts,
     same_object_mask,
-    scan_objects,
-    silhouette_polygon,
 )
 
 # ----------------------------------------------------------------------------- measures
@@ -46,6 +47,13 @@ def test_table_one_on_a_hand_made_matrix():
     np.testing.assert_array_equal(counts, [5, 2, 3, 1, 2])
     # Deeper than the set: positions beyond count 0.
     np.testing.assert_array_equal(retrieval_counts(D_HAND, LAB_HAND, k=7), [5, 2, 3, 1, 2, 0, 0])
+
+
+def test_a_distance_matrix_that_is_not_square_is_a_user_error():
+    from data.errors import UserError
+
+    with pytest.raises(UserError, match="distances must be a square"):
+        retrieval_counts(D_HAND[:, :4], LAB_HAND, k=3)
 
 
 def test_table_two_on_a_hand_made_matrix():
@@ -183,8 +191,7 @@ def test_mesh_folder_errors(tmp_path):
 
 
 def _cli(monkeypatch, argv):
-    """Run `slam.cli.main.main` with an app holding our `bench` group (until the lead wires
-    `evaluation.cli_stripes.register` into `evaluation.cli`)."""
+    """Run `slam.cli.main.main` with an app holding only our `bench` group."""
     import slam.cli.main as cli_main
     from evaluation.cli_stripes import register
 

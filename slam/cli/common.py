@@ -1,51 +1,25 @@
-"""Helpers shared by the CLI command modules: JSON output, option types."""
+"""Helpers shared by the CLI command modules: JSON output, progress bars.
+
+`to_json_text` and `write_json` live in `slam.json_io` (the library writes JSON too);
+they are re-exported here for the command modules.
+"""
 
 from __future__ import annotations
 
-import json
-import math
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
-import numpy as np
+from slam.json_io import to_json_text, write_json
 
-
-def _plain(obj: Any) -> Any:
-    """JSON-serialisable copy of `obj` (numpy scalars/arrays, paths, NaN -> null)."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _plain(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def to_json_text(obj: Any, indent: int | None = 2) -> str:
-    """`obj` as JSON text; numpy values converted, non-finite floats become null."""
-    return json.dumps(_plain(obj), indent=indent)
+__all__ = ["print_json", "stage_progress", "to_json_text", "write_json"]
 
 
 def print_json(obj: Any) -> None:
     """Write `obj` as one JSON document on stdout."""
     sys.stdout.write(to_json_text(obj) + "\n")
     sys.stdout.flush()
-
-
-def write_json(path: Path, obj: Any) -> None:
-    """Write `obj` as JSON to `path` atomically (temporary file, then rename)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(to_json_text(obj) + "\n")
-    tmp.replace(path)
 
 
 @contextmanager

@@ -56,7 +56,7 @@ def convert(
 ) -> None:
     """Convert a log or bag to a ROS2 bag with /scan, /odom and /tf."""
     from data.errors import UserError
-    from data.rosbag_write import write_ros2_bag
+    from data.rosbag import write_ros2_bag
     from data.sources import open_source
 
     storage = {"ros2": "sqlite3", "sqlite3": "sqlite3", "mcap": "mcap"}.get(format)
@@ -75,8 +75,10 @@ def simulate(
     json: JsonOption = False,
 ) -> None:
     """Simulate a robot run with loops: a CARMEN log plus groundtruth.tum and world.json."""
+    from data.atomic_write import output_dir
     from data.sim import simulate_run, write_run
 
+    output_dir(out)
     run = simulate_run(world, seed=seed, fov_deg=fov)
     files = write_run(run, out)
     summary = {**run.summary(), "files": {k: str(v) for k, v in files.items()}}

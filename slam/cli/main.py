@@ -3,7 +3,8 @@
 Commands are defined in one module per family (each has ``register(app)``).
 Command groups of packages above `slam` in the dependency order (`evaluation`)
 register through the ``loopclosure.commands`` entry-point group, so `slam` never
-imports them.
+imports them; such a plugin may also add a report to `loopclosure run`
+(`slam.cli.run_command.add_run_reporter`), as `evaluation` adds its demo report.
 
 Exit status: 0 success, 2 user error (``error: ...`` on stderr, no traceback),
 130 interrupted.
@@ -27,7 +28,8 @@ EXIT_INTERRUPTED = 130
 
 
 def build_app() -> typer.Typer:
-    """The full command tree: own commands plus registered plugins."""
+    """The full command tree: own commands, then the registered plugins (whose run
+    reporters replace those of an app built before)."""
     app = typer.Typer(
         name="loopclosure",
         help="SLAM loop closure on a gtsam factor graph: place recognition with shape matchers.",

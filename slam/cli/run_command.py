@@ -1,18 +1,53 @@
-"""`loopclosure run`: map a log or bag (or the embedded simulated demo) and write the results."""
+"""`loopclosure run`: map a log or bag (or the embedded simulated demo) and write the results.
+
+Run reporters
+-------------
+Packages above `slam` in the dependency order add figures to a run without `slam`
+importing them: after a run has written its results, `run` calls every reporter
+registered with `add_run_reporter` as ``reporter(result, source, out)``, where
+`result` is the `slam.pipeline.MappingResult`, `source` what was mapped (the
+`data.sim.SimulatedRun` of the embedded demo, else the opened log or bag) and `out`
+the output folder.  A reporter returns None (nothing to add) or a `RunReport`: its
+`summary` goes into ``summary.json`` (and ``--json``) under its `key`, its `lines`
+are printed after the run's summary line.  `evaluation` registers its demo report
+(ATE and loop precision / recall against the simulator's ground truth) this way,
+from the ``loopclosure.commands`` entry point; without it, `run` prints no report.
+"""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from slam.cli.common import print_json, write_json
 
 DEMO_SENSOR = {"fov_deg": 180.0, "beams": 181, "max_range": 12.0, "noise_sigma": 0.02}
 """The demo's laser: a SICK-like 180-degree scanner (the simulator's default is 360)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RunReport:
+    """What a run reporter adds: ``summary[key] = summary`` and `lines` to print."""
+
+    key: str
+    summary: dict[str, Any]
+    lines: tuple[str, ...] = ()
+
+
+RunReporter = Callable[[Any, Any, Path], RunReport | None]
+"""``reporter(result, source, out) -> RunReport | None`` (module docstring)."""
+
+_REPORTERS: dict[str, RunReporter] = {}
+
+
+def add_run_reporter(name: str, reporter: RunReporter) -> None:
+    """Call `reporter` after every run (module docstring); a second `name` replaces the first."""
+    _REPORTERS[name] = reporter
 
 
 def run(
@@ -40,55 +75,62 @@ def run(
     json: Annotated[bool, typer.Option("--json", help="Print summary.json on stdout.")] = False,
 ) -> None:
     """Map a log or bag: trajectory, pose graph, loop closures, occupancy map, summary."""
+    from data.atomic_write import output_dir
+    from slam.config_io import dump_config
+    from slam.pipeline import Mapper
+    from slam.results import write_results
+
+    cfg = _config(config, odometry, overrides)
+    output_dir(out)
+    dump_config(cfg, out / "config.yaml")
+    source, scans, total, source_name = _open_input(input, topic, odom_topic, strict)
+    start = time.perf_counter()
+    result = _run_with_progress(Mapper(cfg), scans, total)
+    summary = write_results(
+        out, result, source_name, wall_s=time.perf_counter() - start, write_map=not no_map,
+        map_config=cfg.map,
+    )
+    reports = _call_reporters(result, source, out)
+    if reports:
+        summary.update({r.key: r.summary for r in reports})
+        write_json(out / "summary.json", summary)
+    if json:
+        print_json(summary)
+    else:
+        _print_summary(summary, out, [line for r in reports for line in r.lines])
+
+
+def _config(config: Path | None, odometry: str | None, overrides: list[str] | None) -> Any:
+    """The `PipelineConfig` of the run: defaults, `config` file, ``--odometry``, ``--set``."""
     from data.errors import UserError
     from slam.config import PipelineConfig
-    from slam.config_io import apply_overrides, dump_config, load_config
-    from slam.pipeline import Mapper
+    from slam.config_io import apply_overrides, load_config
+    from slam.odometry import FRONT_ENDS
 
     cfg = load_config(PipelineConfig, config) if config else PipelineConfig()
     if odometry:
         overrides = [f"odometry={odometry}", *(overrides or [])]
     cfg = apply_overrides(cfg, overrides or [])
-    from slam.odometry import FRONT_ENDS
-
     if cfg.odometry not in FRONT_ENDS:
         raise UserError(f"unknown odometry {cfg.odometry!r}; choose {', '.join(FRONT_ENDS)}")
-    out.mkdir(parents=True, exist_ok=True)
-    dump_config(cfg, out / "config.yaml")
+    return cfg
 
-    demo = None
+
+def _open_input(
+    input: Path | None, topic: str | None, odom_topic: str | None, strict: bool
+) -> tuple[Any, Any, int | None, str]:
+    """``(source, scans, scan count, name)`` of the input, or of the embedded demo (a
+    `data.sim.SimulatedRun`, which is then the source the reporters see)."""
     if input is None:
         from data.sim import simulate_run
 
         typer.echo("no input given: running the embedded demo (simulated box world)", err=True)
         demo = simulate_run("box", seed=0, **DEMO_SENSOR)
-        scans: Any = demo.scans
-        total = len(demo.scans)
-        source_name = "simulated box world (seed 0)"
-    else:
-        from data.sources import open_source
+        return demo, demo.scans, len(demo.scans), "simulated box world (seed 0)"
+    from data.sources import open_source
 
-        source = open_source(input, topic=topic, odom_topic=odom_topic, strict=strict)
-        total = source.info().scans
-        scans = source
-        source_name = str(input)
-
-    start = time.perf_counter()
-    mapper = Mapper(cfg)
-    result = _run_with_progress(mapper, scans, total)
-    from slam.results import write_results
-
-    summary = write_results(
-        out, result, source_name, wall_s=time.perf_counter() - start, write_map=not no_map,
-        map_config=cfg.map,
-    )
-    if demo is not None:
-        summary["demo"] = _demo_report(result, demo)
-        write_json(out / "summary.json", summary)
-    if json:
-        print_json(summary)
-    else:
-        _print_summary(summary, out)
+    source = open_source(input, topic=topic, odom_topic=odom_topic, strict=strict)
+    return source, source, source.info().scans, str(input)
 
 
 def _run_with_progress(mapper: Any, scans: Any, total: int | None) -> Any:
@@ -116,36 +158,13 @@ def _run_with_progress(mapper: Any, scans: Any, total: int | None) -> Any:
         return mapper.run(scans, progress=progress)
 
 
-def _demo_report(result: Any, demo: Any) -> dict[str, Any]:
-    """ATE before/after loop closure and loop precision/recall against ground truth."""
-    from data.types import Trajectory
-    from evaluation.loop_metrics import LoopProposal, evaluate_loops
-    from evaluation.trajectory_error import trajectory_errors
-
-    gt = demo.ground_truth
-    after = trajectory_errors(Trajectory.from_xytheta(result.scan_stamps, result.scan_poses), gt)
-    before = trajectory_errors(
-        Trajectory.from_xytheta(result.scan_stamps, result.odometry_poses), gt
-    )
-    proposals = [
-        LoopProposal(e.stamp_match, e.stamp_query, e.candidate.relative,
-                     e.candidate.verification.fitness if e.candidate.verification else 0.0,
-                     e.candidate.accepted and not e.rejected_by_gnc)
-        for e in result.loops
-    ]
-    stamps = np.array([k.stamp for k in result.keyframes])
-    loops = evaluate_loops(proposals, gt, stamps)
-    return {
-        "ate_before_loop_closure_m": before.ate_rmse,
-        "ate_after_loop_closure_m": after.ate_rmse,
-        "loop_precision": loops.precision,
-        "loop_recall": loops.recall,
-        "loops_true_positive": loops.true_positives,
-        "loops_false_positive": loops.false_positives,
-    }
+def _call_reporters(result: Any, source: Any, out: Path) -> list[RunReport]:
+    """The reports of every registered reporter that has something to add, in order."""
+    reports = [reporter(result, source, out) for reporter in _REPORTERS.values()]
+    return [r for r in reports if r is not None]
 
 
-def _print_summary(summary: dict[str, Any], out: Path) -> None:
+def _print_summary(summary: dict[str, Any], out: Path, report_lines: list[str]) -> None:
     typer.echo(
         f"{summary['scans']} scans, {summary['keyframes']} keyframes, "
         f"{summary['loops_proposed']} loop candidates, {summary['loops_accepted']} accepted, "
@@ -153,20 +172,13 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
         f"peak {summary['peak_rss_mb']:.0f} MB"
         + ("  (interrupted)" if summary.get("interrupted") else "")
     )
-    demo = summary.get("demo")
-    if demo:
-        typer.echo(
-            f"ATE against ground truth: {demo['ate_before_loop_closure_m']:.4f} m before loop "
-            f"closure, {demo['ate_after_loop_closure_m']:.4f} m after"
-        )
-        typer.echo(
-            f"loop closures: precision {demo['loop_precision']:.3f}, recall "
-            f"{demo['loop_recall']:.3f} ({demo['loops_true_positive']} true, "
-            f"{demo['loops_false_positive']} false)"
-        )
+    for line in report_lines:
+        typer.echo(line)
     typer.echo(f"results in {out}/")
 
 
 def register(app: typer.Typer) -> None:
-    """Add `run` to `app`."""
+    """Add `run` to `app`; reporters of an app built earlier are forgotten (plugins that
+    register after this add theirs again)."""
+    _REPORTERS.clear()
     app.command()(run)
