@@ -92,7 +92,7 @@ def baseline_matcher(name: str) -> tuple[Any, dict[str, Any]]:
     cls = matcher_class(name)
     try:
         return cls(scale_invariant=True), {"scale_invariant": True}
-    except TypeError:
+    except UserError:  # the matcher has no such option
         return cls(), {"scale_invariant": False}
 
 

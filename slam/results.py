@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from data.atomic_write import output_dir
 from data.g2o import write_g2o
 from data.trajectory_io import write_tum
 from data.types import Trajectory
@@ -48,7 +49,7 @@ def loop_records(result: MappingResult) -> list[LoopRecord]:
 
 
 def write_results(
-    out: Path,
+    out: str | Path,
     result: MappingResult,
     source: str,
     *,
@@ -58,7 +59,7 @@ def write_results(
 ) -> dict[str, Any]:
     """Write every output file of a run; returns the summary (also in summary.json)."""
     start = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(out)
     stamps, stamp_rule = output_stamps(result.scan_stamps, source)
     files: dict[str, str] = {}
     if len(stamps):
