@@ -14,3 +14,52 @@ Metrics: `retrieval`, `loop_metrics`, `trajectory_error`, `relations_metric`,
 The commands are in `cli` (registered through the ``loopclosure.commands`` entry
 point) and `cli_places`, `cli_stripes`, `cli_slam`; reports use `report` and `plots`.
 """
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from data.lazy_exports import lazy_exports
+
+if TYPE_CHECKING:
+    from evaluation.loop_metrics import LoopMetrics, LoopProposal, evaluate_loops
+    from evaluation.relations_metric import RelationsMetric, relations_metric
+    from evaluation.retrieval import best_fscore, bullseye, roc_auc
+    from evaluation.robustness import RobustnessResult, inject_false_loops, run_robustness
+    from evaluation.trajectory_error import TrajectoryErrors, trajectory_errors
+
+# The metrics a library user needs, loaded on first use (the CLI registers the
+# commands of this package at every start and must not pay for gtsam or matplotlib).
+_HOMES = {
+    "LoopMetrics": "evaluation.loop_metrics",
+    "LoopProposal": "evaluation.loop_metrics",
+    "evaluate_loops": "evaluation.loop_metrics",
+    "RelationsMetric": "evaluation.relations_metric",
+    "relations_metric": "evaluation.relations_metric",
+    "best_fscore": "evaluation.retrieval",
+    "bullseye": "evaluation.retrieval",
+    "roc_auc": "evaluation.retrieval",
+    "RobustnessResult": "evaluation.robustness",
+    "inject_false_loops": "evaluation.robustness",
+    "run_robustness": "evaluation.robustness",
+    "TrajectoryErrors": "evaluation.trajectory_error",
+    "trajectory_errors": "evaluation.trajectory_error",
+}
+
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _HOMES)
+
+__all__ = [
+    "LoopMetrics",
+    "LoopProposal",
+    "RelationsMetric",
+    "RobustnessResult",
+    "TrajectoryErrors",
+    "best_fscore",
+    "bullseye",
+    "evaluate_loops",
+    "inject_false_loops",
+    "relations_metric",
+    "roc_auc",
+    "run_robustness",
+    "trajectory_errors",
+]

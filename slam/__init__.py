@@ -17,8 +17,9 @@ the back end on its own (batch LM with a robust kernel, or GNC).
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from data.lazy_exports import lazy_exports
 
 if TYPE_CHECKING:
     from slam.config import BackendConfig, PipelineConfig, SubmapConfig
@@ -48,18 +49,7 @@ _HOMES = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'slam' has no attribute {name!r}")
-    value = getattr(import_module(home), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
-
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _HOMES)
 
 __all__ = [
     "BackendConfig",

@@ -7,16 +7,22 @@ import importlib
 import pytest
 
 import data
+import evaluation
 import loopclosure
 import slam
 from data.errors import DataError, LoopClosureError, UserError
 
 
-@pytest.mark.parametrize("package", [data, loopclosure, slam], ids=lambda p: p.__name__)
+@pytest.mark.parametrize(
+    "package", [data, loopclosure, slam, evaluation], ids=lambda p: p.__name__
+)
 def test_every_exported_name_resolves(package) -> None:
     for name in package.__all__:
         assert getattr(package, name) is not None, name
     assert len(set(package.__all__)) == len(package.__all__)
+    homes = getattr(package, "_HOMES", None)
+    if homes is not None:  # a lazy front door exports exactly what it can load
+        assert set(homes) == set(package.__all__)
 
 
 def test_front_door_names_are_the_deep_objects() -> None:
@@ -50,3 +56,13 @@ def test_unknown_attribute_of_the_lazy_front_door_is_an_attribute_error() -> Non
     with pytest.raises(AttributeError, match="no attribute 'Nonsense'"):
         slam.Nonsense  # noqa: B018
     assert "Mapper" in dir(importlib.import_module("slam"))
+    assert "relations_metric" in dir(evaluation)
+
+
+def test_the_cli_starts_without_the_heavy_libraries() -> None:
+    import subprocess
+    import sys
+
+    code = "import sys, slam.cli.main, evaluation; print('gtsam' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
