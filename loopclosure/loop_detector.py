@@ -406,6 +406,23 @@ class LoopClosureDetector:
         good = [m for m in matches if m.score >= cfg.min_score][: cfg.global_verify]
         return [self._check_global(key, m, query_points) for m in good]
 
+    def verify_place(
+        self, key: int, match: PlaceMatch, query_points: ArrayLike | None = None
+    ) -> LoopCandidate:
+        """The geometric check of one appearance candidate, as the global search runs it.
+
+        `match` is a `PlaceMatch` of a database query for keyframe `key` (its headings
+        and stage figures); the check starts from its heading hypotheses and a
+        centroid-aligned translation, with no pose prior.  `query_points` is the query's
+        submap (``(N, 2)`` [m], its sensor frame; default ``submap(key)``).  For
+        benchmarks that judge the appearance search alone (no search, no counters).
+        """
+        self._check_key(key)
+        self._check_key(int(match.key))
+        pts = self._submap_points(key) if query_points is None else np.asarray(
+            query_points, dtype=float).reshape(-1, 2)
+        return self._check_global(key, match, pts)
+
     def _check_global(self, key: int, m: PlaceMatch, query_points: Array) -> LoopCandidate:
         cfg = self.config
         cand = int(m.key)

@@ -1,0 +1,489 @@
+"""`loopclosure bench loops`: appearance-only loop detection, stage by stage, as published.
+
+Protocol
+--------
+1. **Keyframes exactly as `loopclosure run` makes them.**  The log runs through
+   `slam.pipeline.Mapper` with the given `PipelineConfig` but with the loop searches
+   switched off (``loops.local_max = 0``, ``loops.global_every = 0``): same front end,
+   same keyframes, and every keyframe described by the loop detector at insertion
+   (its own polygon, or a virtual scan of its trailing submap for narrower lasers).
+   The submap each keyframe had when it was the newest one (``k - n .. k``) is kept:
+   it is the query submap the pipeline's geometric check uses at that keyframe.
+2. **Reference poses** of the keyframes (``(x, y, theta)`` [m, m, rad]): a callback of
+   the mapping result (relations-fitted, a TUM file, the log's own poses, or the
+   simulator's ground truth; `evaluation.cli_loops`).  Keyframes without one are left
+   out of queries *and* databases (a proposal to them could not be judged); a
+   reference covering less than ``min_coverage`` of the keyframes is refused.
+3. **Queries, no pose prior.**  A fresh `loopclosure.PlaceDatabase` (the config's
+   ``loops.database``) receives the keyframes' descriptors in order; right after
+   keyframe k is added it queries the database of the older keyframes the detector
+   would search (`LoopClosureDetector.eligible`: outside ``exclude_recent`` keyframes
+   / ``exclude_recent_s`` seconds, described) that have a reference pose.  So the
+   database's normalisation scales are those `run` has at that keyframe.  A query
+   against an empty database, or by a keyframe the detector could not describe (no
+   polygon: no valid beams, a degenerate local map; such a keyframe is never a
+   candidate either), proposes nothing: it can still have a revisit, which it then
+   misses.  Per query:
+
+   * prefilter stages on their own and combined (``fft``, ``ring``, ``prefilter``):
+     exact distances to every database keyframe (`PlaceDatabase.prefilter_distances`,
+     one vectorised pass); top-1 = smallest, score = minus the distance;
+   * each verifier of the cascade (``<name>@K``): its distance over the K prefilter
+     candidates of the database's own query; top-1 = smallest;
+   * ``fused``: the database's query (`PlaceDatabase.query`, K = ``top_k``), top-1 =
+     highest fused score;
+   * ``<name>-alone`` (optional, any stage matcher, e.g. ``flirt-alone``): that matcher
+     over the whole database (stacked once, rows selected per query), no prefilter;
+   * **final**: the fused top-1 through the geometric check exactly as the global
+     search runs it (`LoopClosureDetector.verify_place`), whatever its score;
+     score = fused score of an accepted proposal (rejected: no proposal).
+
+4. **Truth and measures**: `evaluation.loop_bench_truth` (revisit within 2 m; a
+   proposal is correct within 2 m, after the check also within 0.2 m / 2 degrees).
+
+Timing: milliseconds per query (wall clock, single thread as called) of the work
+each row needs: the prefilter rows share one pass over the database (fft, ring and
+their combination come out of it together); ``<v>@K`` = that pass + the verifier over
+the K candidates (timed on every `timing_every`-th query, its own descriptors stacked
+outside the timer); ``fused`` = the database's whole query (screening, every verifier,
+fusion, headings); final = fused + the geometric check; ``-alone`` rows = the matcher
+over every database keyframe.  The database's occasional re-estimate of its
+normalisation scales (O(log M) times in a run) is left out of every row's time.
+Database size = keyframes each query searched.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from data.errors import UserError
+from evaluation.loop_bench_truth import (
+    PRCurve,
+    pose_correct,
+    pose_errors,
+    pr_curve,
+    recall_at_k,
+)
+from loopclosure.place_database import PlaceDatabase
+from slam.config import PipelineConfig
+from slam.pipeline import Mapper, MappingResult
+
+Array = NDArray[np.float64]
+Progress = Callable[[str, int, int], None]
+ReferenceFn = Callable[[MappingResult], Array]
+"""``reference(result) -> (K, 3)`` reference pose of every keyframe (NaN rows: none)."""
+
+RECALL_KS: tuple[int, ...] = (1, 10, 50)
+"""K of the prefilter's recall@K."""
+ALONE = "-alone"
+
+
+def _no_progress(stage: str, done: int, total: int) -> None:
+    return None
+
+
+@dataclass(slots=True)
+class Tolerances:
+    """Truth tolerances: revisit / place radius [m], relative pose [m], [deg]."""
+
+    max_distance: float = 2.0
+    trans_tol: float = 0.2
+    rot_tol_deg: float = 2.0
+
+
+@dataclass(slots=True)
+class StageResult:
+    """The top-1 proposals of one row, one per query.
+
+    Attributes:
+        name: row name.
+        match: ``(n,)`` proposed keyframe id (-1: no proposal).
+        score: ``(n,)`` its score, higher = more confident (-inf: no proposal).
+        correct: ``(n,)`` the proposal is correct (module docstring).
+        curve: precision-recall curve over the score threshold.
+        ms_per_query: mean milliseconds per query (module docstring).
+    """
+
+    name: str
+    match: NDArray[np.intp]
+    score: Array
+    correct: NDArray[np.bool_]
+    curve: PRCurve
+    ms_per_query: float
+
+
+@dataclass(slots=True)
+class LoopBench:
+    """Everything one `run_loop_bench` produced.
+
+    Attributes:
+        name: the input as shown in reports.
+        keyframes: keyframes mapped; covered: those with a reference pose.
+        query_keys: ``(n,)`` keyframe id of every query (covered, in order).
+        has_revisit: ``(n,)`` the query has a revisit.
+        database_size: ``(n,)`` keyframes each query searched.
+        stages: the rows before the geometric check, by name, in report order.
+        final: the fused top-1 after the geometric check.
+        accepted: ``(n,)`` the check accepted the fused top-1.
+        final_errors: ``(n, 2)`` error [m], [deg] of the checked relative pose against
+            the reference (NaN without a proposal).
+        reasons: ``(n,)`` the check's verdict text.
+        recall_at_k: prefilter stage -> {K: recall@K}.
+        reference: ``(keyframes, 3)`` reference poses (NaN rows: none).
+        scan_index: ``(keyframes,)`` scan index of every keyframe.
+        min_score: the detector's fused-score threshold (the pipeline's operating point).
+        tolerances: truth tolerances.
+        wall_s: seconds of mapping and of the queries.
+        config: the pipeline's parameters.
+    """
+
+    name: str
+    keyframes: int
+    covered: int
+    query_keys: NDArray[np.intp]
+    has_revisit: NDArray[np.bool_]
+    database_size: NDArray[np.intp]
+    stages: dict[str, StageResult]
+    final: StageResult
+    accepted: NDArray[np.bool_]
+    final_errors: Array
+    reasons: list[str]
+    recall_at_k: dict[str, dict[int, float]]
+    reference: Array
+    scan_index: NDArray[np.intp]
+    min_score: float
+    tolerances: Tolerances
+    wall_s: dict[str, float] = field(default_factory=dict)
+    config: PipelineConfig | None = None
+
+    @property
+    def revisits(self) -> int:
+        """Queries with a revisit."""
+        return int(self.has_revisit.sum())
+
+
+def default_stages(config: PipelineConfig) -> list[str]:
+    """Every row of the database's config, and FLIRT alone when FLIRT is a stage."""
+    db = config.loops.database
+    rows = [*db.prefilter, "prefilter"]
+    rows += [f"{v}@{db.top_k}" for v in db.verifiers]
+    rows.append("fused")
+    if "flirt" in db.stages:
+        rows.append("flirt" + ALONE)
+    return rows
+
+
+def parse_stages(text: str | None, config: PipelineConfig) -> list[str]:
+    """Row names from ``--stages`` (comma-separated, or ``all``/None for `default_stages`).
+
+    A verifier may be written with or without ``@K``; ``NAME-alone`` needs NAME to be a
+    stage of the database (its descriptors are what is stored).
+    """
+    default = default_stages(config)
+    if text is None or text.strip().lower() in ("", "all"):
+        return default
+    db = config.loops.database
+    out = []
+    for part in (p.strip().lower() for p in text.split(",") if p.strip()):
+        if part in db.verifiers:
+            part = f"{part}@{db.top_k}"
+        known = part in default or (part.endswith(ALONE) and part[: -len(ALONE)] in db.stages)
+        if not known:
+            raise UserError(
+                f"--stages: unknown stage {part!r}; choose from {', '.join(default)} or "
+                f"NAME{ALONE} for a stage NAME of {', '.join(db.stages)}"
+            )
+        out.append(part)
+    if not out:
+        raise UserError("--stages needs at least one stage")
+    return list(dict.fromkeys(out))
+
+
+def bench_config(config: PipelineConfig) -> PipelineConfig:
+    """`config` with both loop searches switched off (keyframes and descriptors unchanged)."""
+    loops = dataclasses.replace(config.loops, local_max=0, global_every=0, global_sigma=0.0)
+    return dataclasses.replace(config, loops=loops)
+
+
+class _RecordingMapper(Mapper):
+    """A `Mapper` that keeps each keyframe's submap as it was when it was the newest."""
+
+    def __init__(self, config: PipelineConfig) -> None:
+        super().__init__(config)
+        self.query_submaps: dict[int, Array] = {}
+
+    def submap(self, key: int) -> Array:
+        pts = super().submap(key)
+        if key == len(self.keyframes.keyframes) - 1:
+            self.query_submaps.setdefault(key, pts)
+        return pts
+
+
+def _take(stacked: Any, rows: NDArray[np.intp]) -> Any:
+    """Rows of a matcher's stack: an array, or a dataclass of arrays with a leading axis."""
+    if isinstance(stacked, np.ndarray):
+        return stacked[rows]
+    if dataclasses.is_dataclass(stacked):
+        return dataclasses.replace(stacked, **{
+            f.name: getattr(stacked, f.name)[rows] for f in dataclasses.fields(stacked)
+        })
+    raise UserError(f"cannot select rows of a {type(stacked).__name__} stack")
+
+
+def _query_plan(n: int, max_queries: int | None) -> NDArray[np.bool_]:
+    """Which keyframes query: all, or `max_queries` spread evenly."""
+    plan = np.ones(n, bool)
+    if max_queries is not None:
+        if max_queries < 1:
+            raise UserError(f"--max-queries must be >= 1, got {max_queries}")
+        if max_queries < n:
+            plan[:] = False
+            plan[np.unique(np.linspace(0, n - 1, max_queries).round().astype(int))] = True
+    return plan
+
+
+def run_loop_bench(
+    name: str,
+    scans: Sequence[Any],
+    config: PipelineConfig,
+    reference: ReferenceFn,
+    *,
+    stages: Sequence[str] | None = None,
+    max_queries: int | None = None,
+    min_coverage: float = 0.5,
+    timing_every: int = 10,
+    tolerances: Tolerances | None = None,
+    progress: Progress = _no_progress,
+) -> LoopBench:
+    """Map `scans`, then query every keyframe's place with no pose prior (module docstring).
+
+    Raises:
+        UserError: fewer than two keyframes, or a reference covering less than
+            `min_coverage` of them (the message gives the coverage).
+    """
+    tol = tolerances or Tolerances()
+    rows = list(stages) if stages is not None else default_stages(config)
+    start = time.perf_counter()
+    mapper = _RecordingMapper(bench_config(config))
+    total = len(scans)
+
+    def mapped(n: int, keyframes: int, loops: int) -> None:
+        if n % 20 == 0 or n == total:
+            progress("mapping", n, total)
+
+    result = mapper.run(scans, progress=mapped)
+    map_s = time.perf_counter() - start
+    n_kf = len(result.keyframes)
+    if n_kf < 2:
+        raise UserError(f"{name}: {n_kf} keyframe(s) mapped; the benchmark needs at least 2")
+    ref = np.asarray(reference(result), float).reshape(n_kf, 3)
+    covered = np.isfinite(ref).all(axis=1)
+    if covered.sum() < max(2, min_coverage * n_kf):
+        raise UserError(
+            f"{name}: the reference covers {int(covered.sum())} of {n_kf} keyframes "
+            f"({100 * covered.mean():.1f}%); the benchmark needs at least "
+            f"{100 * min_coverage:.0f}%"
+        )
+    start = time.perf_counter()
+    raw = _query_all(mapper, ref, covered, rows, _query_plan(n_kf, max_queries), timing_every,
+                     tol.max_distance, progress)
+    query_s = time.perf_counter() - start
+    bench = _evaluate(name, raw, ref, covered, rows, tol, result, config)
+    bench.wall_s = {"mapping": map_s, "queries": query_s}
+    return bench
+
+
+@dataclass(slots=True)
+class _Raw:
+    """Per-query records of `_query_all` (lists, one entry per query)."""
+
+    keys: list[int] = field(default_factory=list)
+    revisit: list[bool] = field(default_factory=list)
+    size: list[int] = field(default_factory=list)
+    match: dict[str, list[int]] = field(default_factory=dict)
+    score: dict[str, list[float]] = field(default_factory=dict)
+    seconds: dict[str, list[float]] = field(default_factory=dict)
+    hits: dict[str, list[NDArray[np.bool_]]] = field(default_factory=dict)
+    accepted: list[bool] = field(default_factory=list)
+    relative: list[Array] = field(default_factory=list)
+    reason: list[str] = field(default_factory=list)
+
+    def put(self, row: str, match: int, score: float) -> None:
+        self.match.setdefault(row, []).append(int(match))
+        self.score.setdefault(row, []).append(float(score))
+
+    def time(self, row: str, seconds: float) -> None:
+        self.seconds.setdefault(row, []).append(float(seconds))
+
+
+def _query_all(
+    mapper: _RecordingMapper,
+    ref: Array,
+    covered: NDArray[np.bool_],
+    rows: Sequence[str],
+    plan: NDArray[np.bool_],
+    timing_every: int,
+    radius: float,
+    progress: Progress,
+) -> _Raw:
+    """Every planned, covered keyframe queries the database of its older keyframes."""
+    detector = mapper.detector
+    source = detector.database
+    cfg = source.config
+    db = PlaceDatabase(cfg, matchers=source.matchers)
+    alone = {r: r[: -len(ALONE)] for r in rows if r.endswith(ALONE)}
+    stacks = {
+        r: source.matchers[m].stack([source.descriptors(k)[m] for k in source.keys])
+        for r, m in alone.items()
+    }  # rows of `source` in insertion order: the rows `db` gets, in the same order
+    keys = np.zeros(0, np.intp)  # key of every row of `db`
+    n_kf = len(ref)
+    kmax = max(RECALL_KS)
+    out = _Raw()
+    n_plan = int((plan & covered).sum())
+    done = 0
+    for k in range(n_kf):
+        desc = source.descriptors(k) if k in source else None
+        if desc is not None:  # a keyframe without a polygon is never a candidate
+            db.add_descriptors(k, desc)
+            keys = np.append(keys, k)
+        if not (plan[k] and covered[k]):
+            continue
+        done += 1
+        if done % 10 == 0 or done == n_plan:
+            progress("queries", done, n_plan)
+        eligible = detector.eligible(k)
+        older = keys < k
+        mask = np.zeros(len(keys), bool)
+        mask[older] = eligible[keys[older]] & covered[keys[older]]
+        _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, rows, alone, stacks,
+                   timing_every, radius, kmax)
+    return out
+
+
+def _one_query(
+    out: _Raw, k: int, desc: dict[str, Any] | None, db: PlaceDatabase, detector: Any,
+    mapper: _RecordingMapper, keys: NDArray[np.intp], mask: NDArray[np.bool_], ref: Array,
+    rows: Sequence[str], alone: dict[str, str], stacks: dict[str, Any],
+    timing_every: int, radius: float, kmax: int,
+) -> None:
+    """One query's proposals of every row (module docstring), appended to `out`."""
+    cfg = db.config
+    sel = np.flatnonzero(mask)
+    out.keys.append(k)
+    out.size.append(len(sel))
+    near = np.hypot(*(ref[keys[sel], :2] - ref[k, :2]).T) <= radius
+    out.revisit.append(bool(near.any()))
+    none = (-1, -np.inf)
+    verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
+    if len(sel) == 0 or desc is None:  # empty database / no descriptor: no candidate
+        for r in dict.fromkeys((*cfg.prefilter, "prefilter", *verifier_rows, *alone, "fused")):
+            out.put(r, *none)
+        for r in (*cfg.prefilter, "prefilter"):
+            out.hits.setdefault(r, []).append(np.zeros(kmax, bool))
+        out.accepted.append(False)
+        out.relative.append(np.full(3, np.nan))
+        out.reason.append("empty database" if desc is not None else "no descriptor")
+        return
+    db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers
+    t = time.perf_counter()
+    combined, raw = db.prefilter_distances(desc, sel)
+    t_pre = time.perf_counter() - t
+    for r, d in (*raw.items(), ("prefilter", combined)):
+        top = np.argsort(d, kind="stable")[:kmax]
+        out.put(r, int(keys[sel[top[0]]]), -float(d[top[0]]))
+        hit = np.zeros(kmax, bool)
+        hit[: len(top)] = near[top]
+        out.hits.setdefault(r, []).append(hit)
+        out.time(r, t_pre)
+    t = time.perf_counter()
+    matches = db.query(desc, allowed=mask)
+    t_query = time.perf_counter() - t
+    out.time("fused", t_query)
+    best = matches[0]
+    out.put("fused", int(best.key), best.score)
+    timed = timing_every <= 1 or len(out.keys) % timing_every == 1
+    for v, r in zip(cfg.verifiers, verifier_rows, strict=True):
+        d = np.array([m.distances[v] for m in matches])
+        j = int(np.argmin(d))
+        out.put(r, int(matches[j].key), -float(d[j]))
+        if timed:
+            matcher = db.matchers[v]
+            stacked = matcher.stack([db.descriptors(m.key)[v] for m in matches])
+            t = time.perf_counter()
+            matcher.distances(desc[v], stacked)
+            out.time(r, t_pre + time.perf_counter() - t)
+    for r, m in alone.items():
+        sub = _take(stacks[r], sel)
+        t = time.perf_counter()
+        d = np.asarray(db.matchers[m].distances(desc[m], sub), float)
+        out.time(r, time.perf_counter() - t)
+        d = np.where(np.isfinite(d), d, np.inf)
+        j = int(np.argmin(d))
+        out.put(r, int(keys[sel[j]]), -float(d[j]))
+    t = time.perf_counter()
+    cand = detector.verify_place(k, best, mapper.query_submaps.get(k))
+    out.time("final", t_query + time.perf_counter() - t)
+    out.accepted.append(bool(cand.accepted))
+    out.relative.append(np.asarray(cand.relative, float))
+    out.reason.append(str(cand.reason))
+
+
+def _evaluate(
+    name: str, raw: _Raw, ref: Array, covered: NDArray[np.bool_], rows: Sequence[str],
+    tol: Tolerances, result: MappingResult, config: PipelineConfig,
+) -> LoopBench:
+    """Truth of every proposal, the curves and recall@K (`evaluation.loop_bench_truth`)."""
+    q = np.asarray(raw.keys, np.intp)
+    has = np.asarray(raw.revisit, bool)
+    revisits = int(has.sum())
+    stages: dict[str, StageResult] = {}
+    for r in [*rows]:
+        match = np.asarray(raw.match.get(r, []), np.intp)
+        score = np.asarray(raw.score.get(r, []), float)
+        ok = match >= 0
+        correct = np.zeros(len(q), bool)
+        if ok.any():
+            d = np.hypot(*(ref[q[ok], :2] - ref[match[ok], :2]).T)
+            correct[ok] = d <= tol.max_distance
+        secs = raw.seconds.get(r, [])
+        stages[r] = StageResult(r, match, score, correct, pr_curve(score, correct, revisits),
+                                1e3 * float(np.mean(secs)) if secs else float("nan"))
+    match = np.asarray(raw.match.get("fused", []), np.intp)
+    fused = np.asarray(raw.score.get("fused", []), float)
+    accepted = np.asarray(raw.accepted, bool)
+    relative = np.asarray(raw.relative, float).reshape(-1, 3)
+    errors = np.full((len(q), 2), np.nan)
+    final_ok = np.zeros(len(q), bool)
+    has_match = match >= 0
+    if has_match.any():
+        errors[has_match] = pose_errors(ref[q[has_match]], ref[match[has_match]],
+                                        relative[has_match])
+        final_ok[has_match] = pose_correct(
+            ref[q[has_match]], ref[match[has_match]], relative[has_match],
+            max_distance=tol.max_distance, trans_tol=tol.trans_tol,
+            rot_tol_deg=tol.rot_tol_deg) & accepted[has_match]
+    final_score = np.where(accepted, fused, -np.inf)
+    secs = raw.seconds.get("final", [])
+    final = StageResult("final", np.where(accepted, match, -1), final_score, final_ok,
+                        pr_curve(final_score, final_ok, revisits),
+                        1e3 * float(np.mean(secs)) if secs else float("nan"))
+    recall_k = {}
+    for r in (*config.loops.database.prefilter, "prefilter"):
+        hits = np.asarray(raw.hits.get(r, []), bool).reshape(len(q), max(RECALL_KS))
+        recall_k[r] = recall_at_k(hits, has, RECALL_KS)
+    return LoopBench(
+        name=name, keyframes=len(ref), covered=int(covered.sum()), query_keys=q,
+        has_revisit=has, database_size=np.asarray(raw.size, np.intp), stages=stages,
+        final=final, accepted=accepted, final_errors=errors, reasons=list(raw.reason),
+        recall_at_k=recall_k, reference=ref,
+        scan_index=np.array([kf.scan_index for kf in result.keyframes], np.intp),
+        min_score=config.loops.min_score, tolerances=tol, config=config,
+    )
