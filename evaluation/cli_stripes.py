@@ -54,6 +54,21 @@ def stripes(
         str,
         typer.Option("--baselines", help="Comma-separated silhouette matchers ('none': none)."),
     ] = "shape-context,mrm,fft",
+    fused: Annotated[
+        str,
+        typer.Option("--fused", help="Silhouette verifiers of the fused matcher ('none': "
+                     "no fused row)."),
+    ] = "fft,ring",
+    stripe_count: Annotated[
+        int | None,
+        typer.Option("--stripe-count", help="Describe each object by at most N evenly "
+                     "spaced stripes (default: all, the paper)."),
+    ] = None,
+    scale_free: Annotated[
+        bool,
+        typer.Option("--scale-free", help="Stripe points in units of the object's mean "
+                     "stripe width (default: pixels, the paper)."),
+    ] = False,
     out: Annotated[
         Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
     ] = None,
@@ -71,6 +86,7 @@ def stripes(
     )
     from evaluation.stripes_objects import daily_objects, mesh_folder_objects
     from evaluation.stripes_report import write_stripes_report
+    from loopclosure.stripes import DescriptorConfig
     from slam.cli.common import print_json
 
     if (dataset is None) == (meshes is None):
@@ -89,8 +105,11 @@ def stripes(
         raise UserError(f"--scans-per-object must be at least 1, got {scans_per_object}")
     if out is not None:
         output_dir(out)  # a bad --out fails now, not after the runs
+    if stripe_count is not None and stripe_count < 2:
+        raise UserError(f"--stripe-count must be at least 2, got {stripe_count}")
     names = _names(baselines) or ()
-    for name in names:
+    verifiers = _names(fused) or ()
+    for name in (*names, *verifiers):
         try:
             baseline_matcher(name)  # unknown names fail here, before any work
         except ImportError:
@@ -100,6 +119,8 @@ def stripes(
         scans_per_object=scans_per_object,
         baselines=names,
         scanner=replace(ScannerConfig(), step=step),
+        descriptor=DescriptorConfig(stripe_count=stripe_count, scale_free=scale_free),
+        fused=verifiers,
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels)
@@ -117,12 +138,14 @@ def stripes(
         return
     typer.echo(f"{js['dataset']}: {js['objects']} objects, {js['scans']} scans, "
                f"{js['classes']} classes")
-    rows = {"stripes": result.stripes, **result.baselines}
-    for name, r in rows.items():
+    for name, r in result.methods().items():
         counts = " ".join(f"{c:3d}" for c in r.top_counts.tolist())
+        pose = r.different_pose
+        other_pose = (f"   different pose: other {pose['other_object']:.3f} instance "
+                      f"{pose['instance']:.3f}" if pose else "")
         typer.echo(f"  {name:14s} top-10 {counts}   bull's eye {r.bullseye:5.1f} %   "
                    f"NN {r.nn_precision:.3f} (other objects {r.nn_precision_other:.3f})   "
-                   f"{r.seconds:.2f} s")
+                   f"{r.seconds:.2f} s{other_pose}")
     paper = " ".join(f"{c:3d}" for c in PAPER_TABLE_I["Our"])
     typer.echo(f"  paper 'Our'    top-10 {paper}   0.0375 h (Matlab)")
     for name, wl in js["wins_and_losses"].items():

@@ -20,6 +20,15 @@ Methods on the same scans:
   `loopclosure.matchers` with scale invariance switched on where the matcher has it
   (customary for object shapes).  The baseline list is a parameter; a registered
   matcher whose module is not importable yet is skipped with one warning.
+- ``fused``: the stripe distance (described by `FUSED_DESCRIPTOR`: 32 evenly spaced
+  stripes per object, see `loopclosure.stripes.fusion`) and silhouette verifiers
+  (default FFT and ring projection) combined by `loopclosure.stripes.fuse` (each
+  method's distances divided by their per-query median, equal weights); its time is
+  its stripes' plus the verifiers'.
+
+With two or more scans per object every method also gets the different-pose figures
+(`evaluation.stripes_retrieval.cross_pose`): first scans as queries against a
+database of second scans, each scan from its own random pose.
 
 Timing (`seconds`): representation + matching of the whole set (descriptors of every
 object and the full distance matrix), wall clock in this process, against the paper's
@@ -42,7 +51,14 @@ from data.stripe_scanner import ScannerConfig, StripeScan
 from evaluation.stripes_objects import ObjectSet, ScannedSet, scan_objects, silhouette_polygon
 from evaluation.stripes_retrieval import MethodResult, evaluate
 from loopclosure.polygon import Polygon
-from loopclosure.stripes import DescriptorConfig, StripeDatabase, describe_many
+from loopclosure.stripes import (
+    DEFAULT_VERIFIERS,
+    FUSED_DESCRIPTOR,
+    DescriptorConfig,
+    StripeDatabase,
+    describe_many,
+    fuse,
+)
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -128,6 +144,8 @@ class StripesBenchmarkConfig:
         scanner: the simulated scanner.
         descriptor: stripe descriptor parameters.
         silhouette_smooth: contour smoothing of the silhouettes [px].
+        fused: silhouette verifiers of the fused matcher (empty: no fused row).
+        fused_descriptor: stripe descriptor parameters of the fused matcher.
     """
 
     seed: int = 0
@@ -137,6 +155,8 @@ class StripesBenchmarkConfig:
     scanner: ScannerConfig = field(default_factory=ScannerConfig)
     descriptor: DescriptorConfig = field(default_factory=DescriptorConfig)
     silhouette_smooth: float = 1.0
+    fused: tuple[str, ...] = DEFAULT_VERIFIERS
+    fused_descriptor: DescriptorConfig = FUSED_DESCRIPTOR
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -150,6 +170,8 @@ class StripesBenchmarkConfig:
             "scanner": asdict(self.scanner),
             "descriptor": asdict(self.descriptor),
             "silhouette_smooth": self.silhouette_smooth,
+            "fused": list(self.fused),
+            "fused_descriptor": asdict(self.fused_descriptor),
         }
 
 
@@ -163,6 +185,7 @@ class StripesBenchmarkResult:
     scanned: ScannedSet
     stripes: MethodResult
     baselines: dict[str, MethodResult]
+    fused: MethodResult | None
     skipped_baselines: dict[str, str]
     silhouette_seconds: float
 
@@ -173,8 +196,15 @@ class StripesBenchmarkResult:
 
     def per_class(self) -> dict[str, dict[str, float]]:
         """class -> method -> Table II accuracy (stripes first)."""
-        methods = {"stripes": self.stripes, **self.baselines}
-        return {c: {n: r.class_accuracy[c] for n, r in methods.items()} for c in self.classes}
+        return {c: {n: r.class_accuracy[c] for n, r in self.methods().items()}
+                for c in self.classes}
+
+    def methods(self) -> dict[str, MethodResult]:
+        """Every method's figures: stripes, fused (when run), then the baselines."""
+        out = {"stripes": self.stripes}
+        if self.fused is not None:
+            out["fused"] = self.fused
+        return {**out, **self.baselines}
 
     def wins_and_losses(self, margin: float = 0.005) -> dict[str, dict[str, list[str]]]:
         """baseline -> {"wins": classes where stripes are better, "losses": worse, "ties"}."""
@@ -198,6 +228,8 @@ class StripesBenchmarkResult:
             "bullseye": s.bullseye,
             "seconds": s.seconds,
             "baselines": {n: r.to_json() for n, r in self.baselines.items()},
+            "fused": None if self.fused is None else self.fused.to_json(),
+            "different_pose": s.different_pose,
             "dataset": self.dataset,
             "scans": len(self.scanned.scans),
             "scans_per_object": self.config.scans_per_object,
@@ -237,9 +269,15 @@ def run_stripes_benchmark(
     available, skipped = _available_baselines(cfg.baselines)
     scanned = scan_objects(objects, cfg.scanner, cfg.seed, cfg.scans_per_object, progress)
     stripes = _rank_with_stripes(scanned, cfg)
-    baselines, silhouette_seconds = _rank_with_baselines(scanned, available, cfg, progress)
+    verifiers = [n for n in cfg.fused if n not in available]
+    for name in verifiers:
+        baseline_matcher(name)  # unknown verifier names fail before any silhouette work
+    ranked, silhouette_seconds = _rank_with_baselines(scanned, [*available, *verifiers],
+                                                      cfg, progress)
+    fused = _fused(scanned, stripes, ranked, cfg) if cfg.fused else None
+    baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, baselines,
-                                  skipped, silhouette_seconds)
+                                  fused, skipped, silhouette_seconds)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -265,7 +303,25 @@ def _rank_with_stripes(scanned: ScannedSet, cfg: StripesBenchmarkConfig) -> Meth
     """The stripes' distance matrix of the scans and its retrieval figures."""
     d, secs = stripes_distances(scanned.scans, cfg.descriptor)
     return evaluate("stripes", d, scanned.labels, scanned.objects, secs, cfg.k,
-                    {"weights": [0.6, 0.3, 0.1]})
+                    {"weights": [0.6, 0.3, 0.1], "stripe_count": cfg.descriptor.stripe_count,
+                     "scale_free": cfg.descriptor.scale_free})
+
+
+def _fused(
+    scanned: ScannedSet, stripes: MethodResult, ranked: dict[str, MethodResult],
+    cfg: StripesBenchmarkConfig,
+) -> MethodResult:
+    """The fused matcher's figures from the stripes' and the verifiers' matrices."""
+    if cfg.fused_descriptor == cfg.descriptor:
+        d_stripes, secs = stripes.distances, stripes.seconds
+    else:
+        d_stripes, secs = stripes_distances(scanned.scans, cfg.fused_descriptor)
+    t0 = time.perf_counter()
+    d = fuse([d_stripes, *(ranked[n].distances for n in cfg.fused)])
+    secs += sum(ranked[n].seconds for n in cfg.fused) + time.perf_counter() - t0
+    return evaluate("fused", d, scanned.labels, scanned.objects, secs, cfg.k,
+                    {"verifiers": list(cfg.fused), "normalisation": "per-query median",
+                     "stripe_count": cfg.fused_descriptor.stripe_count})
 
 
 def _rank_with_baselines(

@@ -26,7 +26,7 @@ from evaluation.stripes_objects import silhouette_polygon
 
 def _paper_table_one(result: StripesBenchmarkResult) -> list[list[Any]]:
     rows: list[list[Any]] = [[f"paper {n}", *v] for n, v in PAPER_TABLE_I.items()]
-    methods = {"stripes": result.stripes, **result.baselines}
+    methods = result.methods()
     for n, r in methods.items():
         rows.append([f"**{n}** (this run)", *r.top_counts.tolist()])
     if result.config.scans_per_object > 1:
@@ -44,7 +44,7 @@ def _table_two(result: StripesBenchmarkResult) -> tuple[list[str], list[list[Any
             paper = dict(zip(DAILY_CLASSES, v, strict=True))
             vals = [paper[c] for c in classes]
             rows.append([f"paper {n}", *vals, round(float(np.mean(vals)), 1)])
-    methods = {"stripes": result.stripes, **result.baselines}
+    methods = result.methods()
     for n, r in methods.items():
         vals = [round(100.0 * r.class_accuracy[c], 1) for c in classes]
         rows.append([f"**{n}** (this run)", *vals, round(float(np.mean(vals)), 1)])
@@ -85,7 +85,7 @@ def _plot_class_accuracy(result: StripesBenchmarkResult, path: Path) -> Path:
     """Grouped bars: Table II accuracy per class and method."""
     from evaluation.plots import plt, save_figure
 
-    methods = {"stripes": result.stripes, **result.baselines}
+    methods = result.methods()
     classes = result.classes
     x = np.arange(len(classes))
     width = 0.8 / max(len(methods), 1)
@@ -129,21 +129,24 @@ def write_stripes_report(result: StripesBenchmarkResult, out: str | Path) -> dic
     s = result.stripes
     n_q = len(result.scanned.scans)
     k = len(s.top_counts)
-    methods = {"stripes": s, **result.baselines}
+    methods = result.methods()
     t1 = table(["method", *[str(i) for i in range(1, k + 1)]], _paper_table_one(result))
     h2, r2 = _table_two(result)
     t2 = table(h2, r2, digits=4)
     summary = table(
         ["method", "Bull's eye [%]", "NN precision", "NN precision (other objects)",
+         "different pose: other object", "different pose: instance",
          "representation + matching [s]", "options"],
-        [[n, r.bullseye, r.nn_precision, r.nn_precision_other, r.seconds,
-          ", ".join(f"{a}={b}" for a, b in r.options.items())] for n, r in methods.items()],
+        [[n, r.bullseye, r.nn_precision, r.nn_precision_other,
+          r.different_pose.get("other_object", "-"), r.different_pose.get("instance", "-"),
+          r.seconds, ", ".join(f"{a}={b}" for a, b in r.options.items())]
+         for n, r in methods.items()],
     )
     timing = key_values({
         "stripes, this run [s]": s.seconds,
         "stripes, paper (Matlab) [s]": PAPER_SECONDS["stripes"],
         "shape context, paper (Matlab) [s]": PAPER_SECONDS["shape-context"],
-        **{f"{n}, this run [s]": r.seconds for n, r in result.baselines.items()},
+        **{f"{n}, this run [s]": r.seconds for n, r in methods.items() if n != "stripes"},
         "silhouettes (once for all baselines) [s]": result.silhouette_seconds,
         "scanning (simulator, not counted) [s]": result.scanned.seconds,
     })
@@ -170,7 +173,10 @@ def write_stripes_report(result: StripesBenchmarkResult, out: str | Path) -> dic
         (f"Table II: mean accuracy [%] per class over the {k} nearest", t2),
         ("Bull's eye, nearest neighbour, time", summary + "\n\nNN precision = position 2 / "
          "queries (any scan, which with several scans per object is usually another scan of "
-         "the same object); \"other objects\" = the nearest scan of a *different* object."),
+         "the same object); \"other objects\" = the nearest scan of a *different* object. "
+         "Different pose (two or more scans per object): first scans as queries against the "
+         "second scans, each from its own pose; \"instance\" = the nearest is the query's "
+         "own object, \"other object\" = the nearest other object is of its class."),
         ("Where stripes win and lose (Table II, per class)",
          table(["against", "stripes better", "stripes worse", "tie"], wl_rows)
          + "\n\nThe paper: stripes lose on banana and pen against shape."),

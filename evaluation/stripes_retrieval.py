@@ -129,6 +129,30 @@ def same_object_mask(objects: ArrayLike) -> NDArray[np.bool_]:
     return o[:, None] == o[None, :]
 
 
+def cross_pose(distances: ArrayLike, labels: ArrayLike, objects: ArrayLike) -> dict[str, float]:
+    """Different-pose figures (module docstring): ``instance`` and ``other_object``.
+
+    Empty dict when no object has two scans.  Objects with a single scan take part
+    neither as query nor in the database.
+    """
+    d = np.asarray(distances, dtype=float)
+    lab = np.asarray(labels)
+    obj = np.asarray(objects)
+    ids = [o for o in dict.fromkeys(obj.tolist()) if np.count_nonzero(obj == o) >= 2]
+    if len(ids) < 2:
+        return {}
+    first = np.array([np.flatnonzero(obj == o)[0] for o in ids])
+    second = np.array([np.flatnonzero(obj == o)[1] for o in ids])
+    sub = np.where(np.isfinite(d), d, np.inf)[np.ix_(first, second)]
+    n = len(ids)
+    instance = float(np.mean(np.argmin(sub, axis=1) == np.arange(n)))
+    other = sub.copy()
+    np.fill_diagonal(other, np.inf)
+    nearest = np.argmin(other, axis=1)
+    same = lab[second][nearest] == lab[first]
+    return {"instance": instance, "other_object": float(np.mean(same)), "queries": float(n)}
+
+
 @dataclass(slots=True)
 class MethodResult:
     """Retrieval figures of one method on the scanned set.
@@ -145,6 +169,7 @@ class MethodResult:
         class_accuracy_other: Table II row with sibling scans removed.
         nn_precision_other: nearest *other object* of the same class / queries.
         options: matcher options used (e.g. ``scale_invariant``).
+        different_pose: `cross_pose` figures (empty with one scan per object).
     """
 
     name: str
@@ -158,6 +183,7 @@ class MethodResult:
     class_accuracy_other: dict[str, float]
     nn_precision_other: float
     options: dict[str, Any] = field(default_factory=dict)
+    different_pose: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """Figures of the method (without the distance matrix)."""
@@ -171,6 +197,7 @@ class MethodResult:
             "nn_precision_other_objects": self.nn_precision_other,
             "seconds": self.seconds,
             "options": self.options,
+            "different_pose": self.different_pose,
         }
 
 
@@ -204,4 +231,5 @@ def evaluate(
         class_accuracy_other=class_accuracy(d, lab, k, exclude=siblings),
         nn_precision_other=float(counts_other[1] / m) if len(counts_other) > 1 else 0.0,
         options=dict(options or {}),
+        different_pose=cross_pose(d, lab, objects),
     )

@@ -5,7 +5,8 @@ An object is an ordered list of stripes (2D point paths, one per laser line); ea
 stripe becomes ``[l, d, o]`` (Eq. 1-3, `descriptor`); two objects are compared by the
 Bhattacharyya distances of Gaussian fits of each feature after trimming (Eq. 4-6,
 `matching`); `database.StripeDatabase` answers a query against thousands of objects in
-one vectorised pass.
+one vectorised pass; `fusion.FusedObjectDatabase` verifies the stripe distance with
+silhouette matchers.
 """
 
 from loopclosure.stripes.database import StripeDatabase
@@ -14,6 +15,7 @@ from loopclosure.stripes.descriptor import (
     StripeDescriptor,
     describe_many,
     describe_stripes,
+    resample_stripes,
 )
 from loopclosure.stripes.extraction import (
     chain_pixels,
@@ -22,6 +24,13 @@ from loopclosure.stripes.extraction import (
     stripes_from_laser_images,
     stripes_from_points,
     thin,
+)
+from loopclosure.stripes.fusion import (
+    DEFAULT_VERIFIERS,
+    FUSED_DESCRIPTOR,
+    FusedObjectDatabase,
+    fuse,
+    normalised,
 )
 from loopclosure.stripes.matching import (
     LAMBDA_PAPER,
@@ -34,8 +43,11 @@ from loopclosure.stripes.matching import (
 )
 
 __all__ = [
+    "DEFAULT_VERIFIERS",
+    "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
     "DescriptorConfig",
+    "FusedObjectDatabase",
     "StripeDatabase",
     "StripeDescriptor",
     "bhattacharyya",
@@ -43,6 +55,9 @@ __all__ = [
     "describe_many",
     "describe_stripes",
     "feature_distances",
+    "fuse",
+    "normalised",
+    "resample_stripes",
     "search_weights",
     "stratified_split",
     "stripe_distance",

@@ -32,6 +32,17 @@ Choices where the paper is silent, and differences from it:
   ``d = o = 0`` but keeps its ``l`` (its length is still real information); it still
   counts in the object's stripe set and in the mean length.  Empty stripes (no points)
   are dropped before describing, and an object without any stripe is an error.
+- Stripe count and scale (options, off by default, where the paper is silent on how
+  densely an object is swept and in which unit its points are): with `stripe_count`
+  an object swept by more stripes keeps `stripe_count` of them, evenly spaced in scan
+  order (both ends kept), before anything is computed, so every object is described
+  by about the same number of stripes whatever its length along the sweep and the
+  laser step; with `scale_free` the points of an object are divided by its mean
+  stripe point count and multiplied by `SCALE_FREE_WIDTH`, so ``d`` measures the
+  stripes' shape relative to the object's width instead of in pixels.  Both make
+  the descriptor of a large object resemble that of a small one of the same shape
+  (the trimming of Eq. 4 otherwise compares the central run of a long object with
+  the whole of a short one); they drop the size cues an instance-level matcher wants.
 - Units: ``d`` depends on the unit of the points (pixels here, as in the paper); ``o``
   is in radians; ``l`` is unitless.
 
@@ -60,6 +71,10 @@ Array = NDArray[np.float64]
 MIN_POINTS = 4
 #: Default number of sample points per stripe (Section VI.C); see the module docstring.
 MAX_SAMPLES = 32
+#: With ``scale_free``: the mean stripe of every object spans this many units (the
+#: order of a stripe's width in the paper's 712-pixel images, so ``log(1 + x)`` of
+#: Eq. 1 works in the same regime as on pixels).
+SCALE_FREE_WIDTH = 100.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,13 +85,21 @@ class DescriptorConfig:
         max_samples: sample points per stripe for ``d`` and ``o`` (None: all points).
         min_points: stripes with fewer points get ``d = o = 0`` (authors: ``<= 3``).
         chunk_pairs: memory bound of one vectorised batch (stripes x pairs).
+        stripe_count: keep at most this many stripes per object, evenly spaced in
+            scan order (None: all stripes, the paper).
+        scale_free: points in units of the object's mean stripe width / 100
+            (False: the points' own unit, pixels as in the paper).
     """
 
     max_samples: int | None = MAX_SAMPLES
     min_points: int = MIN_POINTS
     chunk_pairs: int = 1_000_000
+    stripe_count: int | None = None
+    scale_free: bool = False
 
     def __post_init__(self) -> None:
+        if self.stripe_count is not None and self.stripe_count < 2:
+            raise UserError(f"stripe_count must be at least 2 (or None), got {self.stripe_count}")
         if self.max_samples is not None and self.max_samples < 4:
             raise UserError(f"max_samples must be at least 4 (or None), got {self.max_samples}")
         if self.min_points < 2:
@@ -190,6 +213,27 @@ def point_context(
     return d, o
 
 
+def resample_stripes(arrays: Sequence[Array], count: int | None) -> list[Array]:
+    """At most `count` stripes of an ordered set, evenly spaced by index, both ends kept.
+
+    ``count=None`` or a set of at most `count` stripes: unchanged.
+    """
+    arrays = list(arrays)
+    if count is None or len(arrays) <= count:
+        return arrays
+    idx = np.unique(np.rint(np.linspace(0, len(arrays) - 1, count)).astype(np.int64))
+    return [arrays[i] for i in idx]
+
+
+def _prepared(arrays: list[Array], cfg: DescriptorConfig) -> list[Array]:
+    """An object's stripes after the `stripe_count` and `scale_free` options."""
+    arrays = resample_stripes(arrays, cfg.stripe_count)
+    if cfg.scale_free:
+        unit = float(np.mean([len(a) for a in arrays])) / SCALE_FREE_WIDTH
+        arrays = [a / unit for a in arrays]
+    return arrays
+
+
 def describe_stripes(
     stripes: Sequence[ArrayLike],
     config: DescriptorConfig | None = None,
@@ -213,6 +257,7 @@ def describe_stripes(
     for a in arrays:
         if not np.isfinite(a).all():
             raise DataError(name, "stripe points contain NaN or inf")
+    arrays = _prepared(arrays, config or DescriptorConfig())
     lengths = np.array([len(a) for a in arrays], dtype=np.int64)
     l = lengths / lengths.mean()  # noqa: E741 - the paper's name
     d, o = point_context(arrays, config)
@@ -237,7 +282,7 @@ def describe_many(
             raise DataError(nm, "empty stripe set: the object has no stripe to describe")
         if not all(np.isfinite(a).all() for a in arrays):
             raise DataError(nm, "stripe points contain NaN or inf")
-        sets.append(arrays)
+        sets.append(_prepared(arrays, config or DescriptorConfig()))
     flat = [a for s in sets for a in s]
     d, o = point_context(flat, config)
     out = []
