@@ -225,6 +225,9 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
     assert set(js["class_accuracy"]) == {"apple", "pen"}
     assert 0 <= js["bullseye"] <= 100 and js["seconds"] > 0
     assert set(js["baselines"]) == {"fft", "shape-context"}
+    assert len(js["fused"]["top10_counts"]) == 10 and js["fused"]["options"]["verifiers"] == [
+        "fft", "ring"]
+    assert js["different_pose"] == {}  # one scan per object: no different-pose figures
     for b in js["baselines"].values():
         assert len(b["top10_counts"]) == 10 and 0 <= b["bullseye"] <= 100
     for name in ("report.md", "results.json", "stripes_examples.png", "class_accuracy.png"):
@@ -245,6 +248,9 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
         (["bench", "stripes", "--dataset", "daily-sim", "--baselines", "sift"], "sift"),
         (["bench", "stripes", "--dataset", "daily-sim", "--scans-per-object", "0"],
          "scans-per-object"),
+        (["bench", "stripes", "--dataset", "daily-sim", "--stripe-count", "1"],
+         "--stripe-count"),
+        (["bench", "stripes", "--dataset", "daily-sim", "--fused", "fft,sift"], "sift"),
         (["bench", "landmarks", "--seed", "-1"], "--seed"),
         (["bench", "landmarks", "--laps", "0"], "--laps"),
     ],
@@ -255,6 +261,20 @@ def test_cli_bad_input_is_one_error_line(monkeypatch, capsys, argv, message):
     assert code == 2
     assert len(err) == 1 and err[0].startswith("error:") and message in err[0]
     assert "Traceback" not in err[0]
+
+
+def test_cli_two_poses_give_different_pose_figures(monkeypatch, capsys):
+    code = _cli(monkeypatch, [
+        "bench", "stripes", "--dataset", "daily-sim", "--classes", "apple,pen",
+        "--per-class", "2", "--step", "0.004", "--baselines", "none", "--scans-per-object",
+        "2", "--stripe-count", "8", "--json",
+    ])
+    assert code == 0
+    js = json.loads(capsys.readouterr().out)
+    pose = js["different_pose"]
+    assert pose["queries"] == 4 and 0 <= pose["instance"] <= 1 and 0 <= pose["other_object"] <= 1
+    assert js["fused"]["different_pose"]["queries"] == 4
+    assert js["config"]["descriptor"]["stripe_count"] == 8
 
 
 def test_cli_labels_listing_a_missing_file(monkeypatch, capsys, tmp_path):
