@@ -199,7 +199,8 @@ def silhouette_polygon(
     """The object's scanned footprint as a polygon in millimetres (table plane, top view).
 
     The mask `StripeScan.silhouette()` has one row per laser position (`step` apart)
-    and one column per image column (``field_of_view / width`` apart on the table):
+    and one column per image column (the scan's ``field_of_view / width`` apart on the
+    table):
     it is closed by a 3 x 3 structuring element (fills the detector's one-pixel gaps),
     its outer contour is taken and smoothed by `data.mpeg7.contour_from_image`
     (`smooth` pixels), and the axes are scaled to millimetres so the shape is not
@@ -211,7 +212,7 @@ def silhouette_polygon(
     cfg = config or ScannerConfig()
     mask = scan.silhouette()
     mask = ndimage.binary_closing(np.pad(mask, 2), structure=np.ones((3, 3), bool))
-    col_mm = 1000.0 * cfg.field_of_view / cfg.width
+    col_mm = 1000.0 * scan.field_of_view / cfg.width
     row_mm = 1000.0 * cfg.step
     contour = contour_from_image(mask.astype(np.uint8) * 255, smooth=smooth)
     if contour is None:

@@ -64,7 +64,7 @@ def _plot_examples(result: StripesBenchmarkResult, path: Path) -> Path:
         ax = axes[0, j]
         step = max(1, len(scan.stripes) // 40)
         cfg = result.config.scanner
-        pitch = cfg.step / (cfg.field_of_view / cfg.width)  # one laser step in image columns
+        pitch = cfg.step / (scan.field_of_view / cfg.width)  # one laser step in image columns
         for f, s in zip(scan.frame[::step], scan.stripes[::step], strict=True):
             ax.plot(s[:, 0], -s[:, 1] + pitch * f, lw=0.5, color="tab:red")
         ax.set_title(f"{c}\n{len(scan.stripes)} stripes", fontsize=8)

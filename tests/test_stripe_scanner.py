@@ -118,6 +118,33 @@ def test_object_without_stripe_is_a_clear_error():
     assert source == [0] and list(failed) == ["wall"] and len(scans) == 1
 
 
+def test_tall_and_wide_objects_are_scanned_from_higher_up():
+    from data.stripe_scanner.scanner import fits_image, fitted_config, place_on_table
+
+    cfg = ScannerConfig(**CLEAN)
+    # The top of a 0.33 m post images below row 600 at 0.6 m (row ~610, by the camera
+    # model): without the fit no stripe at all; with it the scanner rises and sees it.
+    post = box(0.03, 0.03, 0.33, "post")
+    with pytest.raises(DataError, match="post: the scanner saw no stripe"):
+        scan_mesh(post, ScannerConfig(**CLEAN, fit_object=False))
+    tall = scan_mesh(post, cfg)
+    assert tall.standoff > 0.6 and tall.field_of_view / tall.standoff == pytest.approx(0.5)
+    rows = np.concatenate([t[:, 1] for t in tall.stripes])
+    assert rows.max() < cfg.height - cfg.fit_margin_px
+    # A 0.36 m wide plate overflows the 0.30 m field of view: clipped at column 0 and
+    # 711 without the fit, inside the image with it.
+    plate = box(0.06, 0.18, 0.02, "plate")
+    clipped = scan_mesh(plate, ScannerConfig(**CLEAN, fit_object=False))
+    assert min(t[:, 0].min() for t in clipped.stripes) == 0
+    wide = scan_mesh(plate, cfg)
+    assert min(t[:, 0].min() for t in wide.stripes) > 0
+    assert max(t[:, 0].max() for t in wide.stripes) < cfg.width - 1
+    # Objects that fit keep the configured scanner exactly.
+    small = place_on_table(box(0.03, 0.03, 0.05).vertices, 0.0, (0.0, 0.0))
+    assert fits_image(small, cfg) and fitted_config(small, cfg) is cfg
+    assert scan_mesh(box(0.03, 0.03, 0.05), cfg).standoff == cfg.standoff
+
+
 # ----------------------------------------------------------------------- meshes
 
 

@@ -20,6 +20,14 @@ Geometry (world frame, metres, z up; the table is the plane z = 0):
   probability `turn_probability`, shifted randomly by up to `position_jitter`, its
   lowest point at z = 0; all drawn per scan from the seed.  ``yaw_range_deg=180``
   gives any yaw.
+- Working range (`fit_object`, on by default; the paper is silent, its operator sets
+  the arm's distance): a tall object whose top would image below the last row, or a
+  wide one that would leave the image at the sides, is scanned with the laser and
+  camera raised together (standoff and field of view grow in proportion, the camera
+  is rigid so the focal length stays) by 10 % steps until every vertex of the placed
+  object images inside the frame with `fit_margin_px` to spare.  Objects that fit at
+  the configured standoff are scanned exactly as configured.  Without it the stripes
+  of such objects are clipped (their tops, the part the laser sees first, go missing).
 
 Per laser position:
 
@@ -93,6 +101,8 @@ class ScannerConfig:
         position_jitter: object shift drawn uniformly in [-j, j] on x and y [m].
         quantize: round rows to whole pixels (the paper's black/white images).
         include_table: also detect the line on the table (tests, figures).
+        fit_object: raise the scanner until the object fits the image (module docstring).
+        fit_margin_px: free border kept around the object's image by `fit_object` [px].
     """
 
     width: int = 712
@@ -117,6 +127,8 @@ class ScannerConfig:
     position_jitter: float = 0.01
     quantize: bool = True
     include_table: bool = False
+    fit_object: bool = True
+    fit_margin_px: float = 4.0
 
     @property
     def alpha(self) -> float:
@@ -143,6 +155,9 @@ class StripeScan:
         empty_positions: frames whose laser plane cut the object but gave no stripe.
         pose: ``(yaw [rad], tx [m], ty [m])`` of the object on the table.
         image_shape: ``(rows, columns)`` of the camera image.
+        field_of_view: width of table the image covered in this scan [m] (the
+            configured one unless `ScannerConfig.fit_object` raised the scanner).
+        standoff: height of laser and camera in this scan [m].
     """
 
     name: str
@@ -153,6 +168,8 @@ class StripeScan:
     empty_positions: int
     pose: tuple[float, float, float]
     image_shape: tuple[int, int]
+    field_of_view: float = 0.30
+    standoff: float = 0.60
 
     def binary_image(self, i: int) -> NDArray[np.bool_]:
         """The black/white image of stripe `i` (``image_shape``; True on the stripe)."""
@@ -225,6 +242,39 @@ def _expand(lo: NDArray[np.int64], hi: NDArray[np.int64]) -> tuple[NDArray[np.in
     start = np.repeat(np.cumsum(n) - n, n)
     value = np.repeat(lo, n) + (np.arange(int(n.sum())) - start)
     return owner, value
+
+
+def fits_image(vertices: Array, cfg: ScannerConfig) -> bool:
+    """True when every vertex images inside the frame (with `fit_margin_px`) as the
+    laser plane passes through it (camera centre at the vertex's x)."""
+    cam = _Camera(cfg)
+    v = np.asarray(vertices, dtype=float)
+    c = np.column_stack([v[:, 0] - cam.b, np.zeros(len(v)), np.full(len(v), cfg.standoff)])
+    q = (v - c) @ cam.R.T
+    z = q[:, 2]
+    if np.any(z <= 0):
+        return False
+    u = cam.f * q[:, 0] / z + cam.cx
+    r = cam.f * q[:, 1] / z + cam.cy
+    m = cfg.fit_margin_px
+    return bool(np.all((u >= m) & (u <= cfg.width - 1 - m) & (r <= cfg.height - 1 - m)))
+
+
+def fitted_config(vertices: Array, cfg: ScannerConfig, max_raise: float = 8.0) -> ScannerConfig:
+    """`cfg`, or `cfg` with standoff and field of view raised by 10 % steps (at most
+    `max_raise` times) until the placed `vertices` fit the image (module docstring)."""
+    from dataclasses import replace
+
+    if not cfg.fit_object or fits_image(vertices, cfg):
+        return cfg
+    factor = 1.0
+    while factor < max_raise:
+        factor *= 1.1
+        out = replace(cfg, standoff=cfg.standoff * factor,
+                      field_of_view=cfg.field_of_view * factor)
+        if fits_image(vertices, out):
+            return out
+    return out
 
 
 class _Scene:
@@ -415,6 +465,7 @@ def scan_mesh(
         yaw += np.pi
     shift = tuple(float(x) for x in rng.uniform(-cfg.position_jitter, cfg.position_jitter, 2))
     verts = place_on_table(mesh.vertices, yaw, shift)
+    cfg = fitted_config(verts, cfg)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     n_object = len(faces)
     lo_x, hi_x = verts[:, 0].min(), verts[:, 0].max()
@@ -458,7 +509,7 @@ def scan_mesh(
                         "outside the field of view, or hidden from the camera)")
     return StripeScan(mesh.name, stripes, np.array(positions), np.array(frames, dtype=np.int64),
                       len(x_frames), empty, (yaw, shift[0], shift[1]),
-                      (cfg.height, cfg.width))
+                      (cfg.height, cfg.width), cfg.field_of_view, cfg.standoff)
 
 
 def _detect_frame(
