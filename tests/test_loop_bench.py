@@ -244,3 +244,17 @@ def test_real_corrected_log(tmp_path: Path) -> None:
                  "--out", str(tmp_path / "o")]) == 0
     doc = json.loads((tmp_path / "o" / "results.json").read_text())
     assert doc["queries"] == 20 and doc["keyframes_with_reference"] == doc["keyframes"]
+
+
+def test_command_with_a_tum_reference(sim: SimulatedRun, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture) -> None:
+    """A simulated log on disk with its ground truth as a TUM file: the same figures as the
+    in-memory run with exact truth (the reference is read at the keyframes' stamps)."""
+    from data.sim import write_run
+
+    files = write_run(sim, tmp_path / "sim")
+    args = ["--max-queries", "10", "--stages", "prefilter,fused", "--json", "--limit", "400"]
+    assert main(["bench", "loops", str(files["log"]), "--reference",
+                 str(files["groundtruth"]), *args]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["keyframes_with_reference"] == doc["keyframes"] and doc["queries"] == 10
