@@ -50,6 +50,12 @@ def stripes(
     step: Annotated[
         float, typer.Option("--step", help="Laser advance between frames, metres.")
     ] = 0.0008,
+    yaw_range: Annotated[
+        float,
+        typer.Option("--yaw-range", help="Object yaw drawn in +-DEG per scan (180: any "
+                     "pose on the table; with --scans-per-object 2 the different-pose "
+                     "figures then compare unrelated poses)."),
+    ] = 15.0,
     baselines: Annotated[
         str,
         typer.Option("--baselines", help="Comma-separated silhouette matchers ('none': none)."),
@@ -105,6 +111,8 @@ def stripes(
         raise UserError(f"--scans-per-object must be at least 1, got {scans_per_object}")
     if out is not None:
         output_dir(out)  # a bad --out fails now, not after the runs
+    if not 0 <= yaw_range <= 180:
+        raise UserError(f"--yaw-range must be within 0..180 degrees, got {yaw_range}")
     if stripe_count is not None and stripe_count < 2:
         raise UserError(f"--stripe-count must be at least 2, got {stripe_count}")
     names = _names(baselines) or ()
@@ -118,7 +126,7 @@ def stripes(
         seed=seed,
         scans_per_object=scans_per_object,
         baselines=names,
-        scanner=replace(ScannerConfig(), step=step),
+        scanner=replace(ScannerConfig(), step=step, yaw_range_deg=yaw_range),
         descriptor=DescriptorConfig(stripe_count=stripe_count, scale_free=scale_free),
         fused=verifiers,
     )

@@ -251,6 +251,7 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
         (["bench", "stripes", "--dataset", "daily-sim", "--stripe-count", "1"],
          "--stripe-count"),
         (["bench", "stripes", "--dataset", "daily-sim", "--fused", "fft,sift"], "sift"),
+        (["bench", "stripes", "--dataset", "daily-sim", "--yaw-range", "200"], "--yaw-range"),
         (["bench", "landmarks", "--seed", "-1"], "--seed"),
         (["bench", "landmarks", "--laps", "0"], "--laps"),
     ],
@@ -267,7 +268,7 @@ def test_cli_two_poses_give_different_pose_figures(monkeypatch, capsys):
     code = _cli(monkeypatch, [
         "bench", "stripes", "--dataset", "daily-sim", "--classes", "apple,pen",
         "--per-class", "2", "--step", "0.004", "--baselines", "none", "--scans-per-object",
-        "2", "--stripe-count", "8", "--json",
+        "2", "--stripe-count", "8", "--yaw-range", "180", "--json",
     ])
     assert code == 0
     js = json.loads(capsys.readouterr().out)
@@ -275,6 +276,7 @@ def test_cli_two_poses_give_different_pose_figures(monkeypatch, capsys):
     assert pose["queries"] == 4 and 0 <= pose["instance"] <= 1 and 0 <= pose["other_object"] <= 1
     assert js["fused"]["different_pose"]["queries"] == 4
     assert js["config"]["descriptor"]["stripe_count"] == 8
+    assert js["config"]["scanner"]["yaw_range_deg"] == 180
 
 
 def test_cli_labels_listing_a_missing_file(monkeypatch, capsys, tmp_path):
