@@ -171,43 +171,69 @@ def eval_robustness(
         typer.Option("--kernels", help="Any of none,huber,cauchy,dcs,gemanmcclure,gnc."),
     ] = "cauchy,dcs,gnc",
     seed: Annotated[int, typer.Option("--seed", help="Seed of the false-loop injection.")] = 0,
+    policy: Annotated[
+        str,
+        typer.Option("--policy", help="False-loop policy: random, local, grouped, local-grouped "
+                     "(several with a comma)."),
+    ] = "random",
+    group_size: Annotated[
+        int, typer.Option("--group-size", help="False loops per group (grouped policies).")
+    ] = 10,
+    odometry_scale: Annotated[
+        float, typer.Option("--odometry-scale", help="Factor on the odometry information "
+                            "(below 1: looser odometry).")
+    ] = 1.0,
     json: JsonOption = False,
     out: OutOption = None,
 ) -> None:
     """Inject false loop closures and measure each kernel's ATE against the clean optimum."""
     from rich.progress import Progress, TimeElapsedColumn
 
+    from data.errors import UserError
     from data.g2o import read_g2o
+    from evaluation.outlier_policies import parse_policies
     from evaluation.robustness import run_robustness
     from slam.pose_graph import PoseGraph
 
     ratios = _percent_list(outliers, "--outliers")
     names = [k.strip() for k in kernels.split(",") if k.strip()]
+    policies = parse_policies(policy)
+    if group_size < 1:
+        raise UserError(f"--group-size must be at least 1, got {group_size}")
+    if not odometry_scale > 0:
+        raise UserError(f"--odometry-scale must be positive, got {odometry_scale}")
     graph = PoseGraph.from_g2o(read_g2o(g2o))
     with Progress(*Progress.get_default_columns(), TimeElapsedColumn(), transient=True) as bar:
-        task = bar.add_task("robustness", total=len(ratios) * len(names))
+        task = bar.add_task("robustness", total=len(policies) * len(ratios) * len(names))
 
         def step(message: str) -> None:
             bar.update(task, description=message)
             bar.advance(task)
 
-        results = run_robustness(graph, ratios, names, seed=seed, progress=step)
+        results = run_robustness(graph, ratios, names, seed=seed, policies=policies,
+                                 group_size=group_size, odometry_scale=odometry_scale,
+                                 progress=step)
     rows = [r.to_json() for r in results]
-    summary = {"g2o": str(g2o), "seed": seed, "results": rows}
+    summary = {"g2o": str(g2o), "seed": seed, "policies": policies, "group_size": group_size,
+               "odometry_scale": odometry_scale, "results": rows}
     if _ready(out):
         from evaluation.plots import plot_robustness
         from evaluation.report import image, table, write_report
 
-        plot = plot_robustness(out / "robustness.png", rows, f"robustness: {g2o.name}")
+        lines = [{**r, "kernel": f"{r['kernel']} ({r['policy']})"} for r in rows]
+        plot = plot_robustness(out / "robustness.png", lines, f"robustness: {g2o.name}")
         write_json(out / "results.json", summary)
-        headers = ["kernel", "false loops [%]", "false loops", "ATE vs clean [m]",
+        headers = ["policy", "kernel", "false loops [%]", "false loops", "ATE vs clean [m]",
                    "false obeyed", "true rejected", "seconds"]
-        body = [[r["kernel"], 100 * r["outlier_ratio"], r["false_loops"], r["ate_vs_clean_m"],
+        body = [[r["policy"], r["kernel"], 100 * r["outlier_ratio"], r["false_loops"],
+                 r["ate_vs_clean_m"],
                  r["false_factors_obeyed"], r["true_factors_rejected"], r["seconds"]] for r in rows]
         write_report(out / "report.md", f"Robustness to false loop closures: {g2o.name}", [
-            ("Protocol", "See `evaluation/robustness.py`: false loops copy the measurement and "
-             "information of random true loops between random pose pairs; each kernel starts "
-             "from odometry; ATE is against the outlier-free optimum after rigid alignment."),
+            ("Protocol", "See `evaluation/robustness.py` and `evaluation/outlier_policies.py`: "
+             f"policies {', '.join(policies)} (group size {group_size}), odometry information "
+             f"x{odometry_scale:g}; false loops carry the information of random true loops; "
+             "each kernel starts from odometry; ATE is against the outlier-free optimum after "
+             "rigid alignment."),
             ("Results", table(headers, body)),
             ("Plot", image(plot, out)),
         ])
@@ -216,7 +242,8 @@ def eval_robustness(
     else:
         for r in rows:
             typer.echo(
-                f"{r['kernel']:>13} {100 * r['outlier_ratio']:5.1f}% false: ATE vs clean "
+                f"{r['policy']:>13} {r['kernel']:>13} {100 * r['outlier_ratio']:5.1f}% false: "
+                f"ATE vs clean "
                 f"{r['ate_vs_clean_m']:.4f} m, {r['false_factors_obeyed']} false obeyed, "
                 f"{r['true_factors_rejected']} true rejected, {r['seconds']:.1f} s"
             )
