@@ -18,7 +18,8 @@ Protocol
    ``loops.database``) receives the keyframes' descriptors in order; right after
    keyframe k is added it queries the database of the older keyframes the detector
    would search (`LoopClosureDetector.eligible`: outside ``exclude_recent`` keyframes
-   / ``exclude_recent_s`` seconds, described) that have a reference pose.  So the
+   / ``exclude_recent_s`` seconds, described; the time rule as the detector holds it at
+   the end of the run) that have a reference pose.  So the
    database's normalisation scales are those `run` has at that keyframe.  A query
    against an empty database, or by a keyframe the detector could not describe (no
    polygon: no valid beams, a degenerate local map; such a keyframe is never a
