@@ -20,17 +20,27 @@ Every false loop carries the information matrix of a randomly drawn true loop, a
 the wrong poses); a group's ``T`` is a randomly drawn true loop's measurement.
 Measurements are (x, y, theta) [m, rad] in 2D or 4x4 in 3D, pose of ``j`` in ``i``'s
 frame; the odometry chain is `slam.optimize.initial_guess` ``"odometry"``.
-No pair already joined by a constraint is used twice.
+No pair already joined by a constraint is used twice, and given the outlier-free
+optimum no false loop is one that optimum already obeys (a copied measurement can
+be right by chance, above all between poses close in the sequence).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
-from slam.optimize import initial_guess
-from slam.pose_graph import Constraint, PoseGraph, relative_compose, relative_pose
+from slam.optimize import default_outlier_residual, initial_guess
+from slam.pose_graph import (
+    Constraint,
+    PoseGraph,
+    relative_compose,
+    relative_pose,
+    whitened_residual,
+)
 
 Array = NDArray[np.float64]
 POLICIES = ("random", "local", "grouped", "local-grouped")
@@ -56,7 +66,7 @@ def _partner(i: int, n: int, local: bool, rng: np.random.Generator, window: int)
 
 def _random(
     graph: PoseGraph, n_false: int, rng: np.random.Generator, min_separation: int,
-    taken: set[tuple[int, int]],
+    taken: set[tuple[int, int]], agrees: Callable[[Constraint], bool],
 ) -> list[Constraint]:
     """The ``random`` policy, drawing pairs in batches (the random stream of earlier
     versions, so a seed gives the same false loops as before)."""
@@ -71,9 +81,12 @@ def _random(
             pair = (min(i, j), max(i, j))
             if abs(i - j) <= min_separation or pair in taken:
                 continue
-            taken.add(pair)
             t = graph.loops[k]
-            false.append(Constraint(i, j, t.measurement.copy(), t.information.copy()))
+            c = Constraint(i, j, t.measurement.copy(), t.information.copy())
+            if agrees(c):
+                continue
+            taken.add(pair)
+            false.append(c)
             if len(false) == n_false:
                 break
     return false
@@ -88,10 +101,15 @@ def inject_false_loops(
     group_size: int = 10,
     min_separation: int = 10,
     local_window: int = LOCAL_WINDOW,
+    reference: dict[int, Array] | None = None,
 ) -> tuple[PoseGraph, list[int]]:
     """A copy of `graph` whose loops are a fraction `ratio` false; returns the false indices.
 
-    The loops of the copy are shuffled (false ones are not all at the end).
+    The loops of the copy are shuffled (false ones are not all at the end).  With
+    `reference` (the outlier-free optimum, id -> pose), a drawn loop that the reference
+    already obeys (whitened residual at most the chi-square 99% threshold of its dof) is
+    true by chance, not false, and is drawn again; a group is then kept only if none of
+    its members is.
     """
     if policy not in POLICIES:
         raise UserError(f"policy: unknown {policy!r}; choose from {', '.join(POLICIES)}")
@@ -112,9 +130,14 @@ def inject_false_loops(
     size = group_size if policy.endswith("grouped") else 1
     chain = initial_guess(graph, "odometry") if size > 1 else graph.initial
     taken = {(min(c.i, c.j), max(c.i, c.j)) for c in graph.odometry + graph.loops}
+    threshold = default_outlier_residual(graph.dim)
+
+    def agrees(c: Constraint) -> bool:
+        return reference is not None and whitened_residual(c, reference, graph.dim) <= threshold
+
     false: list[Constraint] = []
     if policy == "random":
-        false = _random(graph, n_false, rng, min_separation, taken)
+        false = _random(graph, n_false, rng, min_separation, taken, agrees)
     attempts = 0
     while len(false) < n_false:
         attempts += 1
@@ -134,15 +157,19 @@ def inject_false_loops(
             group.append(pair)
         if not group:
             continue
+        members = []
         for i, j in zip(keys[a : a + len(group)], keys[b : b + len(group)], strict=True):
-            taken.add((min(i, j), max(i, j)))
             measurement = t.measurement.copy()
             if size > 1:  # T_k = (x_a^-1 x_i)^-1 T (x_b^-1 x_j) along the odometry chain
                 left = relative_pose(chain[keys[a]], chain[i], graph.dim)
                 right = relative_pose(chain[keys[b]], chain[j], graph.dim)
                 measurement = relative_compose(
                     relative_pose(left, t.measurement, graph.dim), right, graph.dim)
-            false.append(Constraint(i, j, measurement, t.information.copy()))
+            members.append(Constraint(i, j, measurement, t.information.copy()))
+        if any(agrees(c) for c in members):
+            continue
+        taken.update(group)
+        false.extend(members)
     corrupted = PoseGraph(
         graph.dim, dict(graph.initial), list(graph.odometry), list(graph.loops), set(graph.fixed)
     )

@@ -5,11 +5,11 @@ Protocol (one run per outlier ratio p and kernel):
 1. The clean optimum: the graph as given, optimised without a kernel from the
    LAGO initialisation (2D) or the given vertices (3D).  It is the reference.
 2. False loops are injected so that they make up a fraction p of all loop edges:
-   ``n_false = round(n_true * p / (1 - p))``.  Each joins a random pair of poses
-   more than `min_separation` ids apart and not already joined; its measurement and
-   information are those of a randomly drawn *true* loop edge (so it looks exactly
-   as plausible as a real one: same magnitude, same confidence) — but between the
-   wrong poses.
+   ``n_false = round(n_true * p / (1 - p))``, by one of the policies of
+   `evaluation.outlier_policies` (random, local, grouped, local-grouped); each carries
+   the information of a randomly drawn *true* loop edge (as plausible as a real one)
+   and none is obeyed by the clean optimum (a copied measurement that happens to be
+   right is no false loop).
 3. The corrupted graph is optimised with the kernel from the odometry
    initialisation (what a mapper has when the loops arrive).  The M-estimators
    (``huber``, ``cauchy``, ``dcs``, ``gemanmcclure``; ``none`` is plain least squares)
@@ -136,7 +136,8 @@ def run_robustness(
     results = []
     for policy, ratio in ((p, r) for p in policies for r in ratios):
         corrupted, false_idx = inject_false_loops(
-            graph, ratio, np.random.default_rng(seed), policy, group_size=group_size
+            graph, ratio, np.random.default_rng(seed), policy, group_size=group_size,
+            reference=reference,
         )
         false_set = set(false_idx)
         for kernel in kernels:

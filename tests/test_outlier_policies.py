@@ -9,7 +9,8 @@ from data import se2
 from data.errors import UserError
 from evaluation.outlier_policies import inject_false_loops, parse_policies
 from evaluation.robustness import run_robustness
-from slam.pose_graph import PoseGraph
+from slam.optimize import default_outlier_residual
+from slam.pose_graph import PoseGraph, whitened_residual
 
 INFO = np.diag([100.0, 100.0, 400.0])
 
@@ -112,3 +113,13 @@ def test_rows_carry_policy_seed_and_odometry_scale() -> None:
     assert rows[0].ate_vs_clean_m < 1e-6
     with pytest.raises(UserError, match="odometry_scale"):
         run_robustness(_line(60), [0.0], ["none"], odometry_scale=0.0)
+
+
+@pytest.mark.parametrize("policy", ["random", "local", "grouped"])
+def test_no_false_loop_is_true_by_chance(policy: str) -> None:
+    graph = _line()  # every true loop measures (30, 0, 0): many random pairs 30 apart agree
+    exact = dict(graph.initial)
+    corrupted, idx = inject_false_loops(graph, 0.7, np.random.default_rng(0), policy,
+                                        group_size=3, reference=exact)
+    threshold = default_outlier_residual(2)
+    assert all(whitened_residual(corrupted.loops[k], exact, 2) > threshold for k in idx)
