@@ -25,12 +25,11 @@ from data.stripe_scanner import (
     ScannerConfig,
     StripeScan,
     daily_set,
-    load_mesh,
     read_labels,
     scan_mesh,
     ycb_labels,
 )
-from data.stripe_scanner.meshes import load_mesh_folder
+from data.stripe_scanner.meshes import load_mesh_rows
 from loopclosure.polygon import Polygon
 
 Progress = Callable[[str, int, int], None]
@@ -99,28 +98,9 @@ def mesh_folder_objects(folder: str | Path, labels_csv: str | Path | None = None
         shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5
                                           else "")
         raise DataError(source, f"lists {len(missing)} file(s) not found in {root}: {shown}")
-    if labels_csv is not None:
-        loaded = load_mesh_folder(root, labels_csv)
-        return ObjectSet(str(root), loaded.meshes, loaded.labels, loaded.failed,
-                         loaded.not_watertight)
-    out = ObjectSet(str(root), [], [])
-    for file, cls in rows:
-        try:
-            mesh = load_mesh(root / file)
-        except DataError as exc:
-            out.failed[file] = exc.message
-            continue
-        if not mesh.watertight:
-            out.not_watertight.append(mesh.name)
-        out.meshes.append(mesh)
-        out.labels.append(cls)
-    if out.failed:
-        first = next(iter(out.failed.items()))
-        warn(f"{root}: {len(out.failed)} of {len(rows)} meshes failed to load and were "
-             f"skipped (first: {first[0]}: {first[1]})")
-    if not out.meshes:
-        raise DataError(root, f"none of the {len(rows)} listed meshes could be loaded")
-    return out
+    loaded = load_mesh_rows(root, rows, source=source)
+    return ObjectSet(str(root), loaded.meshes, loaded.labels, loaded.failed,
+                     loaded.not_watertight)
 
 
 @dataclass(slots=True)

@@ -169,7 +169,21 @@ def load_mesh_folder(folder: str | Path, labels_csv: str | Path) -> MeshSet:
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(folder, "not a directory")
-    rows = read_labels(labels_csv)
+    return load_mesh_rows(folder, read_labels(labels_csv), source=labels_csv)
+
+
+def load_mesh_rows(
+    folder: str | Path, rows: list[tuple[str, str]], source: str | Path
+) -> MeshSet:
+    """Load the ``(file, class)`` `rows` from `folder`; files that fail are skipped.
+
+    What went wrong (files that did not load, meshes that are not watertight) is
+    reported once as a warning naming `source` (the labels CSV, or the folder).
+
+    Raises:
+        DataError: none of the rows could be loaded (names `source`).
+    """
+    folder = Path(folder)
     out = MeshSet([], [])
     for file, cls in rows:
         try:
@@ -191,9 +205,9 @@ def load_mesh_folder(folder: str | Path, labels_csv: str | Path) -> MeshSet:
             parts.append(f"{len(out.not_watertight)} meshes are not watertight (kept: "
                          f"{', '.join(out.not_watertight[:3])}"
                          f"{', ...' if len(out.not_watertight) > 3 else ''})")
-        warn(f"{labels_csv}: " + "; ".join(parts))
+        warn(f"{source}: " + "; ".join(parts))
     if not out.meshes:
-        raise DataError(labels_csv, f"none of the {len(rows)} listed meshes could be loaded")
+        raise DataError(source, f"none of the {len(rows)} listed meshes could be loaded")
     return out
 
 
