@@ -15,13 +15,9 @@ from typing import Annotated
 
 import typer
 
+from evaluation.cli_options import JsonOption, OutOption
 from slam.cli.common import print_json
 from slam.json_io import write_json
-
-JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
-OutOption = Annotated[
-    Path | None, typer.Option("--out", help="Folder for report.md, results.json and plots.")
-]
 
 eval_app = typer.Typer(
     help="Measure a result: relations metric, ATE/RPE, robustness to false loops.",

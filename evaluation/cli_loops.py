@@ -29,6 +29,18 @@ import typer
 
 from data.atomic_write import output_dir
 from data.errors import UserError
+from evaluation.cli_options import (
+    ConfigOption,
+    JsonOption,
+    LimitOption,
+    OdometryNoiseOption,
+    OverridesOption,
+    ReferenceFromLogOption,
+    ReferenceOption,
+    RelationsOption,
+    TopicOption,
+    print_table,
+)
 from slam.cli.common import stage_progress
 
 
@@ -81,25 +93,10 @@ def loops(
     input: Annotated[
         Path | None, typer.Argument(help="CARMEN log or ROS bag (none: a simulated world).")
     ] = None,
-    relations: Annotated[
-        Path | None,
-        typer.Option("--relations", help="Relations file: the reference is fitted to them."),
-    ] = None,
-    reference: Annotated[
-        Path | None,
-        typer.Option("--reference", help="Reference trajectory (TUM), stamped like the scans "
-                     "(or by scan index when the scan stamps are not unique)."),
-    ] = None,
-    reference_from_log: Annotated[
-        bool,
-        typer.Option("--reference-from-log", help="The input's logged poses are the reference "
-                     "(GMapping-corrected logs; needs --odometry-noise)."),
-    ] = False,
-    odometry_noise: Annotated[
-        int | None,
-        typer.Option("--odometry-noise", help="Replace the logged odometry by the simulator's "
-                     "drifting wheel odometry of the logged poses, with this seed."),
-    ] = None,
+    relations: RelationsOption = None,
+    reference: ReferenceOption = None,
+    reference_from_log: ReferenceFromLogOption = False,
+    odometry_noise: OdometryNoiseOption = None,
     world: Annotated[
         str | None, typer.Option("--world", help="Simulated world: box or surface.")
     ] = None,
@@ -117,22 +114,15 @@ def loops(
         float, typer.Option("--min-coverage", help="Least fraction of keyframes the reference "
                             "must cover.")
     ] = 0.5,
-    config: Annotated[
-        Path | None, typer.Option("--config", help="YAML file of pipeline parameters.")
-    ] = None,
-    overrides: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="Override one parameter, e.g. --set loops.database.top_k=20."),
-    ] = None,
-    limit: Annotated[
-        int | None, typer.Option("--limit", help="Use only the first N scans.")
-    ] = None,
-    topic: Annotated[str | None, typer.Option("--topic", help="Scan topic of a bag.")] = None,
+    config: ConfigOption = None,
+    overrides: OverridesOption = None,
+    limit: LimitOption = None,
+    topic: TopicOption = None,
     out: Annotated[
         Path | None,
         typer.Option("--out", help="Folder for report.md, results.json, queries.csv, plots."),
     ] = None,
-    json: Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")] = False,
+    json: JsonOption = False,
 ) -> None:
     """Appearance-only loop detection per stage: recall at 100%/99% precision, AP, recall@K."""
     from evaluation.loop_bench import parse_stages, run_loop_bench
@@ -200,22 +190,9 @@ def loops(
             doc["outputs"] = {k: str(v) for k, v in paths.items()}
         print_json(doc)
         return
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
-
     from evaluation.loop_bench_report import TABLE_HEADERS
 
-    table = Table(title=escape(f"bench loops: {Path(label).name}"))
-    table.add_column(TABLE_HEADERS[0], no_wrap=True)
-    for h in TABLE_HEADERS[1:]:
-        table.add_column(escape(h), justify="right", no_wrap=True)
-    for row in table_rows(bench):
-        table.add_row(*[escape(c) for c in row])
-    console = Console()
-    if not console.is_terminal:
-        console = Console(width=120)
-    console.print(table)
+    print_table(f"bench loops: {Path(label).name}", TABLE_HEADERS, table_rows(bench), width=120)
     for line in summary_lines(bench):
         typer.echo(line)
     if paths:

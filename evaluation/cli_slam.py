@@ -26,44 +26,34 @@ import typer
 
 from data.atomic_write import output_dir
 from data.errors import UserError
+from evaluation.cli_options import (
+    ConfigOption,
+    JsonOption,
+    LimitOption,
+    OdometryNoiseOption,
+    OverridesOption,
+    ReferenceFromLogOption,
+    ReferenceOption,
+    RelationsOption,
+    TopicOption,
+    print_table,
+)
 from slam.cli.common import stage_progress
 
 
 def slam(
     input: Annotated[Path, typer.Argument(help="CARMEN log or ROS bag.")],
-    relations: Annotated[
-        Path | None,
-        typer.Option("--relations", help="Relations file (t1 t2 x y z roll pitch yaw)."),
-    ] = None,
-    reference: Annotated[
-        Path | None,
-        typer.Option("--reference", help="Reference trajectory (TUM), stamped like the scans "
-                     "(or by scan index when the scan stamps are not unique)."),
-    ] = None,
-    reference_from_log: Annotated[
-        bool,
-        typer.Option("--reference-from-log", help="The input's logged poses are the reference "
-                     "(GMapping-corrected logs; needs --odometry-noise)."),
-    ] = False,
-    odometry_noise: Annotated[
-        int | None,
-        typer.Option("--odometry-noise", help="Replace the logged odometry by the simulator's "
-                     "drifting wheel odometry of the logged poses, with this seed."),
-    ] = None,
+    relations: RelationsOption = None,
+    reference: ReferenceOption = None,
+    reference_from_log: ReferenceFromLogOption = False,
+    odometry_noise: OdometryNoiseOption = None,
     methods: Annotated[
         str, typer.Option("--methods", help="Comma-separated: pipeline,wheel,kiss-icp; or all.")
     ] = "all",
-    config: Annotated[
-        Path | None, typer.Option("--config", help="YAML file of pipeline parameters.")
-    ] = None,
-    overrides: Annotated[
-        list[str] | None,
-        typer.Option("--set", help="Override one parameter, e.g. --set loops.local_max=2."),
-    ] = None,
-    limit: Annotated[
-        int | None, typer.Option("--limit", help="Use only the first N scans.")
-    ] = None,
-    topic: Annotated[str | None, typer.Option("--topic", help="Scan topic of a bag.")] = None,
+    config: ConfigOption = None,
+    overrides: OverridesOption = None,
+    limit: LimitOption = None,
+    topic: TopicOption = None,
     odom_topic: Annotated[
         str | None, typer.Option("--odom-topic", help="nav_msgs/Odometry topic of a bag.")
     ] = None,
@@ -75,7 +65,7 @@ def slam(
     no_map: Annotated[
         bool, typer.Option("--no-map", help="Skip the pipeline's occupancy map in --out.")
     ] = False,
-    json: Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")] = False,
+    json: JsonOption = False,
 ) -> None:
     """Our pipeline, wheel odometry and KISS-ICP on one log: relations error, ATE, time, loops."""
     from data.relations import read_relations
@@ -120,21 +110,8 @@ def slam(
             doc["outputs"] = {k: str(v) for k, v in paths.items()}
         print_json(doc)
         return
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
-
     headers, rows = table_rows(bench)
-    table = Table(title=escape(f"bench slam: {input.name}"))
-    table.add_column(headers[0], no_wrap=True)
-    for h in headers[1:]:
-        table.add_column(escape(h), justify="right", no_wrap=True)
-    for row in rows:
-        table.add_row(*[escape(c) for c in row])
-    console = Console()
-    if not console.is_terminal:  # a pipe or file: no terminal width to wrap the table to
-        console = Console(width=160)
-    console.print(table)
+    print_table(f"bench slam: {input.name}", headers, rows, width=160)
     for line in summary_lines(bench):
         typer.echo(line)
     if paths:
