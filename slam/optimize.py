@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from data.errors import UserError, warn
-from slam.consistency import incremental_tls, tls_threshold
+from slam.consistency import ODOMETRY_LADDER, incremental_tls, tls_threshold
 from slam.least_squares import conditioning, lm_params, solve
 from slam.pose_graph import (
     Constraint,
@@ -135,6 +135,7 @@ def optimize(
     gnc_probability: float = 0.99,
     outlier_residual: float | None = None,
     gnc_start: str = "given",
+    odometry_ladder: tuple[float, ...] = ODOMETRY_LADDER,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -145,7 +146,9 @@ def optimize(
     `start` (``"given"``, the default, is fast and right when the start is already good
     and outliers are few, as after a mapper's iSAM2), or ``"incremental"`` (time-ordered TLS
     admission from the odometry chain; minutes on a few thousand poses, but
-    robust to most loops being false: `slam.consistency`).
+    robust to most loops being false: `slam.consistency`).  `odometry_ladder`: the
+    odometry information factors the incremental admission decides at
+    (`slam.consistency.incremental_tls`; ``(1.0,)`` decides at the stated information only).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -161,7 +164,9 @@ def optimize(
     if method == "gnc":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
         if gnc_start == "incremental":
-            admission = incremental_tls(graph, values, probability=gnc_probability)
+            admission = incremental_tls(
+                graph, values, probability=gnc_probability, ladder=odometry_ladder
+            )
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"
         else:

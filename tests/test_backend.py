@@ -320,3 +320,44 @@ def test_incremental_tls_needs_an_anchored_odometry_spine() -> None:
         incremental_tls(graph, graph.gtsam_values())
     with pytest.raises(UserError, match="GNC start"):
         optimize(graph, method="gnc", gnc_start="sideways")
+
+
+def _loose(graph: PoseGraph, factor: float) -> PoseGraph:
+    """`graph` with its odometry information multiplied by `factor`."""
+    from slam.variance_components import with_information_scaled
+
+    return with_information_scaled(graph, factor)
+
+
+def test_odometry_ladder_keeps_the_plain_optimum_without_outliers() -> None:
+    graph = _loose(_square_graph(noise=0.02, laps=3)[0], 0.01)
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    chosen = incremental_tls(graph, values)
+    assert chosen.weights.all()
+    plain = optimize(graph, "none", init="odometry").poses
+    from slam.pose_graph import poses_from_values
+
+    assert aligned_position_error(poses_from_values(chosen.values, 2), plain, 2) < 1e-3
+
+
+def test_odometry_ladder_is_never_worse_than_its_first_rung() -> None:
+    graph = _loose(_square_graph(noise=0.02, laps=3)[0], 0.01)
+    corrupted, _ = inject_false_loops(graph, 0.5, np.random.default_rng(3))
+    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    first = incremental_tls(corrupted, values, ladder=(1.0,))
+    ladder = incremental_tls(corrupted, values)
+    assert ladder.tls_cost <= first.tls_cost * (1 + 1e-9)
+    assert ladder.tls_cost == pytest.approx(tls_cost(corrupted, ladder.values), rel=1e-9)
+    with pytest.raises(UserError, match="ladder"):
+        incremental_tls(corrupted, values, ladder=())
+
+
+def test_clean_optimum_drops_given_loops_it_does_not_obey() -> None:
+    from evaluation.robustness import clean_optimum
+
+    graph, _ = _square_graph(noise=0.02)
+    expected = optimize(graph, "none", init="odometry").poses
+    graph.add_loop(2, 20, np.array([3.0, -2.0, 1.0]), INFO)  # a wild given loop
+    reference = clean_optimum(graph)
+    assert whitened_residual(graph.loops[-1], reference, 2) > 10
+    assert aligned_position_error(reference, expected, 2) < 1e-6
