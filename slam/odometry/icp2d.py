@@ -102,6 +102,7 @@ from loopclosure.registration import (
     voxel_downsample,
 )
 from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
+from slam.odometry.fast_icp import GridTarget, register_fast
 
 Array = NDArray[np.float64]
 
@@ -130,6 +131,9 @@ class Icp2dConfig:
         max_rms: larger RMS residual of the inliers: status ``failed`` [m].
         min_degeneracy: smaller normalised translational eigenvalue: ``degenerate``.
         use_prior: the prediction is a prior of ICP.
+        compiled: register with the compiled kernel (`slam.odometry.fast_icp`, same
+            maths and results); False runs the numpy reference
+            (`loopclosure.registration.register`).
         odometry_noise: covariance model of odometry increments.
         velocity_sigma: per-step standard deviations of the constant-velocity
             prediction (x [m], y [m], theta [rad]).
@@ -172,6 +176,7 @@ class Icp2dConfig:
     max_rms: float = 0.1
     min_degeneracy: float = 0.01
     use_prior: bool = True
+    compiled: bool = True
     odometry_noise: MotionNoise = field(default_factory=MotionNoise)
     velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
     covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -232,6 +237,7 @@ class Icp2dOdometry:
         self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._keyframe_pose: Array | None = None
         self._target: RegistrationTarget | None = None
+        self._grid: GridTarget | None = None
         self.map_rebuilds = 0
 
     # ------------------------------------------------------------------ public
@@ -342,14 +348,19 @@ class Icp2dOdometry:
         return u, np.diag(np.square(cfg.velocity_sigma)), False
 
     def _register(self, points: Array, pred: Array, u_cov: Array) -> IcpResult:
-        assert self._target is not None
+        assert self._grid is not None and self._target is not None
         cfg = self.config
+        if cfg.compiled:
+            def icp(*args, **kwargs):
+                return register_fast(points, self._grid, *args, **kwargs)
+        else:
+            def icp(*args, **kwargs):
+                return register(points, self._target, *args, **kwargs)
         if not cfg.use_prior:
-            return register(points, self._target, pred, config=cfg.icp)
+            return icp(pred, config=cfg.icp)
         rot = _frame_rotation(float(pred[2]))
         prior_cov = rot @ u_cov @ rot.T
-        return register(points, self._target, pred, config=cfg.icp, prior=pred,
-                        prior_covariance=prior_cov)
+        return icp(pred, config=cfg.icp, prior=pred, prior_covariance=prior_cov)
 
     def _search(
         self, points: Array, prev: Array, pred: Array, res: IcpResult, extra: dict[str, Any]
@@ -402,7 +413,7 @@ class Icp2dOdometry:
         cfg = self.config
         extra["kidnap"] = True
         self._keyframes.clear()
-        self._target = None
+        self._target = self._grid = None
         self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
         self._velocity = np.zeros(3)
         cov = np.diag(np.square(cfg.kidnap_sigma))
@@ -437,8 +448,9 @@ class Icp2dOdometry:
         assert self._keyframe_pose is not None
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         self._target = RegistrationTarget(pts[near], cfg.icp)
+        self._grid = GridTarget(self._target)
         if self._target.tree is None:
-            self._target = None
+            self._target = self._grid = None
         self.map_rebuilds += 1
 
     def _increment_covariance(self, res: IcpResult, pose: Array) -> Array:
