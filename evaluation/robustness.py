@@ -115,7 +115,11 @@ def clean_optimum(graph: PoseGraph) -> dict[int, Array]:
     No kernel, from LAGO in 2D (or the odometry chain where LAGO's linear system is
     indeterminate, as with very loose odometry), then `refine_tls` from that optimum:
     the given loops whose factor error exceeds the TLS threshold are dropped and the
-    graph re-solved until the set is stable.
+    graph re-solved until the set is stable.  When that drops any loop, the plain
+    optimum was distorted by it and the refinement may sit in a poor basin, so the
+    robust back end's own solution of the clean graph (`optimize` ``gnc``, incremental,
+    from odometry) is computed too and the one with the lower TLS cost is the
+    reference.
     """
     if graph.dim == 2:
         try:
@@ -126,7 +130,12 @@ def clean_optimum(graph: PoseGraph) -> dict[int, Array]:
         plain = optimize(graph, "none", init="given").poses
     if not graph.loops:
         return plain
-    values, _ = refine_tls(graph, graph.gtsam_values(plain), np.ones(len(graph.loops)))
+    values, weights = refine_tls(graph, graph.gtsam_values(plain), np.ones(len(graph.loops)))
+    if weights.all():
+        return poses_from_values(values, graph.dim)
+    robust = optimize(graph, "none", "gnc", init="odometry", gnc_start=GNC_START).poses
+    if tls_cost(graph, graph.gtsam_values(robust)) < tls_cost(graph, values):
+        return robust
     return poses_from_values(values, graph.dim)
 
 

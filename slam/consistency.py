@@ -102,6 +102,7 @@ Array = NDArray[np.float64]
 GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 ODOMETRY_LADDER = (1.0, 10.0, 100.0)  # odometry information factors `incremental_tls` decides at
+BAR_TRIES = 5  # at most this many trials of `incremental_tls`'s `bar_search`
 
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
@@ -319,6 +320,7 @@ def admit_incrementally(
     gate: str = "stated",
     max_rounds: int = 50,
     solver: StickySolver | None = None,
+    barred: Sequence[int] = (),
 ) -> Admission:
     """One time-ordered TLS pass (module docstring, steps 1-3) from initial `values`.
 
@@ -331,6 +333,7 @@ def admit_incrementally(
         gate: ``"stated"`` or ``"calibrated"`` innovation gate.
         max_rounds: admission rounds per block (each ends with a prefix solve).
         solver: least-squares solver (shared by the calls of `incremental_tls`).
+        barred: loops never admitted (weight 0).
     """
     solve = solver or StickySolver()
     if gate not in GATES:
@@ -355,7 +358,7 @@ def admit_incrementally(
                 fixed.add(graph.prior_factor(k))
         for n in np.flatnonzero((odometry_end > last) & (odometry_end <= end)):
             fixed.add(graph.between_factor(graph.odometry[n]))
-        pending = np.flatnonzero((loop_end > last) & (loop_end <= end))
+        pending = np.setdiff1d(np.flatnonzero((loop_end > last) & (loop_end <= end)), barred)
         last = end
         if len(pending) == 0:
             continue
@@ -410,17 +413,20 @@ def refine_tls(
     probability: float = 0.99,
     max_rounds: int = 30,
     solver: StickySolver | None = None,
+    barred: Sequence[int] = (),
 ) -> tuple[gtsam.Values, Array]:
     """Re-decide every loop by the TLS residual rule on the whole graph until stable.
 
     Solve with the loops of weight 1, set ``w_k = [e_k <= c]``, repeat (iteratively
-    re-weighted least squares of the TLS loss from a start inside its basin).
+    re-weighted least squares of the TLS loss from a start inside its basin).  Loops
+    in `barred` keep weight 0.
     """
     solve = solver or StickySolver()
     base, loop_index = graph.factor_graph(RobustKernel("none"))
     c = tls_threshold(graph.dim, probability)
     n_fixed = base.size() - len(loop_index)
     w = np.asarray(weights, dtype=float).copy()
+    w[list(barred)] = 0.0
     result = values
     for _ in range(max_rounds):
         factors = gtsam.NonlinearFactorGraph()
@@ -430,10 +436,60 @@ def refine_tls(
             factors.add(base.at(loop_index[k]))
         result = solve(factors, result)
         new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
+        new[list(barred)] = 0.0
         if np.array_equal(new, w):
             break
         w = new
     return result, w
+
+
+def bar_search(
+    graph: PoseGraph,
+    decide: PoseGraph,
+    values: gtsam.Values,
+    best: Admission,
+    *,
+    probability: float = 0.99,
+    block: int = 50,
+    tries: int = 3,
+    solver: StickySolver | None = None,
+) -> Admission:
+    """Local search on the TLS objective: re-run the admission without one accepted loop.
+
+    A false loop admitted early can fold the map so far that the true loops it
+    contradicts sit at errors of ``1e6 c``: neither `refine_tls` nor a solve without the
+    false loop leaves that basin (the map stays folded).  A trial bars one accepted
+    loop and repeats the time-ordered admission on `decide` (the graph the winning run
+    decided on) from `values`, then `refine_tls` on `graph` with the loop still
+    barred.  Trials take the accepted loops in decreasing order of factor error at the
+    solution of `best` (the false loop of a fold is the most strained): a trial that
+    lowers `tls_cost` (stated covariances) is kept, its loop stays barred and the
+    ranking is redone at the new solution; the search ends at the first trial that
+    does not, or after `tries` (one extra admission run when there is nothing to fix).
+    """
+    solve = solver or StickySolver()
+    unit = [graph.between_factor(loop) for loop in graph.loops]
+    barred: list[int] = []
+    done: set[int] = set()
+    while len(done) < tries:
+        errors = np.array([f.error(best.values) for f in unit])
+        accepted = [int(k) for k in np.argsort(-errors) if best.weights[k] > 0.5
+                    and int(k) not in done]
+        if not accepted:
+            break
+        k = accepted[0]
+        done.add(k)
+        trial = [*barred, k]
+        run = admit_incrementally(decide, values, probability=probability, block=block,
+                                  gate="stated", solver=solve, barred=trial)
+        refined, weights = refine_tls(graph, run.values, run.weights, probability=probability,
+                                      solver=solve, barred=trial)
+        cost = tls_cost(graph, refined, probability)
+        if not cost < best.tls_cost * (1.0 - 1e-9):
+            break
+        barred = trial
+        best = Admission(refined, weights, cost, run.blocks, f"{best.gate}-barred")
+    return best
 
 
 def incremental_tls(
@@ -443,6 +499,7 @@ def incremental_tls(
     probability: float = 0.99,
     block: int = 50,
     ladder: Sequence[float] = ODOMETRY_LADDER,
+    tries: int = BAR_TRIES,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -460,11 +517,13 @@ def incremental_tls(
     only as sharp as the prefix is stiff).  A rung ``m`` decides as if the odometry
     were ``m`` times more precise; the stated refinement re-admits every loop the
     stated model accepts at that solution (``e_k <= c``), so at 0% outliers every rung
-    ends at the plain optimum and ties keep the first.
+    ends at the plain optimum and ties keep the first.  The best run is then improved
+    by `bar_search` with `tries` trials (0: none).
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
     best: Admission | None = None
+    decided: PoseGraph | None = None
     solver = StickySolver()
     for factor in ladder:
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
@@ -479,7 +538,11 @@ def incremental_tls(
             if best is None or cost < best.tls_cost * (1.0 - 1e-9):
                 label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
                 best = Admission(refined, weights, cost, run.blocks, label)
-    assert best is not None
+                decided = decide
+    assert best is not None and decided is not None
+    if tries:
+        best = bar_search(graph, decided, values, best, probability=probability, block=block,
+                          tries=tries, solver=solver)
     return best
 
 

@@ -361,3 +361,17 @@ def test_clean_optimum_drops_given_loops_it_does_not_obey() -> None:
     reference = clean_optimum(graph)
     assert whitened_residual(graph.loops[-1], reference, 2) > 10
     assert aligned_position_error(reference, expected, 2) < 1e-6
+
+
+def test_barred_loops_are_never_admitted_nor_refined_back() -> None:
+    from slam.consistency import bar_search
+
+    graph, _ = _square_graph(noise=0.02)
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    run = admit_incrementally(graph, values, barred=[3])
+    assert run.weights[3] == 0 and np.delete(run.weights, 3).all()
+    _, weights = refine_tls(graph, run.values, np.ones(len(graph.loops)), barred=[3])
+    assert weights[3] == 0 and np.delete(weights, 3).all()
+    # On a clean graph no barred re-run lowers the TLS cost: the search returns its start.
+    best = incremental_tls(graph, values, tries=0)
+    assert bar_search(graph, graph, values, best).tls_cost == best.tls_cost
