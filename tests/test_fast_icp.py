@@ -11,8 +11,14 @@ from scipy.spatial import cKDTree
 
 from data import se2
 from data.errors import UserError
-from loopclosure.registration import IcpConfig, RegistrationTarget, register
-from slam.odometry.fast_icp import KIND_CLUTTER, KIND_LINE, GridTarget, register_fast
+from loopclosure.registration import IcpConfig, RegistrationTarget, register, voxel_downsample
+from slam.odometry.fast_icp import (
+    KIND_CLUTTER,
+    KIND_LINE,
+    GridTarget,
+    register_fast,
+    voxel_downsample_fast,
+)
 
 EXACT = IcpConfig(translation_tolerance=1e-10, rotation_tolerance=1e-10)
 
@@ -36,7 +42,7 @@ def test_grid_nearest_neighbour_is_exact() -> None:
     """Every query's match equals the KD-tree's nearest neighbour within the gate."""
     rng = np.random.default_rng(1)
     pts = rng.uniform(-5, 5, (400, 2))
-    grid = GridTarget(RegistrationTarget(pts), cell=0.3)
+    grid = GridTarget(pts, cell=0.3)
     from slam.odometry.fast_icp import _nearest
 
     tree = cKDTree(grid.points)
@@ -54,13 +60,41 @@ def test_grid_nearest_neighbour_is_exact() -> None:
 def test_grid_kinds_follow_the_target() -> None:
     pts = np.vstack([segment((0, 0), (3, 0)), np.random.default_rng(0).uniform(5, 6, (60, 2))])
     target = RegistrationTarget(pts, IcpConfig(point_to_point_clutter=True))
-    grid = GridTarget(target)
-    assert (grid.kind == KIND_LINE).sum() == target.usable.sum()
-    assert (grid.kind == KIND_CLUTTER).sum() == target.clutter.sum()
-    no_clutter = GridTarget(RegistrationTarget(pts))
+    for grid in (GridTarget.from_target(target), GridTarget(pts, target.config)):
+        assert (grid.kind == KIND_LINE).sum() == target.usable.sum()
+        assert (grid.kind == KIND_CLUTTER).sum() == target.clutter.sum()
+    no_clutter = GridTarget(pts)
     assert (no_clutter.kind == KIND_CLUTTER).sum() == 0
     with pytest.raises(UserError, match="cell"):
-        GridTarget(target, cell=0.0)
+        GridTarget(pts, cell=0.0)
+
+
+def test_compiled_normals_equal_the_numpy_ones() -> None:
+    """Walls, a noisy wall, a bush and isolated points: same normals and kinds."""
+    rng = np.random.default_rng(2)
+    pts = np.vstack([room(), segment((4, -2), (4, 2)) + rng.normal(0, 0.01, (80, 2)),
+                     rng.normal([1.5, 1.0], 0.15, (60, 2)), [[9.0, 9.0], [-9.0, 4.0]]])
+    for cfg in (IcpConfig(point_to_point_clutter=True), IcpConfig(normal_neighbors=5)):
+        target = RegistrationTarget(pts, cfg)
+        grid = GridTarget(pts, cfg)
+        ref = GridTarget.from_target(target)
+        np.testing.assert_array_equal(grid.points, ref.points)
+        np.testing.assert_array_equal(grid.kind, ref.kind)
+        line = grid.kind == KIND_LINE
+        # a normal and its opposite are the same line
+        dots = np.abs(np.einsum("ij,ij->i", grid.normals[line], ref.normals[line]))
+        np.testing.assert_allclose(dots, 1.0, atol=1e-9)
+
+
+def test_compiled_voxel_downsample_equals_the_numpy_one() -> None:
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-3, 3, (500, 2))
+    for voxel in (0.0, 0.05, 0.4):
+        np.testing.assert_array_equal(voxel_downsample_fast(pts, voxel),
+                                      voxel_downsample(pts, voxel))
+    # hand-checked: two cells, centroids in the order of their first point
+    out = voxel_downsample_fast([[0.9, 0.1], [0.1, 0.1], [1.2, 0.0], [0.5, 0.3]], 1.0)
+    np.testing.assert_allclose(out, [[0.5, 0.5 / 3], [1.2, 0.0]])
 
 
 def test_recovers_a_known_pose_exactly() -> None:
@@ -68,7 +102,7 @@ def test_recovers_a_known_pose_exactly() -> None:
     target_pts = room()
     pose = np.array([0.2, -0.1, 0.05])
     source = se2.transform_points(se2.inverse(pose), target_pts[::2])
-    res = register_fast(source, GridTarget(RegistrationTarget(target_pts)), config=EXACT)
+    res = register_fast(source, GridTarget(target_pts), config=EXACT)
     assert res.ok and res.converged
     np.testing.assert_allclose(res.pose, pose, atol=1e-8)
     assert res.rms < 1e-8 and res.inlier_ratio > 0.95
@@ -83,7 +117,7 @@ def test_matches_the_numpy_reference(clutter: bool) -> None:
     target_pts = np.vstack([room(), bush])
     cfg = IcpConfig(point_to_point_clutter=clutter, clutter_weight=0.3)
     target = RegistrationTarget(target_pts, cfg)
-    grid = GridTarget(target)
+    grid = GridTarget.from_target(target)
     for k in range(6):
         pose = np.array([0.15 * np.cos(k), 0.1 * np.sin(k), 0.04 * (k - 3)])
         src = se2.transform_points(se2.inverse(pose), target_pts[k % 3::3])
@@ -103,9 +137,31 @@ def test_matches_the_numpy_reference(clutter: bool) -> None:
 
 
 def test_failure_keeps_the_initial_guess() -> None:
-    grid = GridTarget(RegistrationTarget(room()))
+    grid = GridTarget(room())
     far = np.array([[50.0, 50.0]] * 30) + np.arange(30)[:, None] * 0.05
     res = register_fast(far, grid, (1.0, 2.0, 0.3))
     assert not res.ok
     np.testing.assert_array_equal(res.pose, [1.0, 2.0, 0.3])
     assert not register_fast(room()[:5], grid).ok  # fewer points than min_correspondences
+
+
+def test_mean_anchor_puts_the_line_through_the_neighbourhood_mean() -> None:
+    """A noisy straight wall y = 1: with the mean anchor every line passes within the
+    averaged noise of y = 1, and ICP still recovers a known pose."""
+    rng = np.random.default_rng(5)
+    wall = segment((-3, 1), (3, 1))
+    wall[:, 1] += rng.normal(0, 0.01, len(wall))
+    grid_pt = GridTarget(wall, IcpConfig(), anchor="point")
+    grid_mean = GridTarget(wall, IcpConfig(), anchor="mean")
+    line = grid_mean.kind == KIND_LINE
+    off_pt = np.abs(grid_pt.anchors[line, 1] - 1.0).mean()
+    off_mean = np.abs(grid_mean.anchors[line, 1] - 1.0).mean()
+    assert off_mean < 0.6 * off_pt
+    np.testing.assert_array_equal(grid_mean.anchors[~line], grid_mean.points[~line])
+    pose = np.array([0.1, -0.05, 0.03])
+    target_pts = room()
+    src = se2.transform_points(se2.inverse(pose), target_pts[1::2])
+    res = register_fast(src, GridTarget(target_pts, anchor="mean"), config=EXACT)
+    np.testing.assert_allclose(res.pose, pose, atol=1e-3)
+    with pytest.raises(UserError, match="anchor"):
+        GridTarget(wall, anchor="centroid")

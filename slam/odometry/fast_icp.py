@@ -23,6 +23,16 @@ A query at ``p`` with gate ``d`` visits the cells within ``ceil(d / cell)`` ring
 of ``p``'s cell and keeps the nearest point with ``|p - q| <= d`` (inclusive, as
 `cKDTree.query` with ``distance_upper_bound``), exact for any gate.  Ties between
 equidistant points may resolve differently from the KD-tree.
+
+Map normals (`GridTarget` from points): the same local PCA as
+`loopclosure.registration.estimate_normals` (the `normal_neighbors` nearest points
+closer than `normal_radius`, itself included; normal ``(-sin phi, cos phi)`` with
+``phi = atan2(2 b, a - c) / 2`` of the neighbours' covariance ``[[a, b], [b, c]]``;
+line-like when ``lambda_min <= max_normal_ratio * lambda_max`` and at least
+`min_normal_neighbors` neighbours, clutter when enough neighbours but not
+line-like), with the k nearest found in the grid.  `voxel_downsample_fast` is
+`loopclosure.registration.voxel_downsample` (centroid per cell, order of first
+occurrence, the same summation order).
 """
 
 from __future__ import annotations
@@ -46,43 +56,56 @@ Array = NDArray[np.float64]
 
 #: Point kinds of `GridTarget.kind`: no correspondence, point to line, point to point.
 KIND_NONE, KIND_LINE, KIND_CLUTTER = 0, 1, 2
+#: Where the line of a line-like map point passes: through the point itself (a voxel
+#: centroid), or through the mean of the neighbours that gave its normal, which
+#: averages their noise (``k`` points: the line's offset noise shrinks by ``sqrt(k)``).
+ANCHORS: tuple[str, ...] = ("point", "mean")
 _KERNELS = {"none": 0, "cauchy": 1, "huber": 2, "tukey": 3}
 _MAD = 1.4826
 
 
 class GridTarget:
-    """A `RegistrationTarget`'s points, normals and kinds in a cell grid for `register_fast`.
+    """Map points, normals and kinds in a cell grid for `register_fast`.
+
+    Built from points (normals by `estimate_normals_fast`) or from a prepared
+    `RegistrationTarget` (`from_target`: its normals, the numpy reference's).
 
     Attributes:
-        target: the `RegistrationTarget` it was built from (normals, KD-tree for the
-            numpy code paths).
+        config: the `IcpConfig` of the normals (and the default of `register_fast`).
+        input_points: ``(M, 2)`` the points in the given order [m] (target frame).
         cell: side of the grid cells [m].
         origin: ``(2,)`` lower-left corner of cell ``(0, 0)`` [m] (target frame).
         shape: ``(nx, ny)`` cells.
-        start: ``(nx * ny + 1,)`` offsets: the points of cell ``(i, j)`` are
-            ``order[start[i * ny + j] : start[i * ny + j + 1]]``.
+        start: ``(nx * ny + 1,)`` offsets: the points of cell ``(i, j)`` are rows
+            ``start[i * ny + j] : start[i * ny + j + 1]`` of `points`.
         points, normals: ``(M, 2)`` sorted by cell [m].
         kind: ``(M,)`` `KIND_NONE`, `KIND_LINE` or `KIND_CLUTTER` (clutter counts
             only with `IcpConfig.point_to_point_clutter`).
+        anchor: ``"point"`` or ``"mean"`` (`ANCHORS`).
+        anchors: ``(M, 2)`` the point each line-like point's line passes through:
+            the point itself, or with ``"mean"`` the mean of its normal neighbourhood.
     """
 
-    __slots__ = ("cell", "kind", "normals", "origin", "points", "shape", "start", "target")
+    __slots__ = ("_target", "anchor", "anchors", "cell", "config", "input_points", "kind",
+                 "normals", "origin", "points", "shape", "start")
 
-    def __init__(self, target: RegistrationTarget, cell: float = 0.25) -> None:
+    def __init__(self, points: ArrayLike, config: IcpConfig | None = None,
+                 cell: float = 0.25, *, anchor: str = "point",
+                 target: RegistrationTarget | None = None) -> None:
         if not (np.isfinite(cell) and cell > 0):
             raise UserError(f"grid cell must be a positive number of metres, got {cell}")
-        self.target = target
+        if anchor not in ANCHORS:
+            raise UserError(f"unknown line anchor {anchor!r}: choose one of {', '.join(ANCHORS)}")
+        if anchor != "point" and target is not None:
+            raise UserError("a grid made from a RegistrationTarget anchors lines at its points")
+        self.anchor = anchor
+        self.config = config or (target.config if target is not None else IcpConfig())
         self.cell = float(cell)
-        pts = target.points
-        kind = np.zeros(len(pts), dtype=np.int8)
-        kind[target.clutter] = KIND_CLUTTER if target.config.point_to_point_clutter else 0
-        kind[target.usable] = KIND_LINE
+        self._target = target
+        pts = np.ascontiguousarray(as_points(points, "target points"))
+        self.input_points = pts
         if len(pts) == 0:
             pts = np.zeros((1, 2))
-            kind = np.zeros(1, dtype=np.int8)
-            normals = np.zeros((1, 2))
-        else:
-            normals = target.normals
         lo = pts.min(axis=0) - self.cell
         cells = np.floor((pts - lo) / self.cell).astype(np.int64)
         nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
@@ -93,32 +116,204 @@ class GridTarget:
         self.origin = lo.astype(float)
         self.shape = (nx, ny)
         self.points = np.ascontiguousarray(pts[order], dtype=float)
-        self.normals = np.ascontiguousarray(normals[order], dtype=float)
-        self.kind = np.ascontiguousarray(kind[order])
+        means = self.points
+        if len(self.input_points) == 0:
+            normals, usable, clutter = np.zeros((1, 2)), np.zeros(1, bool), np.zeros(1, bool)
+        elif target is not None:
+            normals, usable, clutter = target.normals, target.usable, target.clutter
+            normals, usable, clutter = normals[order], usable[order], clutter[order]
+        else:
+            normals, usable, clutter, means = _grid_normals(self, self.config)
+        anchors = self.points.copy()
+        if anchor == "mean":
+            anchors[usable] = means[usable]
+        self.anchors = np.ascontiguousarray(anchors)
+        kind = np.zeros(len(self.points), dtype=np.int8)
+        if self.config.point_to_point_clutter:
+            kind[clutter] = KIND_CLUTTER
+        kind[usable] = KIND_LINE
+        self.normals = np.ascontiguousarray(normals, dtype=float)
+        self.kind = kind
+
+    @classmethod
+    def from_target(cls, target: RegistrationTarget, cell: float = 0.25) -> GridTarget:
+        """The grid of a prepared `RegistrationTarget`, with its normals."""
+        return cls(target.points, target.config, cell, target=target)
+
+    @property
+    def target(self) -> RegistrationTarget:
+        """The numpy `RegistrationTarget` of the same points (built on first use)."""
+        if self._target is None:
+            self._target = RegistrationTarget(self.input_points, self.config)
+        return self._target
 
     def __len__(self) -> int:
-        return len(self.target)
+        """Number of points ICP can match."""
+        return int(np.count_nonzero(self.kind))
+
+
+def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array, Array]:
+    nx, ny = grid.shape
+    normals, ratio, count, means = _normals_kernel(
+        grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
+        grid.start, min(cfg.normal_neighbors, len(grid.points)), cfg.normal_radius)
+    enough = count >= cfg.min_normal_neighbors
+    if len(grid.points) < cfg.min_normal_neighbors:
+        enough[:] = False
+    line = enough & (ratio <= cfg.max_normal_ratio)
+    return normals, line, enough & ~line, means
+
+
+@numba.njit(cache=True)
+def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius):
+    """PCA normal, ``lambda_min / lambda_max`` and neighbour count of every point: its `k`
+    nearest points (itself included) closer than `radius` (`loopclosure.registration`'s
+    `estimate_normals`, the same equations)."""
+    n = pts.shape[0]
+    normals = np.zeros((n, 2))
+    means = pts.copy()
+    ratio = np.full(n, np.inf)
+    count = np.zeros(n, dtype=np.int64)
+    rings = int(np.ceil(radius / cell))
+    r2 = radius * radius
+    bd = np.empty(k)
+    bi = np.empty(k, dtype=np.int64)
+    for p in range(n):
+        px, py = pts[p, 0], pts[p, 1]
+        ci = int(np.floor((px - ox) / cell))
+        cj = int(np.floor((py - oy) / cell))
+        m = 0
+        for i in range(max(ci - rings, 0), min(ci + rings, nx - 1) + 1):
+            for j in range(max(cj - rings, 0), min(cj + rings, ny - 1) + 1):
+                c = i * ny + j
+                for q in range(start[c], start[c + 1]):
+                    dx = pts[q, 0] - px
+                    dy = pts[q, 1] - py
+                    d2 = dx * dx + dy * dy
+                    if d2 >= r2:
+                        continue
+                    if m < k:
+                        pos = m
+                        m += 1
+                    elif d2 < bd[k - 1]:
+                        pos = k - 1
+                    else:
+                        continue
+                    while pos > 0 and bd[pos - 1] > d2:
+                        bd[pos] = bd[pos - 1]
+                        bi[pos] = bi[pos - 1]
+                        pos -= 1
+                    bd[pos] = d2
+                    bi[pos] = q
+        count[p] = m
+        if m == 0:
+            continue
+        mx = 0.0
+        my = 0.0
+        for t in range(m):
+            mx += pts[bi[t], 0]
+            my += pts[bi[t], 1]
+        mx /= m
+        my /= m
+        means[p, 0] = mx
+        means[p, 1] = my
+        a = 0.0
+        b = 0.0
+        cc = 0.0
+        for t in range(m):
+            ex = pts[bi[t], 0] - mx
+            ey = pts[bi[t], 1] - my
+            a += ex * ex
+            b += ex * ey
+            cc += ey * ey
+        a /= m
+        b /= m
+        cc /= m
+        half = 0.5 * (a - cc)
+        root = np.sqrt(half * half + b * b)
+        lmax = 0.5 * (a + cc) + root
+        lmin = 0.5 * (a + cc) - root
+        phi = 0.5 * np.arctan2(2.0 * b, a - cc)
+        normals[p, 0] = -np.sin(phi)
+        normals[p, 1] = np.cos(phi)
+        ratio[p] = max(lmin, 0.0) / lmax if lmax > 0 else 1.0
+    return normals, ratio, count, means
+
+
+def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
+    """`loopclosure.registration.voxel_downsample`, compiled: the centroid of the points
+    in each ``voxel x voxel`` cell [m], cells in the order of their first point;
+    ``voxel <= 0`` returns a float copy."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 2))
+    if voxel <= 0 or len(pts) == 0:
+        return pts.copy()
+    cells = np.floor(pts / voxel).astype(np.int64)
+    key = (cells[:, 0] << 32) ^ (cells[:, 1] & 0xFFFFFFFF)
+    return _voxel_kernel(pts, key)
+
+
+@numba.njit(cache=True)
+def _voxel_kernel(pts, key):
+    order = np.argsort(key, kind="mergesort")
+    n = len(key)
+    sums = np.zeros((n, 2))
+    counts = np.zeros(n)
+    first = np.empty(n, dtype=np.int64)
+    g = -1
+    for t in range(n):
+        i = order[t]
+        if t == 0 or key[i] != key[order[t - 1]]:
+            g += 1
+            first[g] = i
+        sums[g, 0] += pts[i, 0]
+        sums[g, 1] += pts[i, 1]
+        counts[g] += 1.0
+    g += 1
+    rank = np.argsort(first[:g], kind="mergesort")
+    out = np.empty((g, 2))
+    for t in range(g):
+        h = rank[t]
+        out[t, 0] = sums[h, 0] / counts[h]
+        out[t, 1] = sums[h, 1] / counts[h]
+    return out
+
+
+@numba.njit(cache=True)
+def _scan_cell(c, px, py, start, pts, best, best_d2):
+    for k in range(start[c], start[c + 1]):
+        dx = pts[k, 0] - px
+        dy = pts[k, 1] - py
+        d2 = dx * dx + dy * dy
+        if d2 < best_d2 or (d2 == best_d2 and (best < 0 or k < best)):
+            best, best_d2 = k, d2
+    return best, best_d2
 
 
 @numba.njit(cache=True)
 def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
-    """Index of the nearest grid point within `gate` of ``(px, py)`` (-1: none) and its distance."""
+    """Index of the nearest grid point within `gate` of ``(px, py)`` (-1: none) and its
+    distance.  Cells are visited ring by ring (Chebyshev distance from the query's cell);
+    after ring ``r`` nothing nearer than ``r * cell`` can remain, so the search stops
+    there once a point at most that far is found."""
     ci = int(np.floor((px - ox) / cell))
     cj = int(np.floor((py - oy) / cell))
     rings = int(np.ceil(gate / cell))
     best, best_d2 = -1, gate * gate
-    i0, i1 = max(ci - rings, 0), min(ci + rings, nx - 1)
-    j0, j1 = max(cj - rings, 0), min(cj + rings, ny - 1)
-    for i in range(i0, i1 + 1):
-        for j in range(j0, j1 + 1):
-            c = i * ny + j
-            for k in range(start[c], start[c + 1]):
-                dx = pts[k, 0] - px
-                dy = pts[k, 1] - py
-                d2 = dx * dx + dy * dy
-                if d2 <= best_d2:
-                    if d2 < best_d2 or best < 0 or k < best:
-                        best, best_d2 = k, d2
+    for r in range(rings + 1):
+        for i in range(ci - r, ci + r + 1):
+            if i < 0 or i >= nx:
+                continue
+            edge = i == ci - r or i == ci + r
+            step = 1 if edge else 2 * r
+            j = cj - r
+            while j <= cj + r:
+                if 0 <= j < ny:
+                    best, best_d2 = _scan_cell(i * ny + j, px, py, start, pts, best, best_d2)
+                if step == 0:
+                    break
+                j += step
+        if best >= 0 and best_d2 <= (r * cell) ** 2:
+            break
     return best, np.sqrt(best_d2)
 
 
@@ -166,7 +361,7 @@ def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist)
 
 
 @numba.njit(cache=True)
-def _rows(src, x, rows, lines, points, sel, jdx, pts, normals, r, jac, nrm):
+def _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm):
     """Residuals ``r`` and Jacobian rows ``J`` at pose `x` of the given correspondences."""
     c, s = np.cos(x[2]), np.sin(x[2])
     clut = points - lines
@@ -174,15 +369,17 @@ def _rows(src, x, rows, lines, points, sel, jdx, pts, normals, r, jac, nrm):
         i, j = sel[k], jdx[k]
         rpx = c * src[i, 0] - s * src[i, 1]
         rpy = s * src[i, 0] + c * src[i, 1]
+        qx, qy = pts[j, 0], pts[j, 1]
         if k < lines:
             n0, n1 = normals[j, 0], normals[j, 1]
+            qx, qy = anchors[j, 0], anchors[j, 1]
         elif k < lines + clut:
             n0, n1 = 1.0, 0.0
         else:
             n0, n1 = 0.0, 1.0
         nrm[k, 0] = n0
         nrm[k, 1] = n1
-        r[k] = n0 * (rpx + x[0] - pts[j, 0]) + n1 * (rpy + x[1] - pts[j, 1])
+        r[k] = n0 * (rpx + x[0] - qx) + n1 * (rpy + x[1] - qy)
         jac[k, 0] = n0
         jac[k, 1] = n1
         jac[k, 2] = n1 * rpx - n0 * rpy
@@ -227,7 +424,8 @@ def _wrap(a):
 
 
 @numba.njit(cache=True)
-def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, normals, kind, lam, x_prior, has_prior,
+def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam, x_prior,
+         has_prior,
          max_iterations, gate0, min_gate, gate_sigmas, kernel, kconst, min_scale, clutter_weight,
          t_tol, r_tol, min_corr):
     """Gauss-Newton ICP; returns (x, iterations, converged, ok, gate, rows, lines, points,
@@ -251,7 +449,7 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, normals, kind, lam, x_prior,
                                      sel, jdx, dist)
         if points < min_corr:
             return x0.copy(), iterations, False, False, gate, rows, lines, points, sel, jdx
-        _rows(src, x, rows, lines, points, sel, jdx, pts, normals, r, jac, nrm)
+        _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm)
         s = max(min_scale, _MAD * _upper_median_abs(r, rows))
         _weights(r, rows, lines, points, s, kernel, kconst, clutter_weight, w)
         h, g = _normal_equations(r, jac, w, rows)
@@ -279,14 +477,15 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, normals, kind, lam, x_prior,
 
 
 @numba.njit(cache=True)
-def _figures(src, x, rows, lines, points, sel, jdx, pts, normals, kernel, kconst, min_scale,
+def _figures(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, kernel, kconst,
+             min_scale,
              clutter_weight, fitness_tol):
     """Weighted residuals at the final pose: (h_data, wsum, wr2, inliers, rms, fitness)."""
     r = np.empty(rows)
     w = np.empty(rows)
     jac = np.empty((rows, 3))
     nrm = np.empty((rows, 2))
-    _rows(src, x, rows, lines, points, sel, jdx, pts, normals, r, jac, nrm)
+    _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm)
     s = max(min_scale, _MAD * _upper_median_abs(r, rows)) if rows > 0 else min_scale
     _weights(r, rows, lines, points, s, kernel, kconst, clutter_weight, w)
     h, _ = _normal_equations(r, jac, w, rows)
@@ -334,7 +533,7 @@ def register_fast(
     """`loopclosure.registration.register` of `source` (``(N, 2)`` [m], source frame)
     onto a `GridTarget`; same arguments (poses ``(x, y, theta)`` of the source frame in
     the target frame, prior covariance additive in the target frame) and result."""
-    cfg = config or target.target.config
+    cfg = config or target.config
     src = np.ascontiguousarray(as_points(source, "source points"))
     x0 = np.asarray(initial, dtype=float).reshape(3).copy()
     lam = np.zeros((3, 3))
@@ -346,22 +545,23 @@ def register_fast(
         x_prior = np.asarray(prior, dtype=float).reshape(3).copy()
         prior_cov = np.asarray(prior_covariance, dtype=float).reshape(3, 3)
         lam = np.linalg.inv(prior_cov)
-    if target.target.tree is None or len(src) < cfg.min_correspondences:
+    if len(target) == 0 or len(src) < cfg.min_correspondences:
         return _failed(x0, 0, 0, prior_cov)
     kernel, kconst = _KERNELS[cfg.kernel], KERNEL_CONSTANTS[cfg.kernel]
     nx, ny = target.shape
     grid = (float(target.origin[0]), float(target.origin[1]), target.cell, nx, ny,
             target.start, target.points)
     x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx = _icp(
-        src, x0, *grid, target.normals, target.kind, lam, x_prior, prior is not None,
+        src, x0, *grid, target.anchors, target.normals, target.kind, lam, x_prior,
+        prior is not None,
         cfg.max_iterations, cfg.max_correspondence_distance, cfg.min_correspondence_distance,
         cfg.gate_sigmas, kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight,
         cfg.translation_tolerance, cfg.rotation_tolerance, cfg.min_correspondences)
     if not ok or points < cfg.min_correspondences:
         return _failed(x0, iterations, points, prior_cov)
     h_data, wsum, wr2, inliers, rms, fitness = _figures(
-        src, x, rows, lines, points, sel, jdx, target.points, target.normals, kernel, kconst,
-        cfg.min_residual_scale, cfg.clutter_weight, cfg.fitness_tolerance)
+        src, x, rows, lines, points, sel, jdx, target.points, target.anchors, target.normals,
+        kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight, cfg.fitness_tolerance)
     sigma2 = max(wr2 / max(wsum - 3.0, 1.0), cfg.min_residual_scale**2)
     info = h_data / sigma2 + lam
     cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
@@ -380,4 +580,5 @@ def register_fast(
     )
 
 
-__all__ = ["KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "GridTarget", "register_fast"]
+__all__ = ["ANCHORS", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "GridTarget", "register_fast",
+           "voxel_downsample_fast"]

@@ -102,7 +102,7 @@ from loopclosure.registration import (
     voxel_downsample,
 )
 from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
-from slam.odometry.fast_icp import GridTarget, register_fast
+from slam.odometry.fast_icp import ANCHORS, GridTarget, register_fast, voxel_downsample_fast
 
 Array = NDArray[np.float64]
 
@@ -134,6 +134,10 @@ class Icp2dConfig:
         compiled: register with the compiled kernel (`slam.odometry.fast_icp`, same
             maths and results); False runs the numpy reference
             (`loopclosure.registration.register`).
+        line_anchor: where a wall's line passes (`slam.odometry.fast_icp.ANCHORS`):
+            ``"point"``, the nearest map point (a voxel centroid), or ``"mean"``,
+            the mean of the neighbours its normal was fitted to (less noise);
+            ``"mean"`` needs `compiled`.
         odometry_noise: covariance model of odometry increments.
         velocity_sigma: per-step standard deviations of the constant-velocity
             prediction (x [m], y [m], theta [rad]).
@@ -177,6 +181,7 @@ class Icp2dConfig:
     min_degeneracy: float = 0.01
     use_prior: bool = True
     compiled: bool = True
+    line_anchor: str = "point"
     odometry_noise: MotionNoise = field(default_factory=MotionNoise)
     velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
     covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -203,6 +208,11 @@ class Icp2dConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise UserError(f"icp2d {name} must be a positive number, got {value}")
+        if self.line_anchor not in ANCHORS:
+            raise UserError(f"icp2d line_anchor must be one of {', '.join(ANCHORS)}, "
+                            f"got {self.line_anchor!r}")
+        if self.line_anchor != "point" and not self.compiled:
+            raise UserError("icp2d line_anchor other than 'point' needs compiled=true")
         if self.map_keyframes < 1 or self.min_points < 3 or self.jump_history < 1:
             raise UserError("icp2d needs map_keyframes, jump_history >= 1 and min_points >= 3")
         for name in ("velocity_sigma", "covariance_floor", "kidnap_sigma"):
@@ -236,7 +246,6 @@ class Icp2dOdometry:
         self._recent_fitness: deque[float] = deque(maxlen=cfg.jump_history)
         self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._keyframe_pose: Array | None = None
-        self._target: RegistrationTarget | None = None
         self._grid: GridTarget | None = None
         self.map_rebuilds = 0
 
@@ -245,9 +254,9 @@ class Icp2dOdometry:
     @property
     def map_points(self) -> Array:
         """``(M, 2)`` points of the current local map (odometry frame) [m]."""
-        if self._target is None:
+        if self._grid is None:
             return np.zeros((0, 2))
-        return self._target.points
+        return self._grid.input_points
 
     def process(self, scan: Scan) -> OdometryEstimate:
         """Estimate for the next scan (in source order)."""
@@ -274,7 +283,7 @@ class Icp2dOdometry:
         pred = se2.compose(prev, u)
         if jump:
             extra["odometry_step"] = u.copy()
-        if len(points) < cfg.min_points or self._target is None:
+        if len(points) < cfg.min_points or self._grid is None:
             if jump:
                 return self._kidnap(scan, pred, u, points, extra, t0)
             # No usable scan, or no map yet (every earlier scan was empty): predict.
@@ -287,7 +296,7 @@ class Icp2dOdometry:
             return self._estimate(scan, pred, u, cov, 0.0, status, t0, extra)
 
         if jump:  # the odometry may lie: no prior, try the prediction and standing still
-            res = register_multi(points, self._target, np.vstack([pred, prev]),
+            res = register_multi(points, self._grid.target, np.vstack([pred, prev]),
                                  config=cfg.icp).best
         else:
             res = self._register(points, pred, u_cov)
@@ -328,7 +337,8 @@ class Icp2dOdometry:
             keep = valid & (r >= cfg.min_range) & (r <= cfg.max_range)
         pts = np.column_stack([r[keep] * np.cos(scan.angles[keep]),
                                r[keep] * np.sin(scan.angles[keep])])
-        return voxel_downsample(pts, cfg.source_voxel)
+        voxel = voxel_downsample_fast if cfg.compiled else voxel_downsample
+        return voxel(pts, cfg.source_voxel)
 
     def _prediction(self, odom: Array | None) -> tuple[Array, Array, bool]:
         """Increment ``u``, its covariance and whether it is an odometry jump."""
@@ -348,14 +358,15 @@ class Icp2dOdometry:
         return u, np.diag(np.square(cfg.velocity_sigma)), False
 
     def _register(self, points: Array, pred: Array, u_cov: Array) -> IcpResult:
-        assert self._grid is not None and self._target is not None
+        grid = self._grid
+        assert grid is not None
         cfg = self.config
         if cfg.compiled:
             def icp(*args, **kwargs):
-                return register_fast(points, self._grid, *args, **kwargs)
+                return register_fast(points, grid, *args, **kwargs)
         else:
             def icp(*args, **kwargs):
-                return register(points, self._target, *args, **kwargs)
+                return register(points, grid.target, *args, **kwargs)
         if not cfg.use_prior:
             return icp(pred, config=cfg.icp)
         rot = _frame_rotation(float(pred[2]))
@@ -371,9 +382,10 @@ class Icp2dOdometry:
         (dtheta / search_sigma[1])^2``, ``(dt, dtheta)`` the deviation from the
         prediction.  The best replaces `res` if it is good and ranks higher.
         """
-        assert self._target is not None
+        assert self._grid is not None
+        target = self._grid.target
         cfg = self.config
-        heads = heading_hypotheses(points, self._target.points, count=cfg.search_headings,
+        heads = heading_hypotheses(points, target.points, count=cfg.search_headings,
                                    method="normals", config=cfg.icp)
         turns = np.radians(np.asarray(cfg.search_turns_deg, dtype=float))
         heads = np.concatenate([[pred[2], prev[2]], pred[2] + turns, heads])
@@ -384,7 +396,7 @@ class Icp2dOdometry:
                                 s * along.ravel() + c * across.ravel()])
         offs = np.vstack([offs, prev[:2] - pred[:2]])
         guesses = initial_guesses(pred, heads, offs)
-        multi = register_multi(points, self._target, guesses, config=cfg.icp,
+        multi = register_multi(points, target, guesses, config=cfg.icp,
                                keep=cfg.search_keep)
         extra["search"] = len(guesses)
         best, best_rank = res, self._rank(res, pred) if res.ok else -1.0
@@ -413,7 +425,7 @@ class Icp2dOdometry:
         cfg = self.config
         extra["kidnap"] = True
         self._keyframes.clear()
-        self._target = self._grid = None
+        self._grid = None
         self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
         self._velocity = np.zeros(3)
         cov = np.diag(np.square(cfg.kidnap_sigma))
@@ -444,13 +456,17 @@ class Icp2dOdometry:
 
     def _rebuild_map(self) -> None:
         cfg = self.config
-        pts = voxel_downsample(np.vstack(list(self._keyframes)), cfg.map_voxel)
+        voxel = voxel_downsample_fast if cfg.compiled else voxel_downsample
+        pts = voxel(np.vstack(list(self._keyframes)), cfg.map_voxel)
         assert self._keyframe_pose is not None
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
-        self._target = RegistrationTarget(pts[near], cfg.icp)
-        self._grid = GridTarget(self._target)
-        if self._target.tree is None:
-            self._target = self._grid = None
+        if cfg.compiled:
+            self._grid = GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor)
+        else:
+            target = RegistrationTarget(pts[near], cfg.icp)
+            self._grid = GridTarget.from_target(target) if target.tree is not None else None
+        if self._grid is not None and len(self._grid) == 0:
+            self._grid = None
         self.map_rebuilds += 1
 
     def _increment_covariance(self, res: IcpResult, pose: Array) -> Array:
@@ -477,7 +493,7 @@ class Icp2dOdometry:
         t0: float,
         extra: dict[str, Any],
     ) -> OdometryEstimate:
-        extra["map_points"] = 0 if self._target is None else len(self._target.points)
+        extra["map_points"] = 0 if self._grid is None else len(self._grid.input_points)
         return OdometryEstimate(
             stamp=float(scan.stamp),
             index=int(scan.index),
