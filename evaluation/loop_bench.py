@@ -209,7 +209,7 @@ def parse_stages(text: str | None, config: PipelineConfig) -> list[str]:
 
 def bench_config(config: PipelineConfig) -> PipelineConfig:
     """`config` with both loop searches switched off (keyframes and descriptors unchanged)."""
-    loops = dataclasses.replace(config.loops, local_max=0, global_every=0, global_sigma=0.0)
+    loops = dataclasses.replace(config.loops, local_max=0, global_every=0)
     return dataclasses.replace(config, loops=loops)
 
 

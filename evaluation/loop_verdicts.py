@@ -67,7 +67,7 @@ def loop_evaluation(result: MappingResult, reference: Trajectory) -> dict[str, A
 
 
 LOOP_VERDICT_COLUMNS = (
-    "scan_a", "scan_b", "stage", "accepted", "rejected_by_gnc", "fitness",
+    "scan_a", "scan_b", "search", "accepted", "rejected_by_gnc", "fitness",
     "reference_distance_m", "error_m", "error_deg", "verdict",
 )
 
@@ -76,7 +76,7 @@ def loop_verdicts(result: MappingResult, reference: Trajectory) -> list[dict[str
     """Every loop candidate of a run judged against a keyframe reference, one row each.
 
     Columns `LOOP_VERDICT_COLUMNS`: the two keyframes' scan indices (older first), the
-    search stage, whether the check accepted it and GNC then dropped it, the check's
+    search that proposed it, whether the check accepted it and GNC then dropped it, the check's
     fitness, the reference distance of the two poses and the error of the candidate's
     relative pose against the reference; ``verdict`` is ``true`` / ``false`` (by
     `evaluate_loops`' rule, for every candidate, accepted or not) or ``unverifiable``.
@@ -90,7 +90,7 @@ def loop_verdicts(result: MappingResult, reference: Trajectory) -> list[dict[str
                                strict=True):
         verifiable = bool(np.isfinite(err[0]))
         rows.append({
-            "scan_a": int(p.stamp_a), "scan_b": int(p.stamp_b), "stage": e.candidate.source,
+            "scan_a": int(p.stamp_a), "scan_b": int(p.stamp_b), "search": e.candidate.source,
             "accepted": int(e.candidate.accepted), "rejected_by_gnc": int(e.rejected_by_gnc),
             "fitness": p.score, "reference_distance_m": err[0], "error_m": err[1],
             "error_deg": err[2],
@@ -121,5 +121,5 @@ def loop_counts(result: MappingResult) -> dict[str, Any]:
         "rejected_by_check": len(result.loops) - len(checked),
         "rejected_by_gnc": gnc,
         "by_stage": {s: sum(1 for e in checked if e.candidate.source == s
-                            and not e.rejected_by_gnc) for s in ("local", "global")},
+                            and not e.rejected_by_gnc) for s in ("pose", "appearance")},
     }

@@ -27,30 +27,41 @@ and calls, for every keyframe:
    `loopclosure.virtual_scan`) and stored in the place database;
 2. ``detect(key, poses, covariance)`` with the host's current pose estimates of all
    keyframes so far (any added key may be queried, in any order; the pipeline asks
-   right after adding it): two searches, both verified by the geometric check
-   (`loopclosure.geometric_check.verify`) on the submaps:
+   right after adding it).  Two searches propose candidates (``search``: ``both``,
+   ``appearance`` or ``pose``), and the geometric check
+   (`loopclosure.geometric_check.verify`) judges each on the submaps:
 
-   - **local** (pose-gated): older keyframes whose estimated position lies within
-     ``local_radius + local_sigmas * sigma`` of the query (sigma: the largest
-     standard deviation of the query's position from `covariance`), nearest first,
-     at most `local_max`, each from the predicted relative pose;
-   - **global** (appearance; every `global_every` keyframes unless a loop was
-     accepted within the last `global_every` keyframes (the pose is then anchored to
-     the map and the local search covers it), and at every keyframe while the pose
-     uncertainty exceeds `global_sigma` when that is set): the place database's cascade (prefilter
-     over every older keyframe, verifier on the top K, fused score) — candidates
-     with a fused score of at least `min_score`, the best `global_verify` of them —
-     each from the heading hypotheses of the database (`loopclosure.headings`: the
-     heading of the query in the candidate's frame) and a centroid-aligned
-     translation, with no pose prior: this is what closes loops after large drift or
-     a kidnap.
+   - **appearance** (every `global_every` keyframes): the place database's cascade
+     (prefilter over every older keyframe, verifier on the top K, fused score):
+     candidates with a fused score of at least `min_score`, the best `global_verify`
+     of them, one per place (keys more than 5 apart);
+   - **pose** (pose-gated, not in ``appearance`` mode): older keyframes whose
+     estimated position lies within the gate ``local_radius + local_sigmas * sigma``
+     of the query (sigma: the largest standard deviation of the query's position
+     from `covariance`), nearest first, at most `local_max`.
+
+   A candidate inside the pose gate is checked from the predicted relative pose (the
+   prior); one outside it (a revisit the odometry cannot explain: large drift, a
+   kidnap, an unknown start) from the database's heading hypotheses
+   (`loopclosure.headings`) and a centroid-aligned translation, with no pose prior.
+   That check is a search (several ICP starts) and on a log with good odometry it
+   nearly always meets a look-alike place, so it runs only when no candidate inside
+   the gate was accepted for this query (the two would contradict each other), and
+   then for a candidate the previous keyframe's appearance search also proposed
+   (within `sequence_keys` keyframes: a true revisit repeats along the path, a
+   look-alike rarely does, the temporal consistency of appearance-based loop
+   detectors such as FAB-MAP's), or for any candidate every `free_every` keyframes
+   without an accepted loop.  Appearance
+   candidates are tried first; a pose candidate already tried, or within 5 keyframes
+   of an accepted one (the same place), is skipped, so a loop both searches propose
+   is checked once and reported as ``appearance``.
 
    Keyframes newer than `exclude_recent` keyframes or `exclude_recent_s` seconds are
    never candidates (they are odometry's business); the time rule is dropped for the
    rest of the run once two keyframes share a stamp (logs whose stamps are all 0, as
    some corrected Radish logs, would otherwise never close a loop).  A loop closure is
    a revisit: the geometric check rejects a verified relative pose longer than
-   `max_distance`.  At most `max_loops` are accepted per query, local and global alike.
+   `max_distance`.  At most `max_loops` are accepted per query, from either search.
 
 Every candidate tried is returned (accepted or not, with the reason and the figures
 of each stage), so the host can report them all (``loops.csv``).
@@ -88,6 +99,8 @@ SubmapFn = Callable[[int], ArrayLike]
 """``submap(key) -> (N, 2)`` points of keyframe `key`'s local map, its sensor frame [m]."""
 SubmapVersionFn = Callable[[int], Hashable]
 """``submap_version(key) -> version`` of that local map (module docstring)."""
+SEARCHES = ("both", "appearance", "pose")
+"""Values of `LoopClosureConfig.search`."""
 
 
 @dataclass(slots=True)
@@ -100,16 +113,23 @@ class LoopClosureConfig:
         max_distance: a loop closure is a revisit: a verified relative pose longer than
             this is rejected (the two keyframes see overlapping but distinct places) [m];
             passed to the geometric check (`verify`'s ``max_distance``).
-        local_radius: base search radius of the pose-gated search [m].
-        local_sigmas: radius grows by this many position standard deviations.
-        local_max: candidates verified per query by the local search.
-        global_every: run the appearance search every this many keyframes without an
-            accepted loop (0: never).
-        global_sigma: ... and at every keyframe while the position sigma exceeds this
-            [m] (0: never by uncertainty; with the pipeline's since-last-loop
-            uncertainty this would fire all through every exploration phase).
-        min_score: fused place-recognition score a global candidate needs, in [0, 1].
-        global_verify: global candidates verified geometrically per query.
+        search: which searches propose candidates: ``both``, ``appearance`` (the place
+            database alone; the pose gate still decides how a candidate is checked)
+            or ``pose`` (the pose-gated search alone).
+        local_radius: base radius of the pose gate [m].
+        local_sigmas: the gate grows by this many position standard deviations.
+        local_max: candidates proposed per query by the pose search.
+        global_every: ask the place database every this many keyframes (1: at every
+            keyframe; 0: never, as ``search = pose``).
+        min_score: fused place-recognition score an appearance candidate needs, in
+            [0, 1].
+        global_verify: appearance candidates checked per query.
+        free_every: check any appearance candidate outside the pose gate (no prior)
+            every this many keyframes without an accepted loop (1: at every keyframe;
+            0: only those the previous keyframe supports).
+        sequence_keys: an appearance candidate outside the gate is supported when the
+            previous keyframe's appearance search proposed a keyframe at most this
+            many keys from it (0: never).
         max_loops: accepted loops per query at most.
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
@@ -123,13 +143,15 @@ class LoopClosureConfig:
     exclude_recent: int = 30
     exclude_recent_s: float = 20.0
     max_distance: float = 2.0
+    search: str = "both"
     local_radius: float = 1.5
     local_sigmas: float = 3.0
     local_max: int = 2
-    global_every: int = 10
-    global_sigma: float = 0.0
+    global_every: int = 1
     min_score: float = 0.5
     global_verify: int = 2
+    free_every: int = 10
+    sequence_keys: int = 3
     max_loops: int = 2
     virtual_beams: int = 360
     virtual_range: float = 20.0
@@ -139,6 +161,13 @@ class LoopClosureConfig:
     check: GeometricCheckConfig = field(default_factory=GeometricCheckConfig)
     polygon: PolygonConfig = field(default_factory=PolygonConfig)
 
+    def __post_init__(self) -> None:
+        if self.search not in SEARCHES:
+            raise UserError(
+                f"loops.search must be one of {', '.join(SEARCHES)}, got {self.search!r}"
+            )
+
+
 
 @dataclass(slots=True)
 class LoopCandidate:
@@ -147,20 +176,23 @@ class LoopCandidate:
     Attributes:
         query: the new keyframe's key.
         match: the older keyframe's key.
-        source: ``"local"`` (pose-gated) or ``"global"`` (place recognition).
+        source: the search that proposed it: ``"pose"`` (pose-gated) or
+            ``"appearance"`` (the place database; also when both proposed it).
         accepted: the geometric check accepted it.
         reason: why not (or ``"accepted"``).
         relative: ``(3,)`` pose of the query keyframe in the match's frame.
         covariance: ``3x3`` covariance of `relative` (floored).
         verification: the full geometric-check result.
-        predicted_distance: local: distance [m] between the two keyframes' current
-            estimates (NaN for global candidates).
-        prefilter_distance: global: combined normalised prefilter distance (unitless;
-            NaN for local candidates).
-        prefilter_rank: global: 0-based rank by prefilter distance (-1 for local).
-        fused_score: global: fused place-recognition score in [0, 1] (NaN for local).
-        verifier_distances: global: each verifier's distance, by matcher name, in that
-            matcher's unit (empty for local).
+        predicted_distance: distance [m] between the two keyframes' current estimates.
+        prior: the check started from the predicted relative pose (the candidate lay
+            inside the pose gate); else from the database's heading hypotheses.
+        prefilter_distance: appearance: combined normalised prefilter distance
+            (unitless; NaN for pose candidates).
+        prefilter_rank: appearance: 0-based rank by prefilter distance (-1 for pose).
+        fused_score: appearance: fused place-recognition score in [0, 1] (NaN for
+            pose candidates).
+        verifier_distances: appearance: each verifier's distance, by matcher name, in
+            that matcher's unit (empty for pose candidates).
     """
 
     query: int
@@ -172,6 +204,7 @@ class LoopCandidate:
     covariance: Array
     verification: LoopVerification | None = None
     predicted_distance: float = float("nan")
+    prior: bool = False
     prefilter_distance: float = float("nan")
     prefilter_rank: int = -1
     fused_score: float = float("nan")
@@ -186,6 +219,7 @@ class LoopCandidate:
         result: LoopVerification,
         *,
         predicted_distance: float = float("nan"),
+        prior: bool = False,
         prefilter_distance: float = float("nan"),
         prefilter_rank: int = -1,
         fused_score: float = float("nan"),
@@ -195,7 +229,7 @@ class LoopCandidate:
         return cls(
             query=query, match=match, source=source, accepted=result.accepted,
             reason=result.reason, relative=result.relative, covariance=result.covariance,
-            verification=result, predicted_distance=predicted_distance,
+            verification=result, predicted_distance=predicted_distance, prior=prior,
             prefilter_distance=prefilter_distance, prefilter_rank=prefilter_rank,
             fused_score=fused_score, verifier_distances=dict(verifier_distances or {}),
         )
@@ -221,7 +255,8 @@ class LoopClosureDetector:
         # key -> (submap version it was built from, target), least recently used first.
         self._targets: OrderedDict[int, tuple[Hashable, RegistrationTarget]] = OrderedDict()
         self._since_global = 0
-        self._since_loop = 0
+        self._since_free = 0  # keyframes since a prior-free check or an accepted loop
+        self._proposed: dict[int, NDArray[np.int64]] = {}  # key -> appearance proposals
 
     # -- keyframes -------------------------------------------------------------------
 
@@ -326,46 +361,76 @@ class LoopClosureDetector:
             return []
         cov = None if covariance is None else np.asarray(covariance, dtype=float)
         sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
-        out: list[LoopCandidate] = []
-        accepted = 0
+        gate = cfg.local_radius + cfg.local_sigmas * sigma
         query_points = self._submap_points(key)
-        tried: set[int] = set()
-        self._since_global += 1
-        self._since_loop += 1
-        for cand in self._local(key, poses, eligible, sigma):
-            lc = self._check_local(key, cand, poses, cov, sigma, query_points)
-            out.append(lc)
-            tried.add(cand)
-            accepted += lc.accepted
-            if accepted >= cfg.max_loops:
+        appearance = self._appearance(key, eligible)
+        pose = [] if cfg.search == "appearance" else self._local(key, poses, eligible, gate)
+        out: list[LoopCandidate] = []
+        self._since_free += 1
+        # Inside the gate, appearance first; a pose candidate already tried, or within
+        # 5 keyframes of an accepted one (that place is closed), is skipped.
+        inside = [(int(m.key), m) for m in appearance
+                  if self._distance(poses, int(m.key), key) <= gate] + [(k, None) for k in pose]
+        for k, m in inside:
+            if sum(c.accepted for c in out) >= cfg.max_loops:
                 break
-        if accepted:
-            self._since_loop = 0
+            if m is None and any(c.match == k or (c.accepted and abs(c.match - k) <= 5)
+                                 for c in out):
+                continue
+            out.append(self._check_prior(key, k, m, poses, cov, sigma, query_points))
+        if any(c.accepted for c in out):
+            self._since_free = 0
+            return out  # the pose is anchored: a place outside the gate contradicts it
+        free = [m for m in appearance if self._distance(poses, int(m.key), key) > gate]
+        if not (0 < cfg.free_every <= self._since_free):
+            previous = self._proposed.get(key - 1, np.zeros(0, dtype=np.int64))
+            free = [m for m in free
+                    if np.any(np.abs(previous - int(m.key)) <= cfg.sequence_keys)]
+        if not free:
             return out
-        due = min(self._since_global, self._since_loop) >= cfg.global_every
-        uncertain = 0.0 < cfg.global_sigma < sigma
-        if cfg.global_every > 0 and (due or uncertain):
-            self._since_global = 0
-            for lc in self._global(key, eligible, tried, query_points):
-                out.append(lc)
-                accepted += lc.accepted
-                if accepted >= cfg.max_loops:
-                    break
-            if accepted:
-                self._since_loop = 0
+        self._since_free = 0
+        for m in free:
+            out.append(self._check_global(key, m, query_points, poses))
+            if sum(c.accepted for c in out) >= cfg.max_loops:
+                break
         return out
 
+    @staticmethod
+    def _distance(poses: Array, a: int, b: int) -> float:
+        return float(np.hypot(*(poses[a, :2] - poses[b, :2])))
+
+    def _appearance(self, key: int, eligible: NDArray[np.bool_]) -> list[PlaceMatch]:
+        """The place database's proposals for `key` (empty when it is not asked)."""
+        cfg = self.config
+        if cfg.search == "pose" or cfg.global_every <= 0:
+            return []
+        self._since_global += 1
+        if self._since_global < cfg.global_every:
+            return []
+        self._since_global = 0
+        matches = self.database.query(
+            self.database.descriptors(key), allowed=np.flatnonzero(eligible)
+        )
+        chosen: list[PlaceMatch] = []
+        for m in matches:  # best first; one per place (keys within 5 are the same place)
+            if len(chosen) == cfg.global_verify or m.score < cfg.min_score:
+                break
+            if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
+                chosen.append(m)
+        self._proposed[key] = np.array([int(m.key) for m in chosen], dtype=np.int64)
+        return chosen
+
     def _local(
-        self, key: int, poses: Array, eligible: NDArray[np.bool_], sigma: float
+        self, key: int, poses: Array, eligible: NDArray[np.bool_], gate: float
     ) -> list[int]:
+        """Pose candidates: eligible keyframes within `gate` [m], nearest first, spread."""
         cfg = self.config
         if cfg.local_max <= 0:
             return []
         ids = np.flatnonzero(eligible)
         d = np.hypot(*(poses[ids, :2] - poses[key, :2]).T)
-        radius = cfg.local_radius + cfg.local_sigmas * sigma
-        near = ids[d <= radius]
-        order = np.argsort(d[d <= radius], kind="stable")
+        near = ids[d <= gate]
+        order = np.argsort(d[d <= gate], kind="stable")
         chosen: list[int] = []
         for k in near[order]:
             # Spread the candidates: skip keyframes adjacent to one already chosen.
@@ -375,10 +440,11 @@ class LoopClosureDetector:
                 break
         return chosen
 
-    def _check_local(
-        self, key: int, cand: int, poses: Array, cov: Array | None, sigma: float,
-        query_points: Array,
+    def _check_prior(
+        self, key: int, cand: int, match: PlaceMatch | None, poses: Array,
+        cov: Array | None, sigma: float, query_points: Array,
     ) -> LoopCandidate:
+        """The check of a candidate inside the pose gate, from the predicted pose."""
         cfg = self.config
         prior = se2.between(poses[cand], poses[key])
         prior_cov = None if cov is None else 2.0 * cov
@@ -388,34 +454,27 @@ class LoopClosureDetector:
             query_points, self._target(cand), prior=prior, prior_covariance=prior_cov,
             offsets=offsets, max_distance=cfg.max_distance, config=cfg.check,
         )
+        distance = float(np.hypot(prior[0], prior[1]))
+        if match is None:
+            return LoopCandidate.checked(
+                key, cand, "pose", result, predicted_distance=distance, prior=True
+            )
         return LoopCandidate.checked(
-            key, cand, "local", result, predicted_distance=float(np.hypot(prior[0], prior[1]))
+            key, cand, "appearance", result, predicted_distance=distance, prior=True,
+            **_place_figures(match),
         )
-
-    def _global(
-        self, key: int, eligible: NDArray[np.bool_], tried: set[int], query_points: Array
-    ) -> list[LoopCandidate]:
-        cfg = self.config
-        mask = eligible.copy()
-        mask[list(tried)] = False
-        if not mask.any():
-            return []
-        matches = self.database.query(
-            self.database.descriptors(key), allowed=np.flatnonzero(mask)
-        )
-        good = [m for m in matches if m.score >= cfg.min_score][: cfg.global_verify]
-        return [self._check_global(key, m, query_points) for m in good]
 
     def verify_place(
         self, key: int, match: PlaceMatch, query_points: ArrayLike | None = None
     ) -> LoopCandidate:
-        """The geometric check of one appearance candidate, as the global search runs it.
+        """The geometric check of one appearance candidate with no pose prior.
 
         `match` is a `PlaceMatch` of a database query for keyframe `key` (its headings
         and stage figures); the check starts from its heading hypotheses and a
-        centroid-aligned translation, with no pose prior.  `query_points` is the query's
-        submap (``(N, 2)`` [m], its sensor frame; default ``submap(key)``).  For
-        benchmarks that judge the appearance search alone (no search, no counters).
+        centroid-aligned translation, as for a candidate outside the pose gate.
+        `query_points` is the query's submap (``(N, 2)`` [m], its sensor frame;
+        default ``submap(key)``).  For benchmarks that judge the appearance search
+        alone (no search, no counters).
         """
         self._check_key(key)
         self._check_key(int(match.key))
@@ -423,7 +482,10 @@ class LoopClosureDetector:
             query_points, dtype=float).reshape(-1, 2)
         return self._check_global(key, match, pts)
 
-    def _check_global(self, key: int, m: PlaceMatch, query_points: Array) -> LoopCandidate:
+    def _check_global(
+        self, key: int, m: PlaceMatch, query_points: Array, poses: Array | None = None
+    ) -> LoopCandidate:
+        """The check of an appearance candidate from its heading hypotheses alone."""
         cfg = self.config
         cand = int(m.key)
         # Headings of the query in the candidate's frame (`loopclosure.headings`); align
@@ -436,8 +498,15 @@ class LoopClosureDetector:
             query_points, self._target(cand), headings=headings, translation=translation,
             max_distance=cfg.max_distance, config=cfg.check,
         )
+        distance = float("nan") if poses is None else self._distance(poses, cand, key)
         return LoopCandidate.checked(
-            key, cand, "global", result, prefilter_distance=m.prefilter_distance,
-            prefilter_rank=m.prefilter_rank, fused_score=m.score,
-            verifier_distances=m.verifier_distances,
+            key, cand, "appearance", result, predicted_distance=distance, **_place_figures(m)
         )
+
+
+def _place_figures(m: PlaceMatch) -> dict:
+    """The appearance search's figures of one match, as `LoopCandidate` fields."""
+    return {
+        "prefilter_distance": m.prefilter_distance, "prefilter_rank": m.prefilter_rank,
+        "fused_score": m.score, "verifier_distances": m.verifier_distances,
+    }

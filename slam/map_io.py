@@ -22,8 +22,9 @@ Format (as ROS ``map_server`` / nav2 ``map_server`` read it):
   map_saver default ``free_thresh: 0.25`` would turn 205 into free; ROS 1's
   0.196 does not).
 * ``<stem>.png``: the same trinary image as PNG, optionally with the trajectory
-  (blue polyline) and loop closures (red lines between the two poses) drawn over
-  it, upscaled with nearest-neighbour so small maps stay legible.
+  (blue polyline) and loop closures (lines between the two poses: red for those the
+  pose-gated search proposed, green for those the place database proposed) drawn
+  over it, upscaled with nearest-neighbour so small maps stay legible.
 
 Every file is written atomically (`data.atomic_write`): an interrupted run leaves
 the previous file or none, never half a file.  `write_map` writes the PGM before
@@ -51,6 +52,7 @@ PathArg = str | PathLike[str]
 #: Colours (B, G, R) of the overlays.
 TRAJECTORY_BGR = (200, 90, 20)
 LOOP_BGR = (40, 40, 220)
+APPEARANCE_LOOP_BGR = (40, 170, 40)
 #: Upscaled PNGs aim at about this many pixels on the longer side (at most 8x).
 PNG_TARGET_PIXELS = 2000
 
@@ -109,6 +111,7 @@ def map_image(
     trajectory_xy: ArrayLike | None = None,
     loops: ArrayLike | None = None,
     scale: int | None = None,
+    appearance_loops: ArrayLike | None = None,
 ) -> NDArray[np.uint8]:
     """``(H * s, W * s, 3)`` BGR picture of the map with optional overlays.
 
@@ -116,7 +119,9 @@ def map_image(
         trajectory_xy: ``(N, 2)`` (or ``(N, >=2)``, extra columns ignored) positions in
             the map frame [m], drawn as a polyline; non-finite rows break the line.
         loops: ``(L, 2, 2)`` or ``(L, 4)`` loop closures as pairs of map-frame
-            positions ``(x1, y1, x2, y2)`` [m], each drawn as a line.
+            positions ``(x1, y1, x2, y2)`` [m], each drawn as a line (`LOOP_BGR`).
+        appearance_loops: loop closures of the same shape drawn in
+            `APPEARANCE_LOOP_BGR` (those the place database proposed).
         scale: integer upscaling factor ``s``; default: about `PNG_TARGET_PIXELS`
             on the longer side, between 1 and 8.
     """
@@ -144,14 +149,16 @@ def map_image(
         ]
         if lines:
             cv2.polylines(img, lines, False, TRAJECTORY_BGR, thick, cv2.LINE_AA, shift)
-    if loops is not None:
-        seg = np.asarray(loops, dtype=float).reshape(-1, 4)
+    for segments, colour in ((loops, LOOP_BGR), (appearance_loops, APPEARANCE_LOOP_BGR)):
+        if segments is None:
+            continue
+        seg = np.asarray(segments, dtype=float).reshape(-1, 4)
         seg = seg[np.all(np.isfinite(seg), axis=1)]
         if len(seg):
             a = np.round(_to_pixels(grid, seg[:, :2], s) * (1 << shift)).astype(np.int32)
             b = np.round(_to_pixels(grid, seg[:, 2:], s) * (1 << shift)).astype(np.int32)
             lines = list(np.stack([a, b], axis=1))
-            cv2.polylines(img, lines, False, LOOP_BGR, thick, cv2.LINE_AA, shift)
+            cv2.polylines(img, lines, False, colour, thick, cv2.LINE_AA, shift)
     return img
 
 
@@ -161,11 +168,13 @@ def render_png(
     trajectory_xy: ArrayLike | None = None,
     loops: ArrayLike | None = None,
     scale: int | None = None,
+    appearance_loops: ArrayLike | None = None,
 ) -> Path:
     """Write `map_image` as PNG, atomically; returns the path."""
     import cv2
 
-    ok, buf = cv2.imencode(".png", map_image(grid, trajectory_xy, loops, scale))
+    image = map_image(grid, trajectory_xy, loops, scale, appearance_loops=appearance_loops)
+    ok, buf = cv2.imencode(".png", image)
     if not ok:
         raise DataError(path, "cannot encode the map as PNG")
     return write_bytes_atomic(path, buf.tobytes())
@@ -177,13 +186,16 @@ def write_map(
     stem: str = "map",
     trajectory_xy: ArrayLike | None = None,
     loops: ArrayLike | None = None,
+    appearance_loops: ArrayLike | None = None,
 ) -> dict[str, Path]:
     """Write ``<stem>.pgm``, ``<stem>.yaml`` (naming the PGM) and ``<stem>.png`` into
-    `out_dir` (created if needed); returns ``{"pgm": ..., "yaml": ..., "png": ...}``."""
+    `out_dir` (created if needed); returns ``{"pgm": ..., "yaml": ..., "png": ...}``.
+    The overlays are `map_image`'s."""
     if not stem or "/" in stem or os.sep in stem:
         raise UserError(f"map file stem must be a plain file name, got {stem!r}")
     out = output_dir(out_dir)
     pgm = write_pgm(grid, out / f"{stem}.pgm")
     yml = write_yaml(grid, out / f"{stem}.yaml", pgm.name)
-    png = render_png(grid, out / f"{stem}.png", trajectory_xy=trajectory_xy, loops=loops)
+    png = render_png(grid, out / f"{stem}.png", trajectory_xy=trajectory_xy, loops=loops,
+                     appearance_loops=appearance_loops)
     return {"pgm": pgm, "yaml": yml, "png": png}

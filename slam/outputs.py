@@ -71,7 +71,7 @@ class LoopRecord:
     keyframe_b: int
     stamp_a: float
     stamp_b: float
-    stage: str
+    search: str
     accepted: bool
     reason: str
     prefilter_distance: float = float("nan")
@@ -83,11 +83,12 @@ class LoopRecord:
     inlier_ratio: float = float("nan")
     relative: Array = field(default_factory=lambda: np.full(3, np.nan))
     rejected_by_gnc: bool = False
+    prior: bool = False
 
 
 LOOP_COLUMNS = (
-    "keyframe_a", "keyframe_b", "stamp_a", "stamp_b", "stage", "accepted", "rejected_by_gnc",
-    "reason", "prefilter_distance", "prefilter_rank", "verifier_distance", "score", "fitness",
+    "keyframe_a", "keyframe_b", "stamp_a", "stamp_b", "search", "prior", "accepted",
+    "rejected_by_gnc", "reason", "prefilter_distance", "prefilter_rank", "verifier_distance", "score", "fitness",
     "rms", "inlier_ratio", "dx", "dy", "dtheta",
 )
 
@@ -117,9 +118,10 @@ def read_loops_csv(path: Path) -> list[dict[str, Any]]:
     for row in rows:
         parsed: dict[str, Any] = {}
         for k, v in row.items():
-            if k in ("stage", "reason"):
+            if k in ("search", "reason"):
                 parsed[k] = v
-            elif k in ("accepted", "rejected_by_gnc", "keyframe_a", "keyframe_b", "prefilter_rank"):
+            elif k in ("accepted", "prior", "rejected_by_gnc", "keyframe_a", "keyframe_b",
+                       "prefilter_rank"):
                 parsed[k] = int(v)
             else:
                 parsed[k] = float(v)

@@ -13,6 +13,7 @@ from data.g2o import write_g2o
 from data.trajectory_io import write_tum
 from data.types import Trajectory
 from slam.json_io import write_json
+from slam.map_io import render_png
 from slam.map_io import write_map as write_map_files
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
@@ -31,7 +32,8 @@ def loop_records(result: MappingResult) -> list[LoopRecord]:
                 keyframe_b=c.query,
                 stamp_a=e.stamp_match,
                 stamp_b=e.stamp_query,
-                stage=c.source,
+                search=c.source,
+                prior=c.prior,
                 accepted=c.accepted and not e.rejected_by_gnc,
                 reason="rejected by GNC" if e.rejected_by_gnc else c.reason,
                 prefilter_distance=c.prefilter_distance,
@@ -46,6 +48,43 @@ def loop_records(result: MappingResult) -> list[LoopRecord]:
             )
         )
     return records
+
+
+def _loop_segments(result: MappingResult, poses: dict[int, Any], search: str) -> np.ndarray:
+    """``(L, 4)`` map-frame positions of the two keyframes of each accepted loop that
+    `search` proposed, under `poses` (keyframe id -> pose)."""
+    return np.array([
+        np.r_[poses[e.candidate.match][:2], poses[e.candidate.query][:2]]
+        for e in result.accepted_loops if e.candidate.source == search
+    ]).reshape(-1, 4)
+
+
+def _write_maps(out: Path, result: MappingResult, map_config: MapConfig | None) -> dict[str, str]:
+    """``map.pgm/.yaml/.png`` at the optimised poses, and ``map_before.png``: the map the
+    front end alone made (keyframes at their odometry poses), with the loops that were
+    then found drawn between the odometry poses: the drift loop closure removed."""
+    files: dict[str, str] = {}
+    keyframes = result.keyframes
+    scans = [k.scan for k in keyframes]
+    for stem, poses, trajectory in (
+        ("map", result.keyframe_poses, result.scan_poses),
+        ("map_before", {k.id: np.asarray(k.odom_pose) for k in keyframes},
+         result.odometry_poses),
+    ):
+        grid = build_occupancy_grid(
+            scans, np.array([poses[k.id] for k in keyframes]), config=map_config
+        )
+        overlays = {
+            "trajectory_xy": trajectory[:, :2],
+            "loops": _loop_segments(result, poses, "pose"),
+            "appearance_loops": _loop_segments(result, poses, "appearance"),
+        }
+        if stem == "map":
+            paths = write_map_files(grid, out, **overlays)
+            files.update({f"map_{k}": str(v) for k, v in paths.items()})
+        else:
+            files["map_before_png"] = str(render_png(grid, out / f"{stem}.png", **overlays))
+    return files
 
 
 def write_results(
@@ -84,15 +123,7 @@ def write_results(
     write_loops_csv(out / "loops.csv", loop_records(result))
     files["loops"] = str(out / "loops.csv")
     if write_map and result.keyframes:
-        poses = np.array([result.keyframe_poses[k.id] for k in result.keyframes])
-        grid = build_occupancy_grid([k.scan for k in result.keyframes], poses, config=map_config)
-        loops = np.array([
-            np.r_[result.keyframe_poses[e.candidate.match][:2],
-                  result.keyframe_poses[e.candidate.query][:2]]
-            for e in result.accepted_loops
-        ]).reshape(-1, 4)
-        paths = write_map_files(grid, out, trajectory_xy=result.scan_poses[:, :2], loops=loops)
-        files.update({f"map_{k}": str(v) for k, v in paths.items()})
+        files.update(_write_maps(out, result, map_config))
     accepted = [e for e in result.loops if e.candidate.accepted]
     timings = dict(result.timings)
     timings["output"] = time.perf_counter() - start
@@ -106,7 +137,7 @@ def write_results(
         "loops_rejected_by_gnc": sum(e.rejected_by_gnc for e in accepted),
         "loops_by_stage": {
             s: sum(1 for e in accepted if e.candidate.source == s and not e.rejected_by_gnc)
-            for s in ("local", "global")
+            for s in ("pose", "appearance")
         },
         "wall_s": wall_s + timings["output"],
         "peak_rss_mb": peak_rss_mb(),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from data import se2
 from data.errors import UserError
 from data.sim import simulate_run
 from loopclosure.loop_detector import LoopCandidate, LoopClosureConfig, LoopClosureDetector
@@ -46,18 +47,19 @@ def keyframes() -> list:
 def _summary(candidates: list[LoopCandidate]) -> list[str]:
     return [
         repr((c.query, c.match, c.source, c.accepted, c.reason, c.relative.tolist(),
-              c.covariance.tolist(), c.predicted_distance, c.prefilter_distance,
+              c.covariance.tolist(), c.predicted_distance, c.prior, c.prefilter_distance,
               c.prefilter_rank, c.fused_score, c.verifier_distances))
         for c in candidates
     ]
 
 
-def _run(keyframes: list, submap, version=None, hold: int | None = None):
+def _run(keyframes: list, submap, version=None, hold: int | None = None,
+         config: LoopClosureConfig | None = None, poses=None):
     """Add and detect every keyframe in order; with `hold`, add `hold + 1` before
     detecting `hold`.  Returns the detector and the candidates per key."""
-    poses = np.array([s.odom for s in keyframes])
+    poses = np.array([s.odom for s in keyframes]) if poses is None else poses
     det = LoopClosureDetector(
-        LoopClosureConfig(global_every=1), submap=submap, submap_version=version
+        config or LoopClosureConfig(free_every=1), submap=submap, submap_version=version
     )
     found = {}
     for key, scan in enumerate(keyframes):
@@ -74,16 +76,16 @@ def test_detect_works_for_any_added_key(keyframes) -> None:
     submap = lambda key: keyframes[key].points()  # noqa: E731
     _, now = _run(keyframes, submap)
     _, later = _run(keyframes, submap, hold=60)
-    assert any(c.source == "global" for c in now[60])  # the appearance search ran
+    assert any(c.source == "appearance" for c in now[60])  # the appearance search ran
     assert _summary(later[60]) == _summary(now[60])
     assert _summary(later[61]) == _summary(now[61])
     for c in now[60]:  # typed figures of each search
-        if c.source == "global":
+        if c.source == "appearance":
             assert c.prefilter_rank >= 0 and 0.0 <= c.fused_score <= 1.0
-            assert set(c.verifier_distances) == {"flirt", "mrm"}
-            assert np.isnan(c.predicted_distance)
+            assert set(c.verifier_distances) == set(LoopClosureConfig().database.verifiers)
         else:
-            assert c.prefilter_rank == -1 and np.isfinite(c.predicted_distance)
+            assert c.source == "pose" and c.prefilter_rank == -1 and c.prior
+        assert np.isfinite(c.predicted_distance)
     det = LoopClosureDetector(submap=submap)
     det.add_keyframe(0, 0.0, keyframes[0])
     with pytest.raises(UserError, match="never added"):
@@ -97,9 +99,9 @@ def test_registration_targets_follow_the_submap_version(keyframes) -> None:
     version = dict.fromkeys(points, 0)
     det, found = _run(keyframes, points.__getitem__, version.__getitem__)
     poses = np.array([s.odom for s in keyframes])
-    first = {c.match: c for c in det.detect(60, poses) if c.source == "global"}
+    first = {c.match: c for c in det.detect(60, poses) if c.source == "appearance"}
     assert first and _summary(list(first.values())) == _summary(
-        [c for c in found[60] if c.source == "global"]
+        [c for c in found[60] if c.source == "appearance"]
     )
     cand = next(iter(first))
     points[cand] = points[cand] + np.array([0.4, -0.3])  # the host's submap moved...
@@ -109,3 +111,74 @@ def test_registration_targets_follow_the_submap_version(keyframes) -> None:
     fresh = {c.match: c for c in det.detect(60, poses)}
     assert fresh[cand].verification.fitness != first[cand].verification.fitness
     assert not np.allclose(fresh[cand].relative[:2], first[cand].relative[:2], atol=0.1)
+
+
+# -- the two searches ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def revisit():
+    """The box world's first 70 keyframes (a revisit from keyframe 59 on), their true
+    poses and submaps of 7 keyframes placed by those poses, as the pipeline builds them."""
+    run = simulate_run("box", seed=0)
+    kfs = run.scans[::README_STEP][:70]
+    poses = run.ground_truth.xytheta()[::README_STEP][:70]
+
+    def submap(k: int) -> np.ndarray:
+        near = range(max(0, k - 3), min(len(kfs), k + 4))
+        return np.vstack([se2.transform_points(se2.between(poses[k], poses[j]),
+                                               kfs[j].points()) for j in near])
+
+    return kfs, poses, submap
+
+
+def test_each_search_proposes_alone_and_a_place_both_propose_is_checked_once(revisit):
+    kfs, poses, submap = revisit
+    found = {
+        mode: _run(kfs, submap, config=LoopClosureConfig(search=mode), poses=poses)[1]
+        for mode in ("pose", "appearance", "both")
+    }
+    sources = {mode: {c.source for cs in f.values() for c in cs} for mode, f in found.items()}
+    assert sources == {"pose": {"pose"}, "appearance": {"appearance"},
+                       "both": {"pose", "appearance"}}
+    for f in found.values():
+        for cands in f.values():
+            shown = [c.match for c in cands]  # each keyframe checked once, either search
+            assert len(set(shown)) == len(shown)
+            closed = [c.match for c in cands if c.accepted]  # one loop per place
+            assert all(abs(a - b) > 5 for i, a in enumerate(closed) for b in closed[i + 1:])
+            assert sum(c.accepted for c in cands) <= LoopClosureConfig().max_loops
+            # a place outside the pose gate: appearance only, and never once a place
+            # inside the gate was accepted (it would contradict the anchored pose)
+            free = [i for i, c in enumerate(cands) if not c.prior]
+            assert all(cands[i].source == "appearance" for i in free)
+            anchored = [i for i, c in enumerate(cands) if c.prior and c.accepted]
+            assert not (free and anchored and min(anchored) < min(free))
+    accepted = {m: {k for k, cs in f.items() if any(c.accepted for c in cs)}
+                for m, f in found.items()}
+    assert accepted["pose"] and accepted["appearance"]
+    assert accepted["both"] == accepted["pose"] | accepted["appearance"]
+
+
+def test_a_revisit_the_odometry_cannot_explain_is_found_by_appearance_alone(revisit):
+    """The estimates jump 40 m after keyframe 30 (a kidnap): no older keyframe lies
+    inside the pose gate of the revisit, so the pose search is silent, and appearance
+    candidates are checked from the database's headings, without a prior."""
+    kfs, poses, submap = revisit
+    jumped = poses.copy()
+    jumped[31:, 0] += 40.0
+    _, pose_only = _run(kfs, submap, config=LoopClosureConfig(search="pose"), poses=jumped)
+    assert not [c for cs in pose_only.values() for c in cs if c.match <= 30 < c.query]
+    _, both = _run(kfs, submap, config=LoopClosureConfig(), poses=jumped)
+    across = [c for cs in both.values() for c in cs if c.match <= 30 < c.query]
+    assert across and all(c.source == "appearance" and not c.prior for c in across)
+    assert all(c.predicted_distance > 30.0 for c in across)
+    assert any(c.accepted for c in across)
+
+
+def test_search_values_and_small_databases(keyframes) -> None:
+    with pytest.raises(UserError, match=r"loops\.search"):
+        LoopClosureConfig(search="global")
+    det = LoopClosureDetector(submap=lambda key: keyframes[key].points())
+    det.add_keyframe(0, 0.0, keyframes[0])
+    assert det.detect(0, np.zeros((1, 3))) == []  # one keyframe: nothing to match

@@ -327,12 +327,16 @@ def test_png_picture_scales_and_draws_the_overlays(tmp_path):
         np.zeros((20, 40), np.int32), np.full((20, 40), 10, np.int32), [0.0, 0.0], 0.1
     )
     img = map_image(grid, trajectory_xy=[[0.5, 0.5, 0.0], [3.5, 0.5, 0.1]],
-                    loops=[[0.5, 1.5, 3.5, 1.5]], scale=4)
+                    loops=[[0.5, 1.5, 3.5, 1.5]], scale=4,
+                    appearance_loops=[[0.5, 1.0, 3.5, 1.0]])
     assert img.shape == (80, 160, 3)
     # Trajectory at y = 0.5 m: image row (2 - 0.5) / 0.1 * 4 = 60, blue-ish.
     assert img[60, 20:140, 0].min() > img[60, 20:140, 2].max()
     # Loop line at y = 1.5 m: image row 20, red-ish.
     assert img[20, 20:140, 2].min() > img[20, 20:140, 0].max()
+    # Appearance loop at y = 1.0 m: image row 40, green-ish.
+    row = img[40, 20:140].astype(int)
+    assert (row[:, 1] > row[:, 0]).all() and (row[:, 1] > row[:, 2]).all()
     assert (img[5, :, 0] == 254).all()  # free elsewhere
     path = render_png(grid, tmp_path / "m.png", trajectory_xy=[[0.5, 0.5]])
     back = cv2.imread(str(path))

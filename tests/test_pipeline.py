@@ -13,6 +13,7 @@ from evaluation.loop_metrics import LoopProposal, evaluate_loops
 from evaluation.trajectory_error import trajectory_errors
 from slam.cli.main import main
 from slam.config import PipelineConfig
+from slam.outputs import read_loops_csv
 from slam.pipeline import Mapper
 from tests.helpers import shared_file
 
@@ -75,13 +76,22 @@ def test_cli_run_writes_every_output(tmp_path) -> None:
                  "--json"])
     assert code == 0
     for name in ("trajectory.tum", "trajectory_kitti.txt", "graph.g2o", "loops.csv", "map.pgm",
-                 "map.yaml", "map.png", "summary.json", "config.yaml", "odometry.tum"):
+                 "map.yaml", "map.png", "map_before.png", "summary.json", "config.yaml",
+                 "odometry.tum"):
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     for key in ("scans", "keyframes", "loops_proposed", "loops_accepted", "loops_rejected_by_gnc",
                 "wall_s", "peak_rss_mb", "timings_s"):
         assert key in summary
     assert summary["scans"] == len(run.scans)
+    # every accepted loop counted once, by the search that proposed it
+    rows = read_loops_csv(out / "loops.csv")
+    assert {r["search"] for r in rows} <= {"pose", "appearance"}
+    assert set(summary["loops_by_stage"]) == {"pose", "appearance"}
+    for search, n in summary["loops_by_stage"].items():
+        assert n == sum(r["accepted"] for r in rows if r["search"] == search)
+    assert sum(summary["loops_by_stage"].values()) == summary["loops_accepted"]
+    assert all(r["prior"] for r in rows if r["search"] == "pose")
     assert "global_every: 2" in (out / "config.yaml").read_text()
     traj = np.loadtxt(out / "trajectory.tum")
     assert len(traj) == len(run.scans) and np.all(np.diff(traj[:, 0]) > 0)
