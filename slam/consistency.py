@@ -40,6 +40,16 @@ against the solved prefix, which earlier decisions already made consistent:
 3. Decisions are final for the incremental pass; `refine_tls` then re-decides every
    loop on the whole graph by the residual rule until the weights are stable.
 
+`incremental_tls` wraps the pass in two local searches on the stated TLS objective:
+
+* an *odometry ladder*: the pass decides on the graph with its odometry information
+  multiplied by 1, 10 and 100 (a loose stated odometry makes the solved prefix floppy,
+  and early false loops bend it onto themselves), each result refined under the
+  stated covariances, the lowest stated `tls_cost` kept;
+* a *bar search* (`bar_search`): the pass is repeated with the most strained
+  accepted loop barred, kept when the stated cost drops (a false loop admitted early
+  can fold a graph with few loops beyond what any residual rule recovers).
+
 The innovation gate is where the noise model matters.  ``delta`` measures a loop
 against the uncertainty the graph's own covariances claim; when they are far
 more pessimistic than the data (M3500: the a-posteriori variance factor of the
