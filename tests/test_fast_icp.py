@@ -165,3 +165,8 @@ def test_mean_anchor_puts_the_line_through_the_neighbourhood_mean() -> None:
     np.testing.assert_allclose(res.pose, pose, atol=1e-3)
     with pytest.raises(UserError, match="anchor"):
         GridTarget(wall, anchor="centroid")
+    with pytest.raises(UserError, match="anchor radius"):
+        GridTarget(wall, anchor="mean", anchor_radius=0.0)
+    # a radius below the point spacing leaves each point its own anchor
+    lone = GridTarget(wall, IcpConfig(), anchor="mean", anchor_radius=0.01)
+    np.testing.assert_array_equal(lone.anchors, lone.points)

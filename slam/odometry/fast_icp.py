@@ -82,15 +82,19 @@ class GridTarget:
         kind: ``(M,)`` `KIND_NONE`, `KIND_LINE` or `KIND_CLUTTER` (clutter counts
             only with `IcpConfig.point_to_point_clutter`).
         anchor: ``"point"`` or ``"mean"`` (`ANCHORS`).
+        anchor_radius: with ``"mean"``, only the normal neighbours closer than this
+            to the point enter the mean [m] (a short stretch of wall: little bias
+            where the wall curves or the map is sparse).
         anchors: ``(M, 2)`` the point each line-like point's line passes through:
-            the point itself, or with ``"mean"`` the mean of its normal neighbourhood.
+            the point itself, or with ``"mean"`` the mean of its normal neighbours
+            within `anchor_radius`.
     """
 
-    __slots__ = ("_target", "anchor", "anchors", "cell", "config", "input_points", "kind",
-                 "normals", "origin", "points", "shape", "start")
+    __slots__ = ("_target", "anchor", "anchor_radius", "anchors", "cell", "config",
+                 "input_points", "kind", "normals", "origin", "points", "shape", "start")
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None,
-                 cell: float = 0.25, *, anchor: str = "point",
+                 cell: float = 0.25, *, anchor: str = "point", anchor_radius: float = 0.2,
                  target: RegistrationTarget | None = None) -> None:
         if not (np.isfinite(cell) and cell > 0):
             raise UserError(f"grid cell must be a positive number of metres, got {cell}")
@@ -98,7 +102,10 @@ class GridTarget:
             raise UserError(f"unknown line anchor {anchor!r}: choose one of {', '.join(ANCHORS)}")
         if anchor != "point" and target is not None:
             raise UserError("a grid made from a RegistrationTarget anchors lines at its points")
+        if not anchor_radius > 0:
+            raise UserError(f"line anchor radius must be positive, got {anchor_radius}")
         self.anchor = anchor
+        self.anchor_radius = float(anchor_radius)
         self.config = config or (target.config if target is not None else IcpConfig())
         self.cell = float(cell)
         self._target = target
@@ -156,7 +163,8 @@ def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array
     nx, ny = grid.shape
     normals, ratio, count, means = _normals_kernel(
         grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
-        grid.start, min(cfg.normal_neighbors, len(grid.points)), cfg.normal_radius)
+        grid.start, min(cfg.normal_neighbors, len(grid.points)), cfg.normal_radius,
+        grid.anchor_radius)
     enough = count >= cfg.min_normal_neighbors
     if len(grid.points) < cfg.min_normal_neighbors:
         enough[:] = False
@@ -165,11 +173,13 @@ def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array
 
 
 @numba.njit(cache=True)
-def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius):
+def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius):
     """PCA normal, ``lambda_min / lambda_max`` and neighbour count of every point: its `k`
     nearest points (itself included) closer than `radius` (`loopclosure.registration`'s
-    `estimate_normals`, the same equations)."""
+    `estimate_normals`, the same equations), and the mean of those neighbours closer
+    than `anchor_radius`."""
     n = pts.shape[0]
+    a2 = anchor_radius * anchor_radius
     normals = np.zeros((n, 2))
     means = pts.copy()
     ratio = np.full(n, np.inf)
@@ -215,8 +225,17 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius):
             my += pts[bi[t], 1]
         mx /= m
         my /= m
-        means[p, 0] = mx
-        means[p, 1] = my
+        ax = 0.0
+        ay = 0.0
+        na = 0
+        for t in range(m):
+            if bd[t] < a2:
+                ax += pts[bi[t], 0]
+                ay += pts[bi[t], 1]
+                na += 1
+        if na > 0:
+            means[p, 0] = ax / na
+            means[p, 1] = ay / na
         a = 0.0
         b = 0.0
         cc = 0.0
@@ -293,10 +312,14 @@ def _scan_cell(c, px, py, start, pts, best, best_d2):
 def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
     """Index of the nearest grid point within `gate` of ``(px, py)`` (-1: none) and its
     distance.  Cells are visited ring by ring (Chebyshev distance from the query's cell);
-    after ring ``r`` nothing nearer than ``r * cell`` can remain, so the search stops
-    there once a point at most that far is found."""
+    after ring ``r`` nothing nearer than ``r * cell + m`` can remain (``m``: distance of
+    the query to its own cell's border), so the search stops there once a point at most
+    that far is found."""
     ci = int(np.floor((px - ox) / cell))
     cj = int(np.floor((py - oy) / cell))
+    fx = px - ox - ci * cell
+    fy = py - oy - cj * cell
+    margin = max(min(fx, cell - fx, fy, cell - fy), 0.0)
     rings = int(np.ceil(gate / cell))
     best, best_d2 = -1, gate * gate
     for r in range(rings + 1):
@@ -312,7 +335,7 @@ def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
                 if step == 0:
                     break
                 j += step
-        if best >= 0 and best_d2 <= (r * cell) ** 2:
+        if best >= 0 and best_d2 <= (r * cell + margin) ** 2:
             break
     return best, np.sqrt(best_d2)
 

@@ -138,6 +138,8 @@ class Icp2dConfig:
             ``"point"``, the nearest map point (a voxel centroid), or ``"mean"``,
             the mean of the neighbours its normal was fitted to (less noise);
             ``"mean"`` needs `compiled`.
+        line_anchor_radius: the neighbours of that mean are within this distance of
+            the point [m].
         odometry_noise: covariance model of odometry increments.
         velocity_sigma: per-step standard deviations of the constant-velocity
             prediction (x [m], y [m], theta [rad]).
@@ -182,6 +184,7 @@ class Icp2dConfig:
     use_prior: bool = True
     compiled: bool = True
     line_anchor: str = "point"
+    line_anchor_radius: float = 0.2
     odometry_noise: MotionNoise = field(default_factory=MotionNoise)
     velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
     covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -201,9 +204,9 @@ class Icp2dConfig:
     search_sigma: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self) -> None:
-        positive = ("max_range", "map_voxel", "map_radius", "keyframe_distance",
-                    "keyframe_rotation", "fallback_inflation", "max_step",
-                    "max_step_rotation")
+        positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
+                    "keyframe_distance", "keyframe_rotation", "fallback_inflation",
+                    "max_step", "max_step_rotation")
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -461,7 +464,8 @@ class Icp2dOdometry:
         assert self._keyframe_pose is not None
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         if cfg.compiled:
-            self._grid = GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor)
+            self._grid = GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
+                                    anchor_radius=cfg.line_anchor_radius)
         else:
             target = RegistrationTarget(pts[near], cfg.icp)
             self._grid = GridTarget.from_target(target) if target.tree is not None else None
