@@ -27,12 +27,23 @@ The error is the mean over consecutive scans ``(k, k+1)`` of the translation [m]
 rotation [deg] of ``E = (P_k^-1 P_k+1) (G_k^-1 G_k+1)^-1`` (estimate ``P``, ground
 truth ``G``, as 2D poses), i.e. the relations metric on consecutive pairs.
 
+GMapping-corrected logs (``--corrected freiburg-101,seattle``,
+``carmen-corrected/<name>-corrected.log.gz``): their pose fields are the
+reference; the front end gets the simulator's drifting wheel odometry of them
+(`data.sim.motion.wheel_odometry`, default noise, seed 0, as ``loopclosure bench
+slam --odometry-noise 0`` does) and its trajectory alone (no loop closure) is
+scored by the ATE RMSE [m] after SE(2) alignment (`evaluation.trajectory_errors`,
+scans matched by index) in the "trans m" column, and the RPE rotation RMSE [deg]
+between consecutive scans in the "rot deg" column.  These logs hold about one
+scan per metre: a test of the defaults on other buildings and sparse maps.
+
 Nothing is cached or written; the shared data is read in place.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -45,9 +56,11 @@ sys.path.insert(0, str(ROOT))
 from data import se2  # noqa: E402
 from data.carmen import CarmenLog  # noqa: E402
 from data.relations import read_relations  # noqa: E402
-from data.sim import MotionConfig, simulate_run  # noqa: E402
+from data.sim import MotionConfig, OdometryNoise, simulate_run  # noqa: E402
+from data.sim.motion import wheel_odometry  # noqa: E402
 from data.types import Scan, Trajectory  # noqa: E402
 from evaluation.relations_metric import relations_metric  # noqa: E402
+from evaluation.trajectory_error import trajectory_errors  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 from slam.config_io import apply_overrides  # noqa: E402
 from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry  # noqa: E402
@@ -121,6 +134,30 @@ def sim_cases(n_scans: int):
     return cases
 
 
+def corrected_cases(data: Path, names: list[str]):
+    """``(name, scans, scorer)`` for every GMapping-corrected log found."""
+    cases = []
+    for name in names:
+        path = data / "carmen-corrected" / f"{name}-corrected.log.gz"
+        if not path.exists():
+            print(f"skipped {name}: {path} not found")
+            continue
+        scans = list(CarmenLog(path))
+        ref = np.array([s.odom for s in scans])
+        odom = wheel_odometry(ref, OdometryNoise(), np.random.default_rng(0))
+        scans = [dataclasses.replace(s, odom=o, stamp=float(i))
+                 for i, (s, o) in enumerate(zip(scans, odom, strict=True))]
+        index = np.arange(len(scans), dtype=float)
+        reference = Trajectory.from_xytheta(index, ref)
+
+        def score(poses: np.ndarray, _st: np.ndarray, reference=reference, index=index):
+            err = trajectory_errors(Trajectory.from_xytheta(index, poses), reference)
+            return err.ate_rmse, err.rpe_rot_rmse_deg
+
+        cases.append((f"{name} ATE", scans, score))
+    return cases
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA, help="shared data folder")
@@ -128,6 +165,8 @@ def main() -> None:
     parser.add_argument("--sim-scans", type=int, default=400, help="scans per simulated run")
     parser.add_argument("--no-intel", action="store_true", help="skip Intel")
     parser.add_argument("--no-sim", action="store_true", help="skip the simulated runs")
+    parser.add_argument("--corrected", default="",
+                        help="comma-separated GMapping-corrected logs, e.g. freiburg-101,seattle")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable; the first is the reference)")
     args = parser.parse_args()
@@ -139,6 +178,8 @@ def main() -> None:
             cases.append(("Intel short", *intel))
     if not args.no_sim:
         cases.extend(sim_cases(args.sim_scans))
+    names = [n.strip() for n in args.corrected.split(",") if n.strip()]
+    cases.extend(corrected_cases(args.data, names))
     variants = []
     for spec in args.variant or DEFAULT_VARIANTS:
         name, _, sets = spec.partition(":")
