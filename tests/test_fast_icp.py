@@ -170,3 +170,15 @@ def test_mean_anchor_puts_the_line_through_the_neighbourhood_mean() -> None:
     # a radius below the point spacing leaves each point its own anchor
     lone = GridTarget(wall, IcpConfig(), anchor="mean", anchor_radius=0.01)
     np.testing.assert_array_equal(lone.anchors, lone.points)
+
+
+def test_solve3_matches_numpy_and_survives_a_singular_matrix() -> None:
+    from slam.odometry.fast_icp import _solve3
+
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(3, 3))
+    h = a @ a.T + 0.1 * np.eye(3)
+    g = rng.normal(size=3)
+    np.testing.assert_allclose(_solve3(h, g), np.linalg.solve(h, g), rtol=1e-10)
+    corridor = np.diag([0.0, 4.0, 2.0]) + 1e-12 * np.eye(3)  # nothing along x
+    assert np.all(np.isfinite(_solve3(corridor, np.array([0.0, 1.0, 1.0]))))

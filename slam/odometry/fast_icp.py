@@ -442,6 +442,37 @@ def _normal_equations(r, jac, w, rows):
 
 
 @numba.njit(cache=True)
+def _solve3(h, g):
+    """``h^-1 g`` for a symmetric positive definite ``3x3`` `h` (Cholesky; LU when
+    rounding leaves a pivot that is not positive)."""
+    if h[0, 0] <= 0.0:
+        return np.linalg.solve(h, g)
+    l00 = np.sqrt(h[0, 0])
+    l10 = h[1, 0] / l00
+    l20 = h[2, 0] / l00
+    p11 = h[1, 1] - l10 * l10
+    if p11 <= 0.0:
+        return np.linalg.solve(h, g)
+    l11 = np.sqrt(p11)
+    l21 = (h[2, 1] - l20 * l10) / l11
+    p22 = h[2, 2] - l20 * l20 - l21 * l21
+    if p22 <= 0.0:
+        return np.linalg.solve(h, g)
+    l22 = np.sqrt(p22)
+    y0 = g[0] / l00
+    y1 = (g[1] - l10 * y0) / l11
+    y2 = (g[2] - l20 * y0 - l21 * y1) / l22
+    x2 = y2 / l22
+    x1 = (y1 - l21 * x2) / l11
+    x0 = (y0 - l10 * x1 - l20 * x2) / l00
+    out = np.empty(3)
+    out[0] = x0
+    out[1] = x1
+    out[2] = x2
+    return out
+
+
+@numba.njit(cache=True)
 def _wrap(a):
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -476,14 +507,20 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam,
         s = max(min_scale, _MAD * _upper_median_abs(r, rows))
         _weights(r, rows, lines, points, s, kernel, kconst, clutter_weight, w)
         h, g = _normal_equations(r, jac, w, rows)
-        h = h / (s * s) + lam
-        g = g / (s * s)
-        if has_prior:
-            diff = x - x_prior
-            diff[2] = _wrap(diff[2])
-            g = g + lam @ diff
-        damp = 1e-12 * max(np.trace(h), 1e-12)
-        step = -np.linalg.solve(h + damp * np.eye(3), g)
+        inv_s2 = 1.0 / (s * s)
+        diff = x - x_prior
+        diff[2] = _wrap(diff[2])
+        for a in range(3):
+            g[a] *= inv_s2
+            if has_prior:
+                for b in range(3):
+                    g[a] += lam[a, b] * diff[b]
+            for b in range(3):
+                h[a, b] = h[a, b] * inv_s2 + lam[a, b]
+        damp = 1e-12 * max(h[0, 0] + h[1, 1] + h[2, 2], 1e-12)
+        for a in range(3):
+            h[a, a] += damp
+        step = -_solve3(h, g)
         x = x + step
         x[2] = _wrap(x[2])
         new_gate = min(gate, max(min_gate, gate_sigmas * _MAD * _upper_median_abs(dist, rows)))
