@@ -15,8 +15,8 @@ the relations metric (Kümmerle et al. 2009) of the per-scan trajectory against
 ``carmen/intel.relations`` (relations whose both stamps were mapped), and then the
 ratio of each variant's times to the first variant's.
 
-Without ``--variant`` it compares the defaults with the gate of the previous
-release (iSAM2 marginals, an appearance search every 5 keyframes).
+Without ``--variant`` it compares the three loop searches (``loops.search`` =
+``pose``, the default ``both``, ``appearance``).
 """
 
 from __future__ import annotations
@@ -39,8 +39,9 @@ from slam.config_io import apply_overrides
 from slam.pipeline import Mapper
 
 DEFAULT_VARIANTS = (
-    "marginal-gate:uncertainty=marginal,loops.global_every=5",
+    "pose:loops.search=pose",
     "defaults:",
+    "appearance:loops.search=appearance",
 )
 
 
@@ -55,8 +56,12 @@ def run_variant(scans: list, overrides: list[str], relations: list) -> dict[str,
     row.update({f"{k}_s": v for k, v in result.timings.items()})
     row["keyframes"] = len(result.keyframes)
     row["candidates"] = len(result.loops)
-    row["global"] = sum(e.candidate.source == "global" for e in result.loops)
+    row["appearance_candidates"] = sum(e.candidate.source == "appearance" for e in result.loops)
+    row["prior_free_checks"] = sum(not e.candidate.prior for e in result.loops)
     row["accepted"] = len(result.accepted_loops)
+    row["accepted_appearance"] = sum(
+        e.candidate.source == "appearance" for e in result.accepted_loops
+    )
     row["gnc_rejected"] = sum(e.rejected_by_gnc for e in result.loops)
     stamps = result.scan_stamps
     order = np.argsort(stamps, kind="stable")

@@ -47,11 +47,11 @@ and calls, for every keyframe:
    That check is a search (several ICP starts) and on a log with good odometry it
    nearly always meets a look-alike place, so it runs only when no candidate inside
    the gate was accepted for this query (the two would contradict each other), and
-   then for a candidate the previous keyframe's appearance search also proposed
-   (within `sequence_keys` keyframes: a true revisit repeats along the path, a
-   look-alike rarely does, the temporal consistency of appearance-based loop
-   detectors such as FAB-MAP's), or for any candidate every `free_every` keyframes
-   without an accepted loop.  Appearance
+   then for a candidate that each of the `sequence_keyframes` previous keyframes'
+   appearance searches also proposed (within `sequence_keys` keyframes per step back:
+   a true revisit repeats along the path, a look-alike rarely does; the temporal
+   consistency of appearance-based loop detectors such as FAB-MAP's), or for any
+   candidate every `free_every` keyframes without an accepted loop.  Appearance
    candidates are tried first; a pose candidate already tried, or within 5 keyframes
    of an accepted one (the same place), is skipped, so a loop both searches propose
    is checked once and reported as ``appearance``.
@@ -127,9 +127,10 @@ class LoopClosureConfig:
         free_every: check any appearance candidate outside the pose gate (no prior)
             every this many keyframes without an accepted loop (1: at every keyframe;
             0: only those the previous keyframe supports).
-        sequence_keys: an appearance candidate outside the gate is supported when the
-            previous keyframe's appearance search proposed a keyframe at most this
-            many keys from it (0: never).
+        sequence_keyframes: an appearance candidate outside the gate is supported when
+            each of this many previous keyframes' appearance searches proposed ...
+            (0: no candidate is supported)
+        sequence_keys: ... a keyframe at most this many keys per step back from it.
         max_loops: accepted loops per query at most.
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
@@ -151,6 +152,7 @@ class LoopClosureConfig:
     min_score: float = 0.5
     global_verify: int = 2
     free_every: int = 10
+    sequence_keyframes: int = 2
     sequence_keys: int = 3
     max_loops: int = 2
     virtual_beams: int = 360
@@ -383,9 +385,7 @@ class LoopClosureDetector:
             return out  # the pose is anchored: a place outside the gate contradicts it
         free = [m for m in appearance if self._distance(poses, int(m.key), key) > gate]
         if not (0 < cfg.free_every <= self._since_free):
-            previous = self._proposed.get(key - 1, np.zeros(0, dtype=np.int64))
-            free = [m for m in free
-                    if np.any(np.abs(previous - int(m.key)) <= cfg.sequence_keys)]
+            free = [m for m in free if self._supported(key, int(m.key))]
         if not free:
             return out
         self._since_free = 0
@@ -394,6 +394,18 @@ class LoopClosureDetector:
             if sum(c.accepted for c in out) >= cfg.max_loops:
                 break
         return out
+
+    def _supported(self, key: int, match: int) -> bool:
+        """The appearance searches of the `sequence_keyframes` keyframes before `key`
+        each proposed a keyframe near `match` (module docstring)."""
+        cfg = self.config
+        if cfg.sequence_keyframes <= 0:
+            return False
+        empty = np.zeros(0, dtype=np.int64)
+        return all(
+            np.any(np.abs(self._proposed.get(key - j, empty) - match) <= cfg.sequence_keys * j)
+            for j in range(1, cfg.sequence_keyframes + 1)
+        )
 
     @staticmethod
     def _distance(poses: Array, a: int, b: int) -> float:

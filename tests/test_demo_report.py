@@ -67,3 +67,23 @@ def test_run_with_an_out_that_is_a_file_is_one_error_line(tmp_path: Path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: {taken}: output folder exists and is not a folder"]
     assert taken.read_text() == "keep me\n"
+
+
+def test_the_demo_drifts_by_metres_and_loop_closure_repairs_it(tmp_path: Path) -> None:
+    """The README's first command: the demo's odometry drifts visibly (its ATE is
+    metres), loop closure brings it to a small fraction of that, the place database
+    proposes most of the accepted loops, and both maps are drawn."""
+    import json
+
+    from slam.cli.main import main
+
+    out = tmp_path / "demo"
+    assert main(["run", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    demo = summary["demo"]
+    assert demo["ate_before_loop_closure_m"] > 1.0
+    assert demo["ate_after_loop_closure_m"] < 0.1 * demo["ate_before_loop_closure_m"]
+    assert demo["loop_precision"] == 1.0 and demo["loops_false_positive"] == 0
+    by_search = summary["loops_by_stage"]
+    assert by_search["appearance"] > by_search["pose"] > 0
+    assert (out / "map.png").is_file() and (out / "map_before.png").is_file()

@@ -174,6 +174,14 @@ def test_a_revisit_the_odometry_cannot_explain_is_found_by_appearance_alone(revi
     assert across and all(c.source == "appearance" and not c.prior for c in across)
     assert all(c.predicted_distance > 30.0 for c in across)
     assert any(c.accepted for c in across)
+    # Without the periodic check, only candidates the previous keyframes also proposed
+    # are checked; without that support either, none is.
+    cfg = LoopClosureConfig(free_every=0)
+    _, supported = _run(kfs, submap, config=cfg, poses=jumped)
+    assert any(c.accepted for cs in supported.values() for c in cs if c.match <= 30 < c.query)
+    cfg = LoopClosureConfig(free_every=0, sequence_keyframes=0)
+    _, unsupported = _run(kfs, submap, config=cfg, poses=jumped)
+    assert not [c for cs in unsupported.values() for c in cs if c.match <= 30 < c.query]
 
 
 def test_search_values_and_small_databases(keyframes) -> None:
