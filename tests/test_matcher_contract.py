@@ -33,6 +33,7 @@ from loopclosure.matchers.fft import FFTConfig, FFTMatcher
 from loopclosure.matchers.flirt import FlirtConfig, FlirtMatcher
 from loopclosure.matchers.integral_invariant import IntegralConfig, IntegralInvariantMatcher
 from loopclosure.matchers.mrm import MRMConfig, MRMMatcher
+from loopclosure.matchers.pair_histogram import PairHistogramConfig, PairHistogramMatcher
 from loopclosure.matchers.ring_projection import RingConfig, RingProjectionMatcher
 from loopclosure.matchers.scan_line import ScanLineConfig, ScanLineMatcher
 from loopclosure.matchers.shape_context import ShapeContextConfig, ShapeContextMatcher
@@ -53,7 +54,8 @@ from tests.matcher_shapes import (
     smooth_star,
 )
 
-# The eight matchers of the paper, in its order, with their config dataclasses.
+# The eight matchers of the paper, in its order, then the surface-pair histogram, with their
+# config dataclasses.
 MATCHERS: dict[str, tuple[type[Matcher], type]] = {
     "fft": (FFTMatcher, FFTConfig),
     "integral": (IntegralInvariantMatcher, IntegralConfig),
@@ -63,6 +65,7 @@ MATCHERS: dict[str, tuple[type[Matcher], type]] = {
     "mrm": (MRMMatcher, MRMConfig),
     "tangent": (TangentSpaceMatcher, TangentConfig),
     "flirt": (FlirtMatcher, FlirtConfig),
+    "pairs": (PairHistogramMatcher, PairHistogramConfig),
 }
 
 
@@ -83,6 +86,7 @@ REGISTRY: dict[str, tuple[dict[str, Any], Callable[[Any], Any] | None, tuple[int
     "mrm": ({"n_points": 50, "n_scales": 5}, lambda d: d.mcc.shape, (50, 5)),
     "tangent": ({"n_points": 32, "norm": "l2"}, lambda d: d.periodic.shape, (32,)),
     "flirt": ({"candidates": 2, "max_hypotheses": 100}, None, ()),
+    "pairs": ({"n_distance": 10, "n_angle": 4}, np.shape, (40,)),
 }
 
 # cls(config_cls(**example), **override) keeps both.
@@ -95,6 +99,7 @@ CONFIG_OBJECTS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "mrm": ({"n_scales": 5}, {"band": None}),
     "tangent": ({"scale_weight": 0.5}, {"norm": "l2"}),
     "flirt": ({"rings": 3}, {"sectors": 8}),
+    "pairs": ({"step": 0.5}, {"n_angle": 4}),
 }
 
 # A misspelt option: a UserError matching the pattern, naming every known option too.
@@ -107,6 +112,7 @@ UNKNOWN_OPTION: dict[str, tuple[dict[str, Any], str]] = {
     "mrm": ({"bogus": 1}, "unknown .*bogus"),
     "tangent": ({"points": 3}, "unknown .*points"),
     "flirt": ({"not_an_option": 1}, "unknown FLIRT option.*not_an_option"),
+    "pairs": ({"bins": 3}, "unknown .*bins"),
 }
 
 # Refused option values, and the parameter the message names.
@@ -126,6 +132,8 @@ BAD_VALUES: list[tuple[str, dict[str, Any], str]] = [
     ("tangent", {"norm": "linf"}, "norm"),
     ("flirt", {"descriptor_distance": "cosine"}, "descriptor_distance"),
     ("flirt", {"viewpoint": "nowhere"}, "viewpoint"),
+    ("pairs", {"step": 0.0}, "step"),
+    ("pairs", {"max_distance": -1.0}, "max_distance"),
 ]
 
 
@@ -168,6 +176,9 @@ DESCRIPTORS: dict[str, Descriptors] = {
         self_tol=1e-12,
         max_distance=2.0,
     ),
+    # Unit-norm square-rooted histograms (or zero): Euclidean distance at most sqrt(2).
+    "pairs": Descriptors(_itself, max_distance=float(np.sqrt(2.0)) + 1e-6,
+                         valid=lambda m, d: d.shape == (m.config.dim,) and bool(np.all(d >= 0))),
 }
 
 # The configs the degenerate-polygon, self-distance and batching tests run with.
@@ -180,6 +191,7 @@ VARIANTS: dict[str, tuple[dict[str, Any], ...]] = {
     "mrm": ({}, {"scale_invariant": True}),
     "tangent": ({}, {"norm": "l2"}),
     "flirt": ({},),
+    "pairs": ({}, {"scale_invariant": True}),
 }
 
 
@@ -223,6 +235,7 @@ BATCHES: dict[str, Batch] = {
     "mrm": Batch(_blobs(7), 3, rtol=1e-12, atol=0.0),
     "tangent": Batch(_random_stars(15, n=30), 1, 1e-9, 1e-12, distinct_positive=True),
     "flirt": Batch(_flirt_batch, 1, rtol=1e-7, atol=1e-12),
+    "pairs": Batch(_random_stars(20), 1, rtol=1e-5, atol=1e-6),
 }
 
 # Polygons that are valid but extreme: every matcher must describe them with finite numbers.
@@ -352,6 +365,9 @@ ROTATIONS: dict[str, Rotation] = {
     # by a few hundredths at most (largest seen in 60 random pairs: 0.033; matching pairs:
     # 0.0014).
     "flirt": Rotation(20, _FLIRT_DRAWS, _flirt_rooms, _const(1e-9), (_const(0.01), _const(0.06))),
+    # Pair distances and normal angles are unchanged by a rotation; only a pair within
+    # rounding of a bin edge can move to the neighbouring bin (float32 descriptor).
+    "pairs": Rotation(30, _SEEDS, _pair_of(random_star), _const(2e-3), (_const(2e-3),)),
 }
 
 
@@ -375,6 +391,7 @@ SCALES: dict[str, Scale] = {
     "scanline": Scale(lambda: blob(2), 2.0, 1e-9, metric_min=1.0),
     "mrm": Scale(lambda: blob(5), 2.5, 1e-9, metric_min=None),
     "flirt": Scale(lambda: lobed_star(3, 0.3), 1.5, 1e-9, metric_min=1.0),
+    "pairs": Scale(lambda: random_star(np.random.default_rng(2)), 1.7, 2e-3, metric_min=0.3),
 }
 
 
@@ -443,6 +460,7 @@ PLACES: dict[str, Places] = {
     "mrm": _noisy_blobs,
     "tangent": _rooms(noise=0.02, random_start=True),
     "flirt": _lobed_rooms,
+    "pairs": _rooms(),
 }
 
 # Smallest nearest-neighbour accuracy on the MPEG-7 subset (apple, bone, key), scale invariant.

@@ -24,6 +24,7 @@ _REGISTRY: dict[str, tuple[str, str]] = {
     "mrm": ("loopclosure.matchers.mrm", "MRMMatcher"),
     "tangent": ("loopclosure.matchers.tangent_space", "TangentSpaceMatcher"),
     "flirt": ("loopclosure.matchers.flirt", "FlirtMatcher"),
+    "pairs": ("loopclosure.matchers.pair_histogram", "PairHistogramMatcher"),
 }
 
 MATCHER_NAMES: tuple[str, ...] = tuple(_REGISTRY)
