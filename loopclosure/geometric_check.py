@@ -3,9 +3,13 @@
 A candidate says "keyframe b (the query) is at the place of keyframe a".  The
 check registers b's local submap (points in b's sensor frame) onto a's local
 submap (points in a's sensor frame) from several initial guesses — the relative
-pose predicted by the current pose estimates, headings from the FFT
-cross-correlation of the two places' range functions, each with a few
-translation offsets — and keeps the best run (`loopclosure.multi_start.register_multi`).
+pose predicted by the current pose estimates, or without one the heading
+hypotheses of the place database (`loopclosure.headings`), each at the given
+translation (e.g. the two places' centroids aligned) and, with `origin_guesses`,
+at translation 0 (the two sensor origins together: the centroids of real scans
+move by metres with the open space the sensor happens to see, the sensor of a
+revisit is within metres of the candidate's), each with a few translation offsets
+— and keeps the best run (`loopclosure.multi_start.register_multi`).
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
@@ -75,6 +79,9 @@ class GeometricCheckConfig:
         ambiguity_distance: hypotheses closer than this are the same answer [m].
         ambiguity_angle_deg: ... or closer than this in heading [deg].
         offsets: translation offsets tried around each heading [m].
+        origin_guesses: without a prior, every heading is also tried at translation 0
+            (the two sensor origins together: a revisit is within `max_distance` of
+            its candidate), besides the given translation (module docstring).
         source_voxel: voxel of the query submap before ICP [m] (the candidate's submap
             keeps its own resolution).
         keep: guesses refined by ICP after the coarse overlap prescreen.
@@ -95,6 +102,7 @@ class GeometricCheckConfig:
     ambiguity_distance: float = 0.5
     ambiguity_angle_deg: float = 10.0
     offsets: float = 0.5
+    origin_guesses: bool = True
     source_voxel: float = 0.1
     keep: int = 6
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -186,6 +194,9 @@ def verify(
         base[:2] = np.asarray(translation, dtype=float).reshape(2)
     step = cfg.offsets if offsets is None else offsets
     guesses = initial_guesses(base, headings, _offset_grid(step))
+    if prior is None and translation is not None and cfg.origin_guesses:
+        at_origin = initial_guesses(np.zeros(3), headings, _offset_grid(step))
+        guesses = np.vstack([guesses, at_origin])
     source = voxel_downsample(np.asarray(query_points, dtype=float), cfg.source_voxel)
     multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep)
     best: IcpResult = multi.best

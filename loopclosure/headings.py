@@ -15,8 +15,16 @@ the stored polygon ~ ``R(theta)`` . the query polygon about their centroids.
 `loopclosure.multi_start.initial_guesses` takes these angles as the headings of its
 start poses unchanged.
 
-Producers (both return best first):
+Producers (all return best first):
 
+- `headings_from_polar_grids`: from polar occupancy grids of the two places about
+  their sensor origins (`polar_occupancy`: rings x bearing sectors, the layout of
+  Scan Context, Kim & Kim, IROS 2018), by the circular cross-correlation of the
+  grids along the bearing axis summed over the rings; vectorised over K stored
+  keyframes.  The sensor origins of a revisit are at most metres apart, and the
+  grid keeps *where* along each bearing the surfaces are, so it finds the heading
+  where a range function about the centroid (which open space drags by metres)
+  does not; the place database puts these hypotheses first.
 - `headings_from_range_functions`: from polygon range functions
   (`loopclosure.matchers.fft.FFTDescriptor.range_function`: range about the centroid
   per angle bin, in the sensor frame's orientation), vectorised over K stored
@@ -134,6 +142,103 @@ def heading_hypotheses(
             heads.extend([phi, phi + np.pi])
         return se2.wrap_angle(np.array(heads[:count]))
     raise UserError(f"unknown heading method {method!r}: choose 'range' or 'normals'")
+
+
+def polar_occupancy(
+    points: ArrayLike, rings: int, sectors: int, max_range: float
+) -> NDArray[np.bool_]:
+    """``(rings, sectors)`` occupancy of polar cells about the origin by `points` [m].
+
+    Cell ``(i, k)``: ranges ``[i, i + 1) * max_range / rings`` and bearings
+    ``[-pi + k * 2 pi / sectors, -pi + (k + 1) * 2 pi / sectors)``; True when a point
+    falls in it.  Points at or beyond `max_range` are left out.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    grid = np.zeros((rings, sectors), dtype=bool)
+    if len(pts):
+        r = np.hypot(pts[:, 0], pts[:, 1])
+        use = np.isfinite(r) & (r < max_range)
+        ring = np.minimum((r[use] * (rings / max_range)).astype(np.int64), rings - 1)
+        bearing = np.arctan2(pts[use, 1], pts[use, 0])
+        sector = ((bearing + np.pi) * (sectors / (2 * np.pi))).astype(np.int64) % sectors
+        grid[ring, sector] = True
+    return grid
+
+
+def headings_from_polar_grids(
+    query_grid: ArrayLike, stored_grids: ArrayLike, n: int, separation: int = 3
+) -> tuple[Array, Array]:
+    """Up to `n` headings of the query in the frame of each of K stored keyframes.
+
+    With G^q and G^j the ``(R, S)`` occupancy grids (`polar_occupancy`) of the query
+    and of stored keyframe j, the correlation of the query with the stored grid
+    turned by k sectors,
+
+        c_j[k] = sum_i sum_s G^j[i, s] G^q[i, s + k] / (|G^q| |G^j|)      in [0, 1]
+
+    (circular in s, by FFT along the sectors), peaks where the query sees at bearing
+    phi + k 2 pi / S what keyframe j sees at phi: the heading of the query in j's
+    frame is then ``-k 2 pi / S``.  The `n` highest circular local maxima at least
+    `separation` sectors apart, each refined by a parabola through its neighbours.
+
+    Args:
+        query_grid: ``(R, S)`` grid of the query.
+        stored_grids: ``(K, R, S)`` grids of K stored keyframes.
+        n: hypotheses per keyframe.
+        separation: least distance of two hypotheses [sectors].
+
+    Returns:
+        ``(headings, scores)``, each ``(K, n)``: heading [rad] in [-pi, pi) of the query
+        in the stored frame (module docstring) and c at that peak; rows by decreasing
+        score; missing hypotheses (an empty grid, fewer peaks) have score -inf.
+    """
+    q = np.asarray(query_grid, dtype=float)
+    g = np.asarray(stored_grids, dtype=float)
+    if g.ndim == 2:
+        g = g[None]
+    k, rings, sectors = g.shape
+    if q.shape != (rings, sectors):
+        raise UserError(f"polar grids disagree: query {q.shape}, stored {g.shape}")
+    denom = np.sqrt(float((q * q).sum()) * np.einsum("kij,kij->k", g, g))
+    spec = (np.conj(np.fft.rfft(g, axis=2)) * np.fft.rfft(q, axis=1)[None]).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.fft.irfft(spec, n=sectors, axis=1) / denom[:, None]
+    valid = denom > 0
+    c[~valid] = 0.0
+    cm = np.roll(c, 1, axis=1)
+    cp = np.roll(c, -1, axis=1)
+    peak = (c >= cm) & (c > cp)
+    flat = ~peak.any(axis=1)
+    peak[flat, np.argmax(c[flat], axis=1)] = True
+    masked = np.where(peak, c, -np.inf)
+    order = np.argsort(-masked, axis=1, kind="stable")
+    m = min(n, sectors)
+    top = np.zeros((k, m), dtype=np.intp)
+    ok = np.zeros((k, m), dtype=bool)
+    for row in range(k):  # K candidates (about 10), a few peaks each
+        chosen: list[int] = []
+        for idx in order[row]:
+            if not np.isfinite(masked[row, idx]):
+                break
+            if all(min(abs(idx - c0), sectors - abs(idx - c0)) >= separation for c0 in chosen):
+                chosen.append(int(idx))
+                if len(chosen) == m:
+                    break
+        top[row, : len(chosen)] = chosen
+        ok[row, : len(chosen)] = True
+    rows = np.arange(k)[:, None]
+    c0, cl, cr = c[rows, top], cm[rows, top], cp[rows, top]
+    curv = cl - 2.0 * c0 + cr
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(curv < 0, 0.5 * (cl - cr) / curv, 0.0)
+    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
+    heading = se2.wrap_angle(-(top + delta) * (2.0 * np.pi / sectors))
+    score = np.clip(c0 - 0.25 * (cl - cr) * delta, 0.0, 1.0)
+    ok &= valid[:, None]
+    score = np.where(ok, score, -np.inf)
+    order = np.argsort(-score, axis=1, kind="stable")
+    heading = np.take_along_axis(np.where(ok, heading, 0.0), order, 1)
+    return heading, np.take_along_axis(score, order, 1)
 
 
 def headings_from_range_functions(

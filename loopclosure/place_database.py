@@ -5,10 +5,11 @@ insertion, by every configured stage (`loopclosure.place_config.PlaceDatabaseCon
 and a query runs three steps:
 
 1. Prefilter (all stored keyframes, vectorised).  Each prefilter stage s is a
-   fixed-length descriptor compared by the Euclidean distance (FFT amplitudes,
-   ring-projection profiles: `loopclosure.matchers.vector_search`).  The stages are
-   combined by normalising each distance by a robust scale of the database and
-   summing with weights w_s (default 1):
+   fixed-length descriptor compared by the Euclidean distance (the surface-pair
+   histogram, the default; FFT amplitudes, ring-projection profiles:
+   `loopclosure.matchers.vector_search`).  The stages are combined by normalising
+   each distance by a robust scale of the database and summing with weights w_s
+   (default 1):
 
        p(j) = sum_s w_s d_s(q, j) / scale_s          (unitless)
 
@@ -19,20 +20,20 @@ and a query runs three steps:
    sort of the database (O(M log M)) while the sum keeps the screening at one float32
    matrix-vector product per stage, a few float32 passes and one selection
    (`vector_search.smallest_k`).  The screening is memory bound (one pass over
-   M x D float32 values), so the database's own descriptors are short: 8 FFT
-   amplitudes + 12 rings (20 floats; `fft_harmonics`, `ring_rings`) against the
-   matchers' 16 + 32 defaults.  The K smallest p(j) (``top_k``, default 10) are the
+   M x D float32 values: D = 320 for the pair histogram, 1.3 kB a keyframe; 8 FFT
+   amplitudes + 12 rings when those are the stages, `fft_harmonics`, `ring_rings`).
+   The K smallest p(j) (``top_k``, default 10) are the
    candidates; their stage distances and p are then recomputed exactly (float64) and
    they are re-sorted: their prefilter rank is their order by p.
-2. Verify: each verifier (any registered matcher; default FLIRT and MRM) computes
+2. Verify: each verifier (any registered matcher; default FLIRT) computes
    its `distances` over the K candidates only
    (their descriptors stacked on demand: the database never holds a stacked copy
    of an expensive descriptor).
 3. Fuse (`loopclosure.fusion`): ``fusion="logistic"`` (default): P(same place) =
    sigma(b + sum_s w_s log(d_s / scale_s + eps)) over every stage (prefilter and
    verifier) with the coefficients of `PlaceDatabaseConfig.logistic`
-   (`DEFAULT_LOGISTIC`: calibrated on the simulated Box set, see
-   `loopclosure.cascade.calibrate_logistic`); a verifier's scale is the median
+   (`DEFAULT_LOGISTIC`: fitted on the simulated Box world and three real logs, see
+   `loopclosure.place_config`); a verifier's scale is the median
    over 64 random stored pairs (8 anchors x 8 others), refreshed like the prefilter's.
    ``"rank"``: reciprocal rank fusion of the stages over the K candidates.
    ``"verifier"``: exp(-mean_v d_v / scale_v) over the verifiers only (the
@@ -40,11 +41,17 @@ and a query runs three steps:
    ``"auto"``: logistic unless ``scale_invariant`` (then rank; `resolved_fusion`).
    Candidates are returned by decreasing score (ties: prefilter order).
 
-Heading hypotheses: for every candidate, the ``n_headings`` best headings of the
-query in the candidate's frame (`loopclosure.headings`, whose docstring defines the
-convention), from the circular cross-correlation of the two range functions
-(`headings_from_range_functions`, vectorised over the K candidates): the starting
-rotations of the geometric check.
+Heading hypotheses: for every candidate, headings of the query in the candidate's
+frame (`loopclosure.headings`, whose docstring defines the convention), the starting
+rotations of the geometric check, best first: first the ``grid_headings`` peaks of
+the correlation of the two places' polar occupancy grids about their sensor origins
+(`headings_from_polar_grids`; the grid, ``grid_rings`` x ``grid_sectors`` cells out to
+``grid_range`` m, holds the surface samples of `loopclosure.matchers.pair_histogram`,
+stored bit-packed, 300 bytes a keyframe), then the ``n_headings`` peaks of the
+circular cross-correlation of the two range functions about the centroids
+(`headings_from_range_functions`), less those within 5 degrees of a grid hypothesis;
+both vectorised over the K candidates.  The two producers' scores are not
+comparable: the order is the producers' order, then each one's score.
 
 Storage (`loopclosure.place_rows`) grows with amortised doubling (`VectorStore` for
 prefilter vectors, `FloatRows` for range functions, a list of every keyframe's
@@ -71,12 +78,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from data import se2
 from data.errors import UserError
 from loopclosure.fusion import LogisticFusion, reciprocal_rank_fusion
-from loopclosure.headings import headings_from_range_functions
+from loopclosure.headings import (
+    headings_from_polar_grids,
+    headings_from_range_functions,
+    polar_occupancy,
+)
 from loopclosure.matchers import get_matcher
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.fft import FFTDescriptor, FFTMatcher
+from loopclosure.matchers.pair_histogram import PairHistogramConfig, surface_samples
 from loopclosure.matchers.vector_search import VectorStore, smallest_k
 from loopclosure.place_config import PREFILTER_STAGES, PlaceDatabaseConfig
 from loopclosure.place_rows import FloatRows, KeyIndex
@@ -88,6 +101,10 @@ Descriptors = dict[str, Any]
 (plus ``"heading"`` -> an `FFTDescriptor` when headings are on and FFT is no stage)."""
 
 HEADING = "heading"
+_GRID_SAMPLES = PairHistogramConfig()
+GRID = "grid"
+"""Descriptor key of the bit-packed polar occupancy grid of the grid headings."""
+_SAME_HEADING = np.radians(5.0)
 
 
 def _vector(stage: str, descriptor: Any) -> ArrayLike:
@@ -194,6 +211,7 @@ class PlaceDatabase:
         if cfg.n_headings > 0:
             fft = self.matchers.get("fft")
             self._heading_matcher = fft if isinstance(fft, FFTMatcher) else FFTMatcher()
+        self._grid_on = cfg.grid_headings > 0 and not cfg.scale_invariant
         self._weights = np.asarray(cfg.prefilter_weights or [1.0] * len(cfg.prefilter), float)
         self._stores: dict[str, VectorStore] = {}
         self._descriptors: list[Descriptors] = []  # per row: what `descriptors` returns
@@ -240,6 +258,8 @@ class PlaceDatabase:
         out: Descriptors = {s: m.describe(polygon) for s, m in self.matchers.items()}
         if self._heading_matcher is not None and "fft" not in out:
             out[HEADING] = self._heading_matcher.describe(polygon)
+        if self._grid_on:
+            out[GRID] = self._grid(polygon)
         return out
 
     def descriptors(self, key: Hashable) -> Descriptors:
@@ -293,6 +313,8 @@ class PlaceDatabase:
             if self._ranges is None:
                 self._ranges = FloatRows(len(r))
             self._ranges.append(r)
+        if self._grid_on and descriptors.get(GRID) is not None:
+            kept[GRID] = descriptors[GRID]
         self._descriptors.append(kept)
         self._keys.add(key)
         self._stamps.append(stamp)
@@ -539,12 +561,48 @@ class PlaceDatabase:
             return np.exp(-norm.mean(axis=0))
         return np.exp(-pre)
 
+    def _grid(self, polygon: Polygon) -> NDArray[np.uint8]:
+        """Bit-packed polar occupancy grid of the polygon's surface samples (sensor frame)."""
+        cfg = self.config
+        pts, _, _ = surface_samples(
+            polygon.vertices, step=_GRID_SAMPLES.step, max_edge=_GRID_SAMPLES.max_edge,
+            max_range=min(_GRID_SAMPLES.max_range, cfg.grid_range),
+        )
+        return np.packbits(polar_occupancy(pts, cfg.grid_rings, cfg.grid_sectors, cfg.grid_range))
+
+    def _unpack(self, packed: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        cfg = self.config
+        n = cfg.grid_rings * cfg.grid_sectors
+        return np.unpackbits(packed, count=n).reshape(cfg.grid_rings, cfg.grid_sectors)
+
     def _headings(self, q: Descriptors, cand: NDArray[np.intp]) -> tuple[Array, Array]:
-        n = self.config.n_headings
-        if n == 0 or self._ranges is None:
+        """``(K, H)`` headings [rad] and scores (-inf: none) of the candidates, best first."""
+        cfg = self.config
+        n = cfg.n_headings
+        parts: list[tuple[Array, Array]] = []
+        grids = [self._descriptors[i].get(GRID) for i in cand.tolist()]
+        if self._grid_on and q.get(GRID) is not None and all(g is not None for g in grids):
+            stored = np.stack([self._unpack(g) for g in grids])
+            parts.append(headings_from_polar_grids(self._unpack(q[GRID]), stored,
+                                                   cfg.grid_headings))
+        if n > 0 and self._ranges is not None:
+            fft: FFTDescriptor = q.get("fft", q.get(HEADING))
+            angles, scores = headings_from_range_functions(
+                fft.range_function, self._ranges.data[cand], n
+            )
+            if parts:  # drop range hypotheses a grid hypothesis already holds
+                ga, gs = parts[0]
+                diff = np.abs(se2.wrap_angle(angles[:, :, None] - ga[:, None, :]))
+                dup = ((diff < _SAME_HEADING) & np.isfinite(gs)[:, None, :]).any(axis=2)
+                scores = np.where(dup, -np.inf, scores)
+            parts.append((angles, scores))
+        if not parts:
             return np.zeros((len(cand), 0)), np.zeros((len(cand), 0))
-        fft: FFTDescriptor = q.get("fft", q.get(HEADING))
-        return headings_from_range_functions(fft.range_function, self._ranges.data[cand], n)
+        angles = np.concatenate([a for a, _ in parts], axis=1)
+        scores = np.concatenate([r for _, r in parts], axis=1)
+        # Keep the producers' order, each one's hypotheses by score; missing ones last.
+        order = np.argsort(~np.isfinite(scores), axis=1, kind="stable")
+        return np.take_along_axis(angles, order, 1), np.take_along_axis(scores, order, 1)
 
 
 def _random_pairs(rng: np.random.Generator, m: int, n: int) -> tuple[NDArray, NDArray]:

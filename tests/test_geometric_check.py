@@ -132,3 +132,19 @@ def test_a_fit_farther_than_max_distance_is_not_a_revisit() -> None:
     assert not far.accepted
     assert far.reason == f"not a revisit ({np.hypot(*far.relative[:2]):.1f} m apart)"
     np.testing.assert_array_equal(far.relative, near.relative)
+
+
+def test_origin_guesses_rescue_a_bad_centroid_translation() -> None:
+    """A revisit 0.4 m away whose given translation (e.g. misaligned centroids) is 3 m
+    off: only the guesses at translation 0 start inside ICP's reach."""
+    a, b = np.array([1.0, 1.0, 0.2]), np.array([1.3, 1.25, 1.0])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    truth = se2.between(a, b)
+    wrong = truth[:2] + np.array([3.0, -1.5])
+    found = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong)
+    assert found.accepted, found.reason
+    np.testing.assert_allclose(found.relative[:2], truth[:2], atol=0.01)
+    off = GeometricCheckConfig(origin_guesses=False)
+    lost = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong,
+                  config=off)
+    assert not (lost.accepted and np.allclose(lost.relative[:2], truth[:2], atol=0.05))

@@ -20,7 +20,7 @@ from slam.config import PipelineConfig
 from tests.helpers import shared_file
 
 SIM = {"fov_deg": 180.0, "beams": 181, "max_range": 12.0, "noise_sigma": 0.02}
-CHEAP = ["fft", "ring", "prefilter", "flirt@10", "mrm@10", "fused", "flirt-alone"]
+CHEAP = ["pairs", "prefilter", "flirt@10", "fused", "flirt-alone"]
 
 # ------------------------------------------------------------------------ the measures
 
@@ -117,7 +117,7 @@ def test_stages_are_parsed_against_the_config() -> None:
     cfg = PipelineConfig()
     assert lb.parse_stages(None, cfg) == CHEAP
     assert lb.parse_stages("flirt, fused,flirt", cfg) == ["flirt@10", "fused"]
-    assert lb.parse_stages("mrm-alone", cfg) == ["mrm-alone"]
+    assert lb.parse_stages("pairs-alone", cfg) == ["pairs-alone"]
     with pytest.raises(UserError, match="unknown stage"):
         lb.parse_stages("sift", cfg)
     with pytest.raises(UserError, match="unknown stage"):

@@ -54,7 +54,7 @@ def places() -> tuple[list[Polygon], np.ndarray, np.ndarray]:
 
 def quick_db(**overrides: object) -> PlaceDatabase:
     """FFT + ring prefilter, integral-invariant verifier (fast), rank fusion."""
-    cfg = dict(verifiers=("integral",), fusion="rank", top_k=5)
+    cfg = dict(prefilter=("fft", "ring"), verifiers=("integral",), fusion="rank", top_k=5)
     cfg.update(overrides)
     return PlaceDatabase(PlaceDatabaseConfig(**cfg))  # type: ignore[arg-type]
 
@@ -140,12 +140,12 @@ def test_query_matches_brute_force(polygons: list[Polygon]) -> None:
 
 
 def test_query_of_a_stored_polygon_finds_itself_first(polygons: list[Polygon]) -> None:
-    db = PlaceDatabase(top_k=5)  # defaults: FFT + ring, FLIRT + MRM, logistic fusion
+    db = PlaceDatabase(top_k=5)  # defaults: surface pairs, FLIRT, logistic fusion
     for i, p in enumerate(polygons[:20]):
         db.add(i, p)
     m = db.query(polygons[4])
     assert m[0].key == 4
-    assert m[0].distances["fft"] == 0.0 and m[0].distances["ring"] == 0.0
+    assert m[0].distances["pairs"] == 0.0 and m[0].distances["flirt"] == 0.0
     assert m[0].score > 0.99
 
 
@@ -163,7 +163,7 @@ def test_storage_grows_without_restacking(polygons: list[Polygon]) -> None:
 
 
 def test_storage_capacity_doubles_over_many_insertions() -> None:
-    db = PlaceDatabase(verifiers=(), fusion="prefilter", n_headings=0)
+    db = PlaceDatabase(prefilter=("fft", "ring"), verifiers=(), fusion="prefilter", n_headings=0)
     fft, ring = db.matchers["fft"], db.matchers["ring"]
     p = star_polygon(np.random.default_rng(0))
     desc = {"fft": fft.describe(p), "ring": ring.describe(p)}
@@ -241,7 +241,8 @@ def test_heading_hypotheses_first_equals_scalar_version() -> None:
 @given(st.floats(-3.1, 3.1), st.integers(0, 10_000))
 def test_heading_recovers_rotation(angle: float, seed: int) -> None:
     p = star_polygon(np.random.default_rng(seed), n=200)
-    db = PlaceDatabase(verifiers=(), fusion="prefilter", n_headings=2)
+    db = PlaceDatabase(prefilter=("fft", "ring"), verifiers=(), fusion="prefilter", n_headings=2,
+                       grid_headings=0)  # the range-function hypotheses alone
     db.add("a", p)
     m = db.query(p.rotated(angle))[0]
     err = (m.headings[0][0] + angle + np.pi) % (2 * np.pi) - np.pi
@@ -311,13 +312,15 @@ def test_empty_database_and_descriptor_queries(polygons: list[Polygon]) -> None:
 
 
 def test_headings_without_an_fft_stage(polygons: list[Polygon]) -> None:
-    db = PlaceDatabase(prefilter=("ring",), verifiers=(), fusion="prefilter", n_headings=2)
+    db = PlaceDatabase(prefilter=("ring",), verifiers=(), fusion="prefilter", n_headings=2,
+                       grid_headings=0)
     for i, p in enumerate(polygons[:5]):
         db.add(i, p)
     m = db.query(polygons[2].rotated(0.5))[0]
     assert m.key == 2 and "fft" not in m.distances
     assert abs((m.headings[0][0] + 0.5 + np.pi) % (2 * np.pi) - np.pi) < np.radians(1.5)
-    no = PlaceDatabase(prefilter=("ring",), verifiers=(), fusion="prefilter", n_headings=0)
+    no = PlaceDatabase(prefilter=("ring",), verifiers=(), fusion="prefilter", n_headings=0,
+                       grid_headings=0)
     no.add(0, polygons[0])
     assert no.query(polygons[0])[0].headings == ()
 
