@@ -37,6 +37,9 @@ from evaluation.relations_metric import relations_metric
 from slam.config import PipelineConfig
 from slam.config_io import apply_overrides
 from slam.pipeline import Mapper
+from slam.refine_scans import refine_scan_poses
+
+SHORT_S = 1.0
 
 DEFAULT_VARIANTS = (
     "pose:loops.search=pose",
@@ -45,7 +48,34 @@ DEFAULT_VARIANTS = (
 )
 
 
-def run_variant(scans: list, overrides: list[str], relations: list) -> dict[str, float]:
+def scan_points(scan) -> np.ndarray:
+    """``(N, 2)`` valid end points of a scan in its sensor frame [m]."""
+    ok = scan.valid
+    return np.column_stack([scan.ranges[ok] * np.cos(scan.angles[ok]),
+                            scan.ranges[ok] * np.sin(scan.angles[ok])])
+
+
+def score(stamps: np.ndarray, poses: np.ndarray, relations: list, prefix: str) -> dict:
+    """Relations error of per-scan poses: all relations and the short ones."""
+    order = np.argsort(stamps, kind="stable")
+    traj = Trajectory.from_xytheta(stamps[order], poses[order])
+    lo, hi = stamps.min(), stamps.max()
+    inside = [r for r in relations if lo <= min(r.t1, r.t2) and max(r.t1, r.t2) <= hi]
+    short = [r for r in inside if abs(r.t2 - r.t1) < SHORT_S]
+    row: dict[str, float] = {}
+    if inside:
+        metric = relations_metric(traj, inside)
+        row[f"{prefix}trans_m"] = metric.trans_abs_mean
+        row[f"{prefix}rot_deg"] = metric.rot_abs_mean_deg
+    if short:
+        metric = relations_metric(traj, short)
+        row[f"{prefix}short_trans_m"] = metric.trans_abs_mean
+        row[f"{prefix}short_rot_deg"] = metric.rot_abs_mean_deg
+    return row
+
+
+def run_variant(scans: list, overrides: list[str], relations: list,
+                refine: bool = False) -> dict[str, float]:
     """Map `scans` with the overridden defaults; timings, loop counts and relations error."""
     cfg = apply_overrides(PipelineConfig(), overrides)
     start = time.perf_counter()
@@ -64,15 +94,15 @@ def run_variant(scans: list, overrides: list[str], relations: list) -> dict[str,
     )
     row["gnc_rejected"] = sum(e.rejected_by_gnc for e in result.loops)
     stamps = result.scan_stamps
-    order = np.argsort(stamps, kind="stable")
-    traj = Trajectory.from_xytheta(stamps[order], result.scan_poses[order])
-    lo, hi = stamps.min(), stamps.max()
-    inside = [r for r in relations if lo <= min(r.t1, r.t2) and max(r.t1, r.t2) <= hi]
-    if inside:
-        metric = relations_metric(traj, inside)
-        row["rel_trans_m"] = metric.trans_abs_mean
-        row["rel_rot_deg"] = metric.rot_abs_mean_deg
-        row["relations"] = metric.relations_used
+    row.update(score(stamps, result.scan_poses, relations, "rel_"))
+    if refine and len(stamps) == len(scans):
+        start = time.perf_counter()
+        position = {s.index: i for i, s in enumerate(scans)}
+        map_scans = sorted(position[k.scan_index] for k in result.keyframes)
+        refined = refine_scan_poses([scan_points(s) for s in scans], result.scan_poses,
+                                    map_scans)
+        row["refine_s"] = time.perf_counter() - start
+        row.update(score(stamps, refined.poses, relations, "refined_"))
     return row
 
 
@@ -81,6 +111,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2]
                         / "shared" / "data")
     parser.add_argument("--limit", type=int, default=4000, help="scans (0: the whole log)")
+    parser.add_argument("--refine", action="store_true",
+                        help="also score the scans refined by slam.refine_scans")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable)")
     args = parser.parse_args()
@@ -98,7 +130,7 @@ def main() -> None:
     for spec in args.variant or DEFAULT_VARIANTS:
         name, _, sets = spec.partition(":")
         overrides = [s for s in sets.split(",") if s]
-        rows[name] = run_variant(scans, overrides, relations)
+        rows[name] = run_variant(scans, overrides, relations, args.refine)
         r = rows[name]
         print(f"\n{name} ({', '.join(overrides) or 'defaults'})")
         print("  " + "  ".join(f"{k} {v:.4g}" for k, v in r.items()))
