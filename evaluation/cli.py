@@ -247,7 +247,7 @@ def eval_robustness(
 
 def register(app: typer.Typer) -> None:
     """Add the `eval` and `bench` command groups to `app`, and the demo report to `run`."""
-    from evaluation import cli_loops, cli_places, cli_slam, cli_stripes
+    from evaluation import cli_batch, cli_loops, cli_places, cli_slam, cli_stripes
     from evaluation.demo_report import demo_reporter
     from slam.cli.run_command import add_run_reporter
 
@@ -256,5 +256,6 @@ def register(app: typer.Typer) -> None:
     cli_stripes.register(bench_app)
     cli_slam.register(bench_app)
     cli_loops.register(bench_app)
+    cli_batch.register(app)
     app.add_typer(eval_app, name="eval")
     app.add_typer(bench_app, name="bench")
