@@ -71,7 +71,7 @@ Departures from the paper
   that does not move with the robot's displacement) on B uniform bins, which also
   handles scans with irregular or missing beams.
 - Database comparison (`loopclosure.matchers.vector_search`) uses float32 and
-  ||q||^2 + ||x||^2 - 2 q.x (one BLAS matrix-vector product); entries whose squared
+  ||q||^2 + ||x||^2 - 2 q.x (one single-threaded matrix-vector product); entries whose squared
   distance is within 1e-4 of the norms (near-duplicates, where float32 cancellation
   matters) are recomputed exactly in float64, so identical shapes give exactly 0.
 """

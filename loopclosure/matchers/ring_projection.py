@@ -53,7 +53,7 @@ Parameters (`RingConfig`)
   max_radius = the largest centroid-to-vertex distance, and arc lengths are divided by
   it (so the descriptor does not change with scale); for MPEG-7.
 - ``norm`` = "l2": Euclidean distance, because ring projection is a prefilter: a query
-  against the whole database is one float32 BLAS matrix-vector product with precomputed
+  against the whole database is one float32 matrix-vector product with precomputed
   norms (||q||^2 + ||x||^2 - 2 q.x).  "l1" needs a full |x - q| pass over the
   database instead.
 - ``arc_length`` = True: the profile is the arc length gamma * f(gamma) [m] (the

@@ -13,10 +13,11 @@ n_i = ||x_i||^2,
 
     d_i^2 = n_i + ||q||^2 - 2 x_i . q
 
-is one BLAS matrix-vector product over the database (memory bound: one pass over
-X).  Its float32 rounding error is about 1e-7 (n_i + ||q||^2), which swamps d_i^2
-when x_i is (nearly) q: entries with d_i^2 <= 1e-4 (n_i + ||q||^2) are recomputed
-exactly in float64 from the difference, so identical descriptors give exactly 0
+is one float32 matrix-vector product over the database (`_matvec`, single-threaded;
+memory bound: one pass over X).  Its float32 rounding error is about
+1e-7 (n_i + ||q||^2), which swamps d_i^2 when x_i is (nearly) q: entries with
+d_i^2 <= 1e-4 (n_i + ||q||^2) are recomputed exactly in float64 from the
+difference, so identical descriptors give exactly 0
 and near-duplicates keep their order.  Distances are returned as float64, >= 0.
 
 `VectorStore` additionally subtracts a fixed reference row (the first vector it
@@ -71,6 +72,18 @@ def stack_vectors(rows: Sequence[ArrayLike], dim: int) -> VectorStack:
     return VectorStack(m, np.einsum("ij,ij->i", m, m))
 
 
+def _matvec(matrix: Array32, vector: Array32, out: Array32 | None = None) -> Array32:
+    """``matrix @ vector`` in float32 on the calling thread (`np.einsum`'s own loop).
+
+    Not BLAS: a multithreaded BLAS matrix-vector product, memory bound anyway, ran an
+    order of magnitude slower than this single-threaded loop on a loaded two-core
+    machine, and a place query must not depend on idle cores.
+    """
+    if out is None:
+        return np.einsum("ij,j->i", matrix, vector)
+    return np.einsum("ij,j->i", matrix, vector, out=out)
+
+
 def euclidean_distances(query: ArrayLike, matrix: Array32, sqnorms: Array32) -> Array:
     """``(M,)`` float64 Euclidean distances of `query` ``(D,)`` to every row of `matrix`.
 
@@ -80,7 +93,7 @@ def euclidean_distances(query: ArrayLike, matrix: Array32, sqnorms: Array32) -> 
     """
     q = np.asarray(query, np.float32)
     qq = np.float32(q @ q)
-    d2 = matrix @ (-2.0 * q).astype(np.float32)
+    d2 = _matvec(matrix, (-2.0 * q).astype(np.float32))
     d2 += sqnorms
     d2 += qq
     near = np.flatnonzero(d2 <= RECOMPUTE_REL * (sqnorms + qq))
@@ -233,7 +246,7 @@ class VectorStore:
         q = self.relative(query)
         m = self._size
         d2 = np.empty(m, np.float32) if out is None else out[:m]
-        np.matmul(self.matrix, -2.0 * q, out=d2)
+        _matvec(self.matrix, -2.0 * q, out=d2)
         d2 += self.sqnorms
         d2 += np.float32(q @ q)
         np.maximum(d2, 0.0, out=d2)
