@@ -22,7 +22,7 @@ from evaluation.cli_options import (
     OverridesOption,
     TopicOption,
 )
-from evaluation.cluster import ClusterOption
+from evaluation.cluster import ClusterOption, parse_cluster
 from slam.cli.common import print_json
 
 EXIT_FAILED = 1
@@ -66,6 +66,7 @@ def batch(
     from evaluation.batch import expand_inputs, make_jobs, run_batch, write_batch
     from slam.cli.run_command import _config
 
+    parse_cluster(cluster)  # a bad --cluster fails before anything is written
     if limit is not None and limit < 1:
         raise UserError(f"--limit must be at least 1, got {limit}")
     cfg = _config(config, odometry, overrides)
