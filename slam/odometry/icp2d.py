@@ -2,13 +2,15 @@
 
 Each scan's valid end points (sensor frame, beams within ``[min_range, max_range]``,
 voxel-downsampled to `source_voxel`) are registered by point-to-line ICP, with
-clutter (vegetation, furniture) matched point to point
-(`loopclosure.registration.register`) onto a local map: the points of the last
-`map_keyframes` map keyframes, in the odometry frame, merged and voxel-downsampled
-to `map_voxel`, cropped to `map_radius` around the newest keyframe.  A scan becomes
-a map keyframe when the pose has moved `keyframe_distance` or turned
-`keyframe_rotation` since the last one; only then is the map (normals and KD-tree,
-`RegistrationTarget`) rebuilt, so most scans cost one ICP and nothing else.
+clutter (vegetation, furniture) matched point to point (the maths of
+`loopclosure.registration.register`, run by the compiled kernel
+`slam.odometry.fast_icp.register_fast`, or by the numpy reference with
+``compiled=False``) onto a local map: the points of the last `map_keyframes` map
+keyframes, in the odometry frame, merged and voxel-downsampled to `map_voxel`,
+cropped to `map_radius` around the newest keyframe.  A scan becomes a map keyframe
+when the pose has moved `keyframe_distance` or turned `keyframe_rotation` since the
+last one; only then is the map (normals and cell grid, `fast_icp.GridTarget`)
+rebuilt, so most scans cost one ICP and nothing else.
 
 Prediction (initial guess and prior of ICP)
 -------------------------------------------
