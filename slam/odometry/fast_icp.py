@@ -51,6 +51,7 @@ from loopclosure.registration import (
     RegistrationTarget,
     as_points,
 )
+from slam.odometry import LINE_ANCHORS
 
 Array = NDArray[np.float64]
 
@@ -59,7 +60,7 @@ KIND_NONE, KIND_LINE, KIND_CLUTTER = 0, 1, 2
 #: Where the line of a line-like map point passes: through the point itself (a voxel
 #: centroid), or through the mean of the neighbours that gave its normal, which
 #: averages their noise (``k`` points: the line's offset noise shrinks by ``sqrt(k)``).
-ANCHORS: tuple[str, ...] = ("point", "mean")
+ANCHORS: tuple[str, ...] = LINE_ANCHORS
 _KERNELS = {"none": 0, "cauchy": 1, "huber": 2, "tukey": 3}
 _MAD = 1.4826
 

@@ -85,7 +85,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,8 +103,10 @@ from loopclosure.registration import (
     register,
     voxel_downsample,
 )
-from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
-from slam.odometry.fast_icp import ANCHORS, GridTarget, register_fast, voxel_downsample_fast
+from slam.odometry import LINE_ANCHORS, MotionNoise, OdometryEstimate, scan_odometry
+
+if TYPE_CHECKING:
+    from slam.odometry.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
 
@@ -213,8 +215,8 @@ class Icp2dConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise UserError(f"icp2d {name} must be a positive number, got {value}")
-        if self.line_anchor not in ANCHORS:
-            raise UserError(f"icp2d line_anchor must be one of {', '.join(ANCHORS)}, "
+        if self.line_anchor not in LINE_ANCHORS:
+            raise UserError(f"icp2d line_anchor must be one of {', '.join(LINE_ANCHORS)}, "
                             f"got {self.line_anchor!r}")
         if self.line_anchor != "point" and not self.compiled:
             raise UserError("icp2d line_anchor other than 'point' needs compiled=true")
@@ -224,6 +226,14 @@ class Icp2dConfig:
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise UserError(f"icp2d {name} must be three numbers >= 0, got {value}")
+
+
+def _fast():
+    """`slam.odometry.fast_icp`, imported on first use: numba (tens of MB, a fraction
+    of a second) loads only when a scan is registered, not with the config."""
+    from slam.odometry import fast_icp
+
+    return fast_icp
 
 
 def _frame_rotation(theta: float) -> Array:
@@ -342,7 +352,7 @@ class Icp2dOdometry:
             keep = valid & (r >= cfg.min_range) & (r <= cfg.max_range)
         pts = np.column_stack([r[keep] * np.cos(scan.angles[keep]),
                                r[keep] * np.sin(scan.angles[keep])])
-        voxel = voxel_downsample_fast if cfg.compiled else voxel_downsample
+        voxel = _fast().voxel_downsample_fast if cfg.compiled else voxel_downsample
         return voxel(pts, cfg.source_voxel)
 
     def _prediction(self, odom: Array | None) -> tuple[Array, Array, bool]:
@@ -367,6 +377,8 @@ class Icp2dOdometry:
         assert grid is not None
         cfg = self.config
         if cfg.compiled:
+            register_fast = _fast().register_fast
+
             def icp(*args, **kwargs):
                 return register_fast(points, grid, *args, **kwargs)
         else:
@@ -461,16 +473,18 @@ class Icp2dOdometry:
 
     def _rebuild_map(self) -> None:
         cfg = self.config
-        voxel = voxel_downsample_fast if cfg.compiled else voxel_downsample
+        fast = _fast()
+        voxel = fast.voxel_downsample_fast if cfg.compiled else voxel_downsample
         pts = voxel(np.vstack(list(self._keyframes)), cfg.map_voxel)
         assert self._keyframe_pose is not None
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         if cfg.compiled:
-            self._grid = GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
-                                    anchor_radius=cfg.line_anchor_radius)
+            self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
+                                         anchor_radius=cfg.line_anchor_radius)
         else:
             target = RegistrationTarget(pts[near], cfg.icp)
-            self._grid = GridTarget.from_target(target) if target.tree is not None else None
+            self._grid = (fast.GridTarget.from_target(target) if target.tree is not None
+                          else None)
         if self._grid is not None and len(self._grid) == 0:
             self._grid = None
         self.map_rebuilds += 1
