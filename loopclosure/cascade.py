@@ -80,9 +80,10 @@ CLI::
                              CascadeConfig(fusion='rank')))"
 
 and paste the printed `LogisticFusion` into `CASCADE_LOGISTIC` (or into the
-``logistic`` section of a config file).  The place database's `DEFAULT_LOGISTIC`
-is refitted the same way with ``PlaceDatabaseConfig(fusion='rank')`` and
-``top_k=50``.
+``logistic`` section of a config file).  The place database's `PAPER_LOGISTIC`
+(its stages before the surface-pair prefilter) was fitted the same way with
+``PlaceDatabaseConfig(fusion='rank')`` and ``top_k=50``; its `DEFAULT_LOGISTIC` is
+fitted on bench-loops candidates of real logs (`loopclosure.place_config`).
 """
 
 from __future__ import annotations
