@@ -182,3 +182,21 @@ def test_solve3_matches_numpy_and_survives_a_singular_matrix() -> None:
     np.testing.assert_allclose(_solve3(h, g), np.linalg.solve(h, g), rtol=1e-10)
     corridor = np.diag([0.0, 4.0, 2.0]) + 1e-12 * np.eye(3)  # nothing along x
     assert np.all(np.isfinite(_solve3(corridor, np.array([0.0, 1.0, 1.0]))))
+
+
+def test_anchor_band_ignores_the_other_face_of_a_thin_wall() -> None:
+    """Two faces 8 cm apart (a thin wall seen from both sides): with a band below the
+    thickness the line of a face stays on that face; without, it moves towards the middle."""
+    face_a = segment((-2, 0.0), (2, 0.0))
+    face_b = segment((-1.975, 0.08), (2.025, 0.08))
+    pts = np.vstack([face_a, face_b])
+    cfg = IcpConfig(normal_neighbors=8, max_normal_ratio=0.5)
+    wide = GridTarget(pts, cfg, anchor="mean", anchor_radius=0.2)
+    band = GridTarget(pts, cfg, anchor="mean", anchor_radius=0.2, anchor_band=0.03)
+    on_a = ((np.abs(band.points[:, 1]) < 1e-9) & (band.kind == KIND_LINE)
+            & (np.abs(band.points[:, 0]) < 1.5))  # away from the ends
+    assert on_a.any()
+    np.testing.assert_allclose(band.anchors[on_a, 1], 0.0, atol=1e-9)
+    assert np.abs(wide.anchors[on_a, 1]).max() > 0.01
+    with pytest.raises(UserError, match="band"):
+        GridTarget(pts, anchor="mean", anchor_band=0.0)

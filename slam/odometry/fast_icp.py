@@ -86,16 +86,21 @@ class GridTarget:
         anchor_radius: with ``"mean"``, only the normal neighbours closer than this
             to the point enter the mean [m] (a short stretch of wall: little bias
             where the wall curves or the map is sparse).
+        anchor_band: with ``"mean"``, only neighbours whose offset along the normal
+            is at most this enter it [m] (inf: all).
         anchors: ``(M, 2)`` the point each line-like point's line passes through:
-            the point itself, or with ``"mean"`` the mean of its normal neighbours
-            within `anchor_radius`.
+            the point itself, or with ``"mean"`` the point moved along its normal by
+            the mean normal offset of its normal neighbours within `anchor_radius`
+            and `anchor_band` (for a straight wall: the mean of those neighbours).
     """
 
-    __slots__ = ("_target", "anchor", "anchor_radius", "anchors", "cell", "config",
+    __slots__ = ("_target", "anchor", "anchor_band", "anchor_radius", "anchors", "cell",
+                 "config",
                  "input_points", "kind", "normals", "origin", "points", "shape", "start")
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None,
                  cell: float = 0.25, *, anchor: str = "point", anchor_radius: float = 0.2,
+                 anchor_band: float = np.inf,
                  target: RegistrationTarget | None = None) -> None:
         if not (np.isfinite(cell) and cell > 0):
             raise UserError(f"grid cell must be a positive number of metres, got {cell}")
@@ -105,8 +110,11 @@ class GridTarget:
             raise UserError("a grid made from a RegistrationTarget anchors lines at its points")
         if not anchor_radius > 0:
             raise UserError(f"line anchor radius must be positive, got {anchor_radius}")
+        if not anchor_band > 0:
+            raise UserError(f"line anchor band must be positive, got {anchor_band}")
         self.anchor = anchor
         self.anchor_radius = float(anchor_radius)
+        self.anchor_band = float(anchor_band)
         self.config = config or (target.config if target is not None else IcpConfig())
         self.cell = float(cell)
         self._target = target
@@ -165,7 +173,7 @@ def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array
     normals, ratio, count, means = _normals_kernel(
         grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
         grid.start, min(cfg.normal_neighbors, len(grid.points)), cfg.normal_radius,
-        grid.anchor_radius)
+        grid.anchor_radius, grid.anchor_band)
     enough = count >= cfg.min_normal_neighbors
     if len(grid.points) < cfg.min_normal_neighbors:
         enough[:] = False
@@ -174,11 +182,13 @@ def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array
 
 
 @numba.njit(cache=True)
-def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius):
+def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, band):
     """PCA normal, ``lambda_min / lambda_max`` and neighbour count of every point: its `k`
     nearest points (itself included) closer than `radius` (`loopclosure.registration`'s
-    `estimate_normals`, the same equations), and the mean of those neighbours closer
-    than `anchor_radius`."""
+    `estimate_normals`, the same equations), and the line anchor: the point moved along
+    its normal by the mean normal offset ``n . (q - p)`` of those neighbours ``q``
+    closer than `anchor_radius` whose offset is at most `band` (the other face of a
+    thin wall or a nearby object does not pull the line)."""
     n = pts.shape[0]
     a2 = anchor_radius * anchor_radius
     normals = np.zeros((n, 2))
@@ -226,17 +236,6 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius):
             my += pts[bi[t], 1]
         mx /= m
         my /= m
-        ax = 0.0
-        ay = 0.0
-        na = 0
-        for t in range(m):
-            if bd[t] < a2:
-                ax += pts[bi[t], 0]
-                ay += pts[bi[t], 1]
-                na += 1
-        if na > 0:
-            means[p, 0] = ax / na
-            means[p, 1] = ay / na
         a = 0.0
         b = 0.0
         cc = 0.0
@@ -254,8 +253,20 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius):
         lmax = 0.5 * (a + cc) + root
         lmin = 0.5 * (a + cc) - root
         phi = 0.5 * np.arctan2(2.0 * b, a - cc)
-        normals[p, 0] = -np.sin(phi)
-        normals[p, 1] = np.cos(phi)
+        n0, n1 = -np.sin(phi), np.cos(phi)
+        normals[p, 0] = n0
+        normals[p, 1] = n1
+        off = 0.0
+        na = 0
+        for t in range(m):
+            if bd[t] < a2:
+                o = n0 * (pts[bi[t], 0] - px) + n1 * (pts[bi[t], 1] - py)
+                if abs(o) <= band:
+                    off += o
+                    na += 1
+        if na > 0:
+            means[p, 0] = px + n0 * off / na
+            means[p, 1] = py + n1 * off / na
         ratio[p] = max(lmin, 0.0) / lmax if lmax > 0 else 1.0
     return normals, ratio, count, means
 

@@ -144,6 +144,7 @@ class Icp2dConfig:
             ``"mean"`` needs `compiled`.
         line_anchor_radius: the neighbours of that mean are within this distance of
             the point [m].
+        line_anchor_band: and within this distance of the point's line [m] (inf: all).
         odometry_noise: covariance model of odometry increments.
         velocity_sigma: per-step standard deviations of the constant-velocity
             prediction (x [m], y [m], theta [rad]).
@@ -189,6 +190,7 @@ class Icp2dConfig:
     compiled: bool = True
     line_anchor: str = "point"
     line_anchor_radius: float = 0.2
+    line_anchor_band: float = float("inf")
     odometry_noise: MotionNoise = field(default_factory=MotionNoise)
     velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
     covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
@@ -480,7 +482,8 @@ class Icp2dOdometry:
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         if cfg.compiled:
             self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
-                                         anchor_radius=cfg.line_anchor_radius)
+                                         anchor_radius=cfg.line_anchor_radius,
+                                         anchor_band=cfg.line_anchor_band)
         else:
             target = RegistrationTarget(pts[near], cfg.icp)
             self._grid = (fast.GridTarget.from_target(target) if target.tree is not None
