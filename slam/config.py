@@ -18,6 +18,7 @@ from slam.occupancy_map import MapConfig
 from slam.odometry.icp2d import Icp2dConfig
 from slam.odometry.kiss import KissConfig
 from slam.odometry.wheel import WheelConfig
+from slam.refine_scans import RefineConfig
 
 
 @dataclass(slots=True)
@@ -74,6 +75,10 @@ class PipelineConfig:
         loops: the loop-closure plugin (place database, geometric check, search).
         backend: pose graph and optimisation.
         map: occupancy grid written at the end.
+        refine_scans: after the final optimisation, register every scan onto the
+            optimised keyframes around it (`slam.refine_scans`; keeps each scan's
+            points, voxelised, until the end of the run).
+        refine: its parameters.
         uncertainty: what gates the loop search: ``since-loop`` (odometry covariance
             accumulated since the last accepted loop closure; cheap) or ``marginal``
             (iSAM2's marginal covariance of the newest keyframe; grows with the
@@ -89,6 +94,8 @@ class PipelineConfig:
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     map: MapConfig = field(default_factory=MapConfig)
+    refine_scans: bool = False
+    refine: RefineConfig = field(default_factory=RefineConfig)
     uncertainty: str = "since-loop"
 
     def submap_neighbours(self) -> int:

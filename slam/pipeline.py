@@ -8,6 +8,8 @@
                                                   -> robust loop factors, iSAM2 update
     at the end:      batch GNC over every loop (outliers dropped, reported)
                      -> a pose for every scan (blended between keyframes)
+                     -> optionally every scan registered onto the optimised
+                        keyframes around it (`refine_scans`)
 
 Frames: the map frame is the odometry frame of the first scan (the first
 keyframe's pose is its odometry pose and is held fixed).  All poses are planar
@@ -41,6 +43,7 @@ from slam.config import PipelineConfig
 from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.odometry import OdometryEstimate, make_odometry
 from slam.optimize import IncrementalSmoother, optimize
+from slam.refine_scans import refine_scan_poses
 
 Array = NDArray[np.float64]
 Progress = Callable[[int, int, int], None]
@@ -120,6 +123,10 @@ class Mapper:
         )
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
+        # With `refine_scans`: every scan's points (voxelised, float32) and the
+        # positions of the keyframes among them.
+        self._scan_points: list[NDArray[np.float32]] = []
+        self._keyframe_scans: list[int] = []
         self.status: dict[str, int] = {}
         self.timings = {"odometry": 0.0, "keyframes": 0.0, "loop_detection": 0.0,
                         "optimisation": 0.0, "final_optimisation": 0.0}
@@ -163,6 +170,8 @@ class Mapper:
         start = time.perf_counter()
         keyframe = self.keyframes.push(scan, estimate)
         self.timings["keyframes"] += time.perf_counter() - start
+        if self.config.refine_scans:
+            self._keep_points(scan, keyframe is not None)
         if keyframe is not None:
             self._add_keyframe(keyframe, estimate)
 
@@ -201,6 +210,13 @@ class Mapper:
             self.loops.append(event)
         if added:
             self._update()
+
+    def _keep_points(self, scan: Scan, is_keyframe: bool) -> None:
+        pts = voxel_downsample(scan.points(), self.config.refine.source_voxel) \
+            if self.config.refine.source_voxel > 0 else scan.points()
+        self._scan_points.append(pts.astype(np.float32))
+        if is_keyframe:
+            self._keyframe_scans.append(len(self._scan_points) - 1)
 
     def _update(self) -> None:
         start = time.perf_counter()
@@ -271,6 +287,15 @@ class Mapper:
             if self.keyframes.keyframes
             else np.zeros((len(self.keyframes.scan_stamps), 3))
         )
+        if self.config.refine_scans and not interrupted and len(self._scan_points) == len(
+            scan_poses
+        ):
+            start = time.perf_counter()
+            scan_poses = refine_scan_poses(
+                [p.astype(float) for p in self._scan_points], scan_poses,
+                self._keyframe_scans, self.config.refine,
+            ).poses
+            self.timings["refine_scans"] = time.perf_counter() - start
         return MappingResult(
             scan_stamps=np.asarray(self.keyframes.scan_stamps, dtype=float),
             scan_poses=scan_poses,

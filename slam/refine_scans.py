@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -35,7 +36,9 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from loopclosure.registration import IcpConfig
-from slam.odometry.fast_icp import GridTarget, register_fast, voxel_downsample_fast
+
+if TYPE_CHECKING:
+    from slam.odometry.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
 
@@ -107,6 +110,9 @@ def refine_scan_poses(
             make the maps, normally the keyframes.
         config: parameters (`RefineConfig`).
     """
+    # The compiled kernel loads numba: only when a refinement runs.
+    from slam.odometry.fast_icp import GridTarget, register_fast, voxel_downsample_fast
+
     cfg = config or RefineConfig()
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)
     if len(points) != len(poses):

@@ -195,3 +195,17 @@ def test_real_intel_slice_through_a_ros2_bag_reads_back_identical_and_maps(tmp_p
     assert summary["scans"] == 600 and summary["keyframes"] > 50
     rows = [r for r in (out / "trajectory.tum").read_text().splitlines() if r[:1].isdigit()]
     assert len(rows) == 600
+
+
+def test_refine_scans_registers_every_scan_onto_the_optimised_map() -> None:
+    run = simulate_run("box", seed=4, fov_deg=180.0, beams=181, max_range=12.0,
+                       noise_sigma=0.01, motion=MotionConfig(laps=0.5))
+    gt = run.ground_truth
+    errors = {}
+    for refine in (False, True):
+        result = Mapper(PipelineConfig(refine_scans=refine)).run(run.scans)
+        assert result.scan_poses.shape == (len(run.scans), 3)
+        assert ("refine_scans" in result.timings) == refine
+        traj = Trajectory.from_xytheta(result.scan_stamps, result.scan_poses)
+        errors[refine] = trajectory_errors(traj, gt).ate_rmse
+    assert errors[True] <= errors[False] * 1.05
