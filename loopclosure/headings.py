@@ -54,6 +54,34 @@ from loopclosure.registration import IcpConfig, as_points, estimate_normals
 Array = NDArray[np.float64]
 
 
+
+def _circular_peaks(c: Array) -> Array:
+    """Rows of circular correlations with every entry that is not a local maximum of
+    its row (cyclically) set to -inf; a row with a flat maximum (no strict peak) keeps
+    its argmax, as the scalar version."""
+    peak = (c >= np.roll(c, 1, axis=1)) & (c > np.roll(c, -1, axis=1))
+    flat = ~peak.any(axis=1)
+    peak[flat, np.argmax(c[flat], axis=1)] = True
+    return np.where(peak, c, -np.inf)
+
+
+def _parabolic_peaks(c: Array, top: NDArray[np.intp]) -> tuple[Array, Array, Array]:
+    """Sub-sample offsets of the peaks ``c[row, top[row]]`` of circular correlation
+    rows, by a parabola through each peak and its two neighbours.
+
+    Returns ``(delta, c0, slope)``, each shaped like `top`: the offset in samples
+    (in [-0.5, 0.5]; 0 where the parabola opens upwards), the correlation at the peak
+    and ``c[left] - c[right]``; the parabola's maximum is ``c0 - slope * delta / 4``.
+    """
+    rows = np.arange(len(c))[:, None]
+    c0 = c[rows, top]
+    cl = np.roll(c, 1, axis=1)[rows, top]
+    cr = np.roll(c, -1, axis=1)[rows, top]
+    curv = cl - 2.0 * c0 + cr
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(curv < 0, 0.5 * (cl - cr) / curv, 0.0)
+    return np.clip(np.nan_to_num(delta), -0.5, 0.5), c0, cl - cr
+
 def range_function(points: ArrayLike, bins: int) -> Array:
     """``(bins,)`` nearest range per bearing sector seen from the origin [m]; 0 if empty.
 
@@ -205,12 +233,7 @@ def headings_from_polar_grids(
         c = np.fft.irfft(spec, n=sectors, axis=1) / denom[:, None]
     valid = denom > 0
     c[~valid] = 0.0
-    cm = np.roll(c, 1, axis=1)
-    cp = np.roll(c, -1, axis=1)
-    peak = (c >= cm) & (c > cp)
-    flat = ~peak.any(axis=1)
-    peak[flat, np.argmax(c[flat], axis=1)] = True
-    masked = np.where(peak, c, -np.inf)
+    masked = _circular_peaks(c)
     order = np.argsort(-masked, axis=1, kind="stable")
     m = min(n, sectors)
     top = np.zeros((k, m), dtype=np.intp)
@@ -226,14 +249,9 @@ def headings_from_polar_grids(
                     break
         top[row, : len(chosen)] = chosen
         ok[row, : len(chosen)] = True
-    rows = np.arange(k)[:, None]
-    c0, cl, cr = c[rows, top], cm[rows, top], cp[rows, top]
-    curv = cl - 2.0 * c0 + cr
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(curv < 0, 0.5 * (cl - cr) / curv, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
+    delta, c0, slope = _parabolic_peaks(c, top)
     heading = se2.wrap_angle(-(top + delta) * (2.0 * np.pi / sectors))
-    score = np.clip(c0 - 0.25 * (cl - cr) * delta, 0.0, 1.0)
+    score = np.clip(c0 - 0.25 * slope * delta, 0.0, 1.0)
     ok &= valid[:, None]
     score = np.where(ok, score, -np.inf)
     order = np.argsort(-score, axis=1, kind="stable")
@@ -278,28 +296,18 @@ def headings_from_range_functions(
         c = np.fft.irfft(spec, n=b, axis=1) / denom[:, None]
     valid = denom > 1e-12 * b
     c[~valid] = 0.0
-    cm = np.roll(c, 1, axis=1)
-    cp = np.roll(c, -1, axis=1)
-    peak = (c >= cm) & (c > cp)
-    # A row with a flat maximum (no strict peak): take its argmax, as the scalar version.
-    flat = ~peak.any(axis=1)
-    peak[flat, np.argmax(c[flat], axis=1)] = True
-    masked = np.where(peak, c, -np.inf)
+    masked = _circular_peaks(c)
     m = min(n, b)
     top = np.argsort(-masked, axis=1, kind="stable")[:, :m]
     rows = np.arange(k)[:, None]
-    c0, cl, cr = c[rows, top], cm[rows, top], cp[rows, top]
-    curv = cl - 2.0 * c0 + cr
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(curv < 0, 0.5 * (cl - cr) / curv, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
+    delta, c0, slope = _parabolic_peaks(c, top)
     # The correlation peaks at the rotation taking the stored range function onto the
     # query's (query ~ R(rotation) . stored), in (-pi, pi]; the heading of the query in
     # the stored frame is its negative (exact).
     angle = (top + delta) * (2.0 * np.pi / b)
     angle = (angle + np.pi) % (2.0 * np.pi) - np.pi
     angle[angle == -np.pi] = np.pi
-    score = np.clip(c0 - 0.25 * (cl - cr) * delta, -1.0, 1.0)
+    score = np.clip(c0 - 0.25 * slope * delta, -1.0, 1.0)
     ok = np.isfinite(masked[rows, top]) & valid[:, None]
     score = np.where(ok, score, -np.inf)
     angle = np.where(ok, angle, 0.0)

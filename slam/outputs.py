@@ -88,8 +88,8 @@ class LoopRecord:
 
 LOOP_COLUMNS = (
     "keyframe_a", "keyframe_b", "stamp_a", "stamp_b", "search", "prior", "accepted",
-    "rejected_by_gnc", "reason", "prefilter_distance", "prefilter_rank", "verifier_distance", "score", "fitness",
-    "rms", "inlier_ratio", "dx", "dy", "dtheta",
+    "rejected_by_gnc", "reason", "prefilter_distance", "prefilter_rank", "verifier_distance",
+    "score", "fitness", "rms", "inlier_ratio", "dx", "dy", "dtheta",
 )
 
 
