@@ -43,7 +43,8 @@ and calls, for every keyframe:
    A candidate inside the pose gate is checked from the predicted relative pose (the
    prior); one outside it (a revisit the odometry cannot explain: large drift, a
    kidnap, an unknown start) from the database's heading hypotheses
-   (`loopclosure.headings`) and a centroid-aligned translation, with no pose prior.
+   (`loopclosure.headings`) at a centroid-aligned translation and at zero
+   translation (`GeometricCheckConfig.origin_guesses`), with no pose prior.
    That check is a search (several ICP starts) and on a log with good odometry it
    nearly always meets a look-alike place, so it runs only when no candidate inside
    the gate was accepted for this query (the two would contradict each other), and
