@@ -77,7 +77,7 @@ class PipelineConfig:
         map: occupancy grid written at the end.
         refine_scans: after the final optimisation, register every scan onto the
             optimised keyframes around it (`slam.refine_scans`; keeps each scan's
-            points, voxelised, until the end of the run).
+            points until the end of the run).
         refine: its parameters.
         uncertainty: what gates the loop search: ``since-loop`` (odometry covariance
             accumulated since the last accepted loop closure; cheap) or ``marginal``

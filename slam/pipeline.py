@@ -123,8 +123,8 @@ class Mapper:
         )
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
-        # With `refine_scans`: every scan's points (voxelised, float32) and the
-        # positions of the keyframes among them.
+        # With `refine_scans`: every scan's points (float32; `refine_scan_poses`
+        # voxelises them) and the positions of the keyframes among them.
         self._scan_points: list[NDArray[np.float32]] = []
         self._keyframe_scans: list[int] = []
         self.status: dict[str, int] = {}
@@ -212,9 +212,7 @@ class Mapper:
             self._update()
 
     def _keep_points(self, scan: Scan, is_keyframe: bool) -> None:
-        pts = voxel_downsample(scan.points(), self.config.refine.source_voxel) \
-            if self.config.refine.source_voxel > 0 else scan.points()
-        self._scan_points.append(pts.astype(np.float32))
+        self._scan_points.append(scan.points().astype(np.float32))
         if is_keyframe:
             self._keyframe_scans.append(len(self._scan_points) - 1)
 
