@@ -30,7 +30,7 @@ truth ``G``, as 2D poses), i.e. the relations metric on consecutive pairs.
 GMapping-corrected logs (``--corrected freiburg-101,seattle``,
 ``carmen-corrected/<name>-corrected.log.gz``): their pose fields are the
 reference; the front end gets the simulator's drifting wheel odometry of them
-(`data.sim.motion.wheel_odometry`, default noise, seed 0, as ``loopclosure bench
+(`evaluation.slam_input.synthetic_odometry`, seed 0, as ``loopclosure bench
 slam --odometry-noise 0`` does) and its trajectory alone (no loop closure) is
 scored by the ATE RMSE [m] after SE(2) alignment (`evaluation.trajectory_errors`,
 scans matched by index) in the "trans m" column, and the RPE rotation RMSE [deg]
@@ -56,10 +56,10 @@ sys.path.insert(0, str(ROOT))
 from data import se2  # noqa: E402
 from data.carmen import CarmenLog  # noqa: E402
 from data.relations import read_relations  # noqa: E402
-from data.sim import MotionConfig, OdometryNoise, simulate_run  # noqa: E402
-from data.sim.motion import wheel_odometry  # noqa: E402
+from data.sim import MotionConfig, simulate_run  # noqa: E402
 from data.types import Scan, Trajectory  # noqa: E402
 from evaluation.relations_metric import relations_metric  # noqa: E402
+from evaluation.slam_input import synthetic_odometry  # noqa: E402
 from evaluation.trajectory_error import trajectory_errors  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 from slam.config_io import apply_overrides  # noqa: E402
@@ -144,9 +144,8 @@ def corrected_cases(data: Path, names: list[str]):
             continue
         scans = list(CarmenLog(path))
         ref = np.array([s.odom for s in scans])
-        odom = wheel_odometry(ref, OdometryNoise(), np.random.default_rng(0))
-        scans = [dataclasses.replace(s, odom=o, stamp=float(i))
-                 for i, (s, o) in enumerate(zip(scans, odom, strict=True))]
+        scans = [dataclasses.replace(s, stamp=float(i))
+                 for i, s in enumerate(synthetic_odometry(scans, ref, seed=0))]
         index = np.arange(len(scans), dtype=float)
         reference = Trajectory.from_xytheta(index, ref)
 
