@@ -37,6 +37,14 @@ def stripes(
         Path | None,
         typer.Option("--labels", help="CSV 'file,class' for --meshes (default: YCB classes)."),
     ] = None,
+    units: Annotated[
+        str,
+        typer.Option("--units", help="Units of --meshes: auto (mm when the largest extent "
+                     "is above 2, else m), m, cm or mm."),
+    ] = "auto",
+    up_axis: Annotated[
+        str, typer.Option("--up-axis", help="Model axis of --meshes that points up: z, y or x.")
+    ] = "z",
     scans_per_object: Annotated[
         int, typer.Option("--scans-per-object", help="Independent scans of every object.")
     ] = 1,
@@ -84,6 +92,7 @@ def stripes(
     from dataclasses import replace
 
     from data.stripe_scanner import DAILY_CLASSES, ScannerConfig
+    from data.stripe_scanner.meshes import check_conventions
     from evaluation.stripes_benchmark import (
         PAPER_TABLE_I,
         StripesBenchmarkConfig,
@@ -103,6 +112,7 @@ def stripes(
         raise UserError("--labels needs --meshes")
     if meshes is not None and classes is not None:
         raise UserError("--classes is for --dataset daily-sim only")
+    check_conventions(units, up_axis)
     if not step > 0:
         raise UserError(f"--step must be positive, got {step}")
     if seed < 0:
@@ -131,7 +141,7 @@ def stripes(
         fused=verifiers,
     )
     if meshes is not None:
-        objects = mesh_folder_objects(meshes, labels)
+        objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)
     else:
         chosen = _names(classes) or DAILY_CLASSES
         objects = daily_objects(seed, per_class, chosen)

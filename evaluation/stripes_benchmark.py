@@ -20,11 +20,14 @@ Methods on the same scans:
   `loopclosure.matchers` with scale invariance switched on where the matcher has it
   (customary for object shapes).  The baseline list is a parameter; a registered
   matcher whose module is not importable yet is skipped with one warning.
-- ``fused``: the stripe distance (described by `FUSED_DESCRIPTOR`: 32 evenly spaced
-  stripes per object, see `loopclosure.stripes.fusion`) and silhouette verifiers
-  (default FFT and ring projection) combined by `loopclosure.stripes.fuse` (each
-  method's distances divided by their per-query median, equal weights); its time is
-  its stripes' plus the verifiers'.
+- ``profile``: the same stripes as `loopclosure.stripes.StripeProfile`s (``[l, d, e]``
+  resampled to 32 positions along the sweep, scale-free, order kept; see
+  `loopclosure.stripes.profile`) and `ProfileDatabase`: the stripe matcher for object
+  classes whose members differ in size.
+- ``fused``: the stripe profile distance and silhouette verifiers (default FFT and
+  ring projection) combined by `loopclosure.stripes.fuse` (each method's distances
+  divided by their per-query median, equal weights); its time is the profile's plus
+  the verifiers'.
 
 With two or more scans per object every method also gets the different-pose figures
 (`evaluation.stripes_retrieval.cross_pose`): first scans as queries against a
@@ -53,10 +56,12 @@ from evaluation.stripes_retrieval import MethodResult, evaluate
 from loopclosure.polygon import Polygon
 from loopclosure.stripes import (
     DEFAULT_VERIFIERS,
-    FUSED_DESCRIPTOR,
     DescriptorConfig,
+    ProfileConfig,
+    ProfileDatabase,
     StripeDatabase,
     describe_many,
+    describe_profiles,
     fuse,
 )
 
@@ -91,6 +96,17 @@ def stripes_distances(
     t0 = time.perf_counter()
     descs = describe_many([s.stripes for s in scans], config, names=[s.name for s in scans])
     d = StripeDatabase(descs).pairwise()
+    return d, time.perf_counter() - t0
+
+
+def profile_distances(
+    scans: Sequence[StripeScan], config: ProfileConfig | None = None
+) -> tuple[Array, float]:
+    """Stripe profiles of every scan and the full distance matrix; wall time [s]."""
+    t0 = time.perf_counter()
+    profiles = describe_profiles([s.stripes for s in scans], config,
+                                 names=[s.name for s in scans])
+    d = ProfileDatabase(profiles).pairwise()
     return d, time.perf_counter() - t0
 
 
@@ -144,8 +160,8 @@ class StripesBenchmarkConfig:
         scanner: the simulated scanner.
         descriptor: stripe descriptor parameters.
         silhouette_smooth: contour smoothing of the silhouettes [px].
+        profile: stripe profile parameters (the ``profile`` row and the fused matcher).
         fused: silhouette verifiers of the fused matcher (empty: no fused row).
-        fused_descriptor: stripe descriptor parameters of the fused matcher.
     """
 
     seed: int = 0
@@ -155,8 +171,8 @@ class StripesBenchmarkConfig:
     scanner: ScannerConfig = field(default_factory=ScannerConfig)
     descriptor: DescriptorConfig = field(default_factory=DescriptorConfig)
     silhouette_smooth: float = 1.0
+    profile: ProfileConfig = field(default_factory=ProfileConfig)
     fused: tuple[str, ...] = DEFAULT_VERIFIERS
-    fused_descriptor: DescriptorConfig = FUSED_DESCRIPTOR
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -170,8 +186,8 @@ class StripesBenchmarkConfig:
             "scanner": asdict(self.scanner),
             "descriptor": asdict(self.descriptor),
             "silhouette_smooth": self.silhouette_smooth,
+            "profile": asdict(self.profile),
             "fused": list(self.fused),
-            "fused_descriptor": asdict(self.fused_descriptor),
         }
 
 
@@ -184,6 +200,7 @@ class StripesBenchmarkResult:
     objects: ObjectSet
     scanned: ScannedSet
     stripes: MethodResult
+    profile: MethodResult
     baselines: dict[str, MethodResult]
     fused: MethodResult | None
     skipped_baselines: dict[str, str]
@@ -200,19 +217,23 @@ class StripesBenchmarkResult:
                 for c in self.classes}
 
     def methods(self) -> dict[str, MethodResult]:
-        """Every method's figures: stripes, fused (when run), then the baselines."""
-        out = {"stripes": self.stripes}
+        """Every method's figures: stripes, profile, fused (when run), then the baselines."""
+        out = {"stripes": self.stripes, "profile": self.profile}
         if self.fused is not None:
             out["fused"] = self.fused
         return {**out, **self.baselines}
 
-    def wins_and_losses(self, margin: float = 0.005) -> dict[str, dict[str, list[str]]]:
-        """baseline -> {"wins": classes where stripes are better, "losses": worse, "ties"}."""
+    def wins_and_losses(
+        self, margin: float = 0.005, method: str = "stripes"
+    ) -> dict[str, dict[str, list[str]]]:
+        """baseline -> {"wins": classes where `method` (``stripes`` or ``profile``) is
+        better, "losses": worse, "ties"}."""
+        mine = self.methods()[method]
         out: dict[str, dict[str, list[str]]] = {}
         for name, res in self.baselines.items():
             wins, losses, ties = [], [], []
             for c in self.classes:
-                delta = self.stripes.class_accuracy[c] - res.class_accuracy[c]
+                delta = mine.class_accuracy[c] - res.class_accuracy[c]
                 (wins if delta > margin else losses if delta < -margin else ties).append(c)
             out[name] = {"wins": wins, "losses": losses, "ties": ties}
         return out
@@ -228,6 +249,7 @@ class StripesBenchmarkResult:
             "bullseye": s.bullseye,
             "seconds": s.seconds,
             "baselines": {n: r.to_json() for n, r in self.baselines.items()},
+            "profile": self.profile.to_json(),
             "fused": None if self.fused is None else self.fused.to_json(),
             "different_pose": s.different_pose,
             "dataset": self.dataset,
@@ -246,6 +268,7 @@ class StripesBenchmarkResult:
             "paper_seconds": PAPER_SECONDS,
             "speedup_vs_paper": PAPER_SECONDS["stripes"] / max(s.seconds, 1e-12),
             "wins_and_losses": self.wins_and_losses(),
+            "profile_wins_and_losses": self.wins_and_losses(method="profile"),
             "skipped_baselines": self.skipped_baselines,
             "failed_objects": {**self.objects.failed, **self.scanned.failed},
             "not_watertight": self.objects.not_watertight,
@@ -269,15 +292,16 @@ def run_stripes_benchmark(
     available, skipped = _available_baselines(cfg.baselines)
     scanned = scan_objects(objects, cfg.scanner, cfg.seed, cfg.scans_per_object, progress)
     stripes = _rank_with_stripes(scanned, cfg)
+    profile = _rank_with_profile(scanned, cfg)
     verifiers = [n for n in cfg.fused if n not in available]
     for name in verifiers:
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
     ranked, silhouette_seconds = _rank_with_baselines(scanned, [*available, *verifiers],
                                                       cfg, progress)
-    fused = _fused(scanned, stripes, ranked, cfg) if cfg.fused else None
+    fused = _fused(scanned, profile, ranked, cfg) if cfg.fused else None
     baselines = {n: r for n, r in ranked.items() if n in available}
-    return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, baselines,
-                                  fused, skipped, silhouette_seconds)
+    return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
+                                  baselines, fused, skipped, silhouette_seconds)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -307,21 +331,26 @@ def _rank_with_stripes(scanned: ScannedSet, cfg: StripesBenchmarkConfig) -> Meth
                      "scale_free": cfg.descriptor.scale_free})
 
 
+def _rank_with_profile(scanned: ScannedSet, cfg: StripesBenchmarkConfig) -> MethodResult:
+    """The stripe profiles' distance matrix of the scans and its retrieval figures."""
+    d, secs = profile_distances(scanned.scans, cfg.profile)
+    return evaluate("profile", d, scanned.labels, scanned.objects, secs, cfg.k,
+                    {"samples": cfg.profile.samples, "features": ["l", "d", "e"],
+                     "normalisation": "per-query median per feature"})
+
+
 def _fused(
-    scanned: ScannedSet, stripes: MethodResult, ranked: dict[str, MethodResult],
+    scanned: ScannedSet, profile: MethodResult, ranked: dict[str, MethodResult],
     cfg: StripesBenchmarkConfig,
 ) -> MethodResult:
-    """The fused matcher's figures from the stripes' and the verifiers' matrices."""
-    if cfg.fused_descriptor == cfg.descriptor:
-        d_stripes, secs = stripes.distances, stripes.seconds
-    else:
-        d_stripes, secs = stripes_distances(scanned.scans, cfg.fused_descriptor)
+    """The fused matcher's figures from the profile's and the verifiers' matrices."""
     t0 = time.perf_counter()
-    d = fuse([d_stripes, *(ranked[n].distances for n in cfg.fused)])
-    secs += sum(ranked[n].seconds for n in cfg.fused) + time.perf_counter() - t0
+    d = fuse([profile.distances, *(ranked[n].distances for n in cfg.fused)])
+    secs = (profile.seconds + sum(ranked[n].seconds for n in cfg.fused)
+            + time.perf_counter() - t0)
     return evaluate("fused", d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"verifiers": list(cfg.fused), "normalisation": "per-query median",
-                     "stripe_count": cfg.fused_descriptor.stripe_count})
+                     "stripes": "profile", "samples": cfg.profile.samples})
 
 
 def _rank_with_baselines(

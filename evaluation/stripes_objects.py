@@ -71,8 +71,14 @@ def daily_objects(
     return ObjectSet("daily-sim", meshes, labels)
 
 
-def mesh_folder_objects(folder: str | Path, labels_csv: str | Path | None = None) -> ObjectSet:
+def mesh_folder_objects(
+    folder: str | Path, labels_csv: str | Path | None = None, units: str = "auto",
+    up: str = "z",
+) -> ObjectSet:
     """Meshes of a folder with a ``file,class`` CSV, or the YCB multi-instance classes.
+
+    `units` and `up` are the meshes' conventions (`data.stripe_scanner.meshes`: units
+    detected from the bounding box by default, z up unless told).
 
     Without `labels_csv` the classes come from `data.stripe_scanner.ycb_labels` (YCB file
     names).  A CSV row naming a file that is not in the folder is an error (a typo must
@@ -98,7 +104,7 @@ def mesh_folder_objects(folder: str | Path, labels_csv: str | Path | None = None
         shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5
                                           else "")
         raise DataError(source, f"lists {len(missing)} file(s) not found in {root}: {shown}")
-    loaded = load_mesh_rows(root, rows, source=source)
+    loaded = load_mesh_rows(root, rows, source=source, units=units, up=up)
     return ObjectSet(str(root), loaded.meshes, loaded.labels, loaded.failed,
                      loaded.not_watertight)
 

@@ -227,6 +227,9 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
     assert set(js["baselines"]) == {"fft", "shape-context"}
     assert len(js["fused"]["top10_counts"]) == 10 and js["fused"]["options"]["verifiers"] == [
         "fft", "ring"]
+    assert js["fused"]["options"]["stripes"] == "profile"
+    assert len(js["profile"]["top10_counts"]) == 10 and js["profile"]["top10_counts"][0] == 4
+    assert set(js["profile_wins_and_losses"]) == {"fft", "shape-context"}
     assert js["different_pose"] == {}  # one scan per object: no different-pose figures
     for b in js["baselines"].values():
         assert len(b["top10_counts"]) == 10 and 0 <= b["bullseye"] <= 100
@@ -252,6 +255,8 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
          "--stripe-count"),
         (["bench", "stripes", "--dataset", "daily-sim", "--fused", "fft,sift"], "sift"),
         (["bench", "stripes", "--dataset", "daily-sim", "--yaw-range", "200"], "--yaw-range"),
+        (["bench", "stripes", "--dataset", "daily-sim", "--units", "furlong"], "units"),
+        (["bench", "stripes", "--dataset", "daily-sim", "--up-axis", "w"], "up axis"),
         (["bench", "landmarks", "--seed", "-1"], "--seed"),
         (["bench", "landmarks", "--laps", "0"], "--laps"),
     ],

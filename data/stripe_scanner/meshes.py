@@ -2,8 +2,28 @@
 
 Formats: ``.ply`` (ASCII or binary), ``.obj``, ``.stl``, each optionally gzip- or
 bzip2-compressed (``name.ply.gz``; compression is detected from the bytes, the format
-from the name without the compression suffix).  Parsing is done by trimesh.  Units are
-metres (the YCB meshes are metric, z up, resting on z = 0).
+from the name without the compression suffix).  Parsing is done by trimesh.
+
+Conventions of the loaded `Mesh`: metres, z up (the YCB meshes are metric, z up).
+Files of arbitrary real meshes come in other units and frames, which the formats do
+not record:
+
+- Units (`units`, default ``"auto"``): a tabletop object is between about a
+  centimetre and a metre, so a mesh whose largest bounding-box extent exceeds
+  `MAX_METRES_EXTENT` (2 units) cannot be in metres and is read as millimetres (a
+  millimetre mesh of an object below 2 mm could not be scanned anyway); ``"m"`` and
+  ``"mm"`` force the unit.  Centimetres are not guessed (an object of 20-100 units
+  could be either): give ``"cm"``.
+- Up axis (`up`, default ``"z"``): which model axis points up on the table, as the
+  file's author modelled it (``"y"`` for the Y-up convention of many OBJ/PLY
+  exporters; ``"x"`` also accepted).  It is not guessed from the geometry: on the
+  YCB meshes, which are z up, the flattest lowest face lies on another axis for
+  several objects (Lego bricks, rounded boxes), so a "resting face" rule would turn
+  correct meshes over.  The mesh is rotated (right-handed, proper rotation) so that
+  axis becomes +z.
+
+What was converted is recorded in `Mesh.notes` and said in one warning (per file for
+`load_mesh`, per folder for `load_mesh_rows`).
 
 A labelled folder is a folder of meshes plus a CSV ``file,class`` (a header line
 ``file,class`` is optional; ``#`` starts a comment).  `load_mesh_folder` loads every
@@ -29,6 +49,12 @@ from data.errors import DataError, UserError, warn
 Array = NDArray[np.float64]
 
 MESH_FORMATS = ("ply", "obj", "stl")
+#: Largest bounding-box extent [units] of a mesh read as metres with ``units="auto"``.
+MAX_METRES_EXTENT = 2.0
+#: Unit names -> metres per unit.
+UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+#: Model axes that can be the up axis.
+UP_AXES = ("x", "y", "z")
 
 
 @dataclass(slots=True)
@@ -40,12 +66,14 @@ class Mesh:
         faces: ``(F, 3)`` int64 vertex indices, counter-clockwise seen from outside.
         name: identifier (file name without suffixes, or generator name).
         watertight: every edge shared by exactly two faces (None: not checked).
+        notes: conventions converted on loading (units, up axis), for messages.
     """
 
     vertices: Array
     faces: NDArray[np.int64]
     name: str = "mesh"
     watertight: bool | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def extent(self) -> Array:
@@ -99,10 +127,59 @@ def mesh_name(path: str | Path) -> str:
     return re.sub(r"(\.(ply|obj|stl))?(\.(gz|bz2|gzip))?$", "", name, flags=re.IGNORECASE)
 
 
-def load_mesh(path: str | Path) -> Mesh:
-    """Load one mesh file (plain, ``.gz`` or ``.bz2``); `DataError` names the file on failure."""
+def check_conventions(units: str, up: str) -> None:
+    """Raise `UserError` for a unit other than ``auto`` / `UNITS` or an axis not in `UP_AXES`."""
+    if units != "auto" and units not in UNITS:
+        raise UserError(f"unknown mesh units {units!r}; expected auto, {', '.join(UNITS)}")
+    if up not in UP_AXES:
+        raise UserError(f"unknown up axis {up!r}; expected one of {', '.join(UP_AXES)}")
+
+
+def to_metres(vertices: ArrayLike, units: str = "auto") -> tuple[Array, str | None]:
+    """Vertices in metres and a note saying what was converted (None: nothing).
+
+    ``units="auto"``: millimetres when the largest bounding-box extent exceeds
+    `MAX_METRES_EXTENT`, else metres (module docstring).
+    """
+    check_conventions(units, "z")
+    v = np.asarray(vertices, dtype=float)
+    if units == "auto":
+        extent = float((v.max(axis=0) - v.min(axis=0)).max())
+        if extent <= MAX_METRES_EXTENT:
+            return v, None
+        return v * UNITS["mm"], (f"largest extent {extent:.4g} units > {MAX_METRES_EXTENT:g} "
+                                 "m: read as millimetres")
+    if units == "m":
+        return v, None
+    return v * UNITS[units], f"units {units}: scaled to metres"
+
+
+def to_z_up(vertices: ArrayLike, up: str = "z") -> tuple[Array, str | None]:
+    """Vertices rotated so the model axis `up` becomes +z, and a note (None: z already).
+
+    ``y``: ``(x, y, z) -> (x, -z, y)`` (a quarter turn about x); ``x``:
+    ``(x, y, z) -> (-z, y, x)`` (a quarter turn about y).  Both are proper rotations.
+    """
+    check_conventions("auto", up)
+    v = np.asarray(vertices, dtype=float)
+    if up == "z":
+        return v, None
+    if up == "y":
+        return np.column_stack([v[:, 0], -v[:, 2], v[:, 1]]), "y up: rotated to z up"
+    return np.column_stack([-v[:, 2], v[:, 1], v[:, 0]]), "x up: rotated to z up"
+
+
+def load_mesh(
+    path: str | Path, units: str = "auto", up: str = "z", warn_conversions: bool = True
+) -> Mesh:
+    """Load one mesh file (plain, ``.gz`` or ``.bz2``) in metres, z up (module docstring).
+
+    `DataError` names the file on failure; conversions are in `Mesh.notes` and, with
+    `warn_conversions`, said in one warning.
+    """
     import trimesh  # heavy import: only when meshes are loaded
 
+    check_conventions(units, up)
     path = Path(path)
     read_magic(path)  # existence and readability, with a clear error
     fmt = _format_of(path)
@@ -124,6 +201,12 @@ def load_mesh(path: str | Path) -> Mesh:
         raise DataError(path, f"no triangles in this {fmt.upper()} file")
     mesh = mesh_from_arrays(np.asarray(vertices), np.asarray(faces), str(path))
     mesh.name = mesh_name(path)
+    v, unit_note = to_metres(mesh.vertices, units)
+    v, up_note = to_z_up(v, up)
+    mesh.vertices = v
+    mesh.notes = tuple(n for n in (unit_note, up_note) if n)
+    if mesh.notes and warn_conversions:
+        warn(f"{path}: " + "; ".join(mesh.notes))
     return mesh
 
 
@@ -164,39 +247,54 @@ class MeshSet:
     not_watertight: list[str] = field(default_factory=list)
 
 
-def load_mesh_folder(folder: str | Path, labels_csv: str | Path) -> MeshSet:
+def load_mesh_folder(
+    folder: str | Path, labels_csv: str | Path, units: str = "auto", up: str = "z"
+) -> MeshSet:
     """Load the meshes listed in `labels_csv` from `folder` (see the module docstring)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(folder, "not a directory")
-    return load_mesh_rows(folder, read_labels(labels_csv), source=labels_csv)
+    return load_mesh_rows(folder, read_labels(labels_csv), source=labels_csv, units=units,
+                          up=up)
 
 
 def load_mesh_rows(
-    folder: str | Path, rows: list[tuple[str, str]], source: str | Path
+    folder: str | Path, rows: list[tuple[str, str]], source: str | Path,
+    units: str = "auto", up: str = "z",
 ) -> MeshSet:
     """Load the ``(file, class)`` `rows` from `folder`; files that fail are skipped.
 
-    What went wrong (files that did not load, meshes that are not watertight) is
-    reported once as a warning naming `source` (the labels CSV, or the folder).
+    What went wrong (files that did not load, meshes that are not watertight) and
+    what was converted (units, up axis: `load_mesh`) is reported once as a warning
+    naming `source` (the labels CSV, or the folder).
 
     Raises:
         DataError: none of the rows could be loaded (names `source`).
     """
+    check_conventions(units, up)
     folder = Path(folder)
     out = MeshSet([], [])
+    converted: dict[str, list[str]] = {}
     for file, cls in rows:
         try:
-            mesh = load_mesh(folder / file)
+            mesh = load_mesh(folder / file, units, up, warn_conversions=False)
         except DataError as exc:
             out.failed[file] = exc.message
             continue
         if not mesh.watertight:
             out.not_watertight.append(mesh.name)
+        for note in mesh.notes:
+            kind = "millimetres" if note.startswith("largest") else note
+            converted.setdefault(kind, []).append(mesh.name)
         out.meshes.append(mesh)
         out.labels.append(cls)
-    if out.failed or out.not_watertight:
+    if out.failed or out.not_watertight or converted:
         parts = []
+        for kind, names in converted.items():
+            what = (f"read as millimetres (largest extent > {MAX_METRES_EXTENT:g} units)"
+                    if kind == "millimetres" else kind)
+            parts.append(f"{len(names)} meshes {what}: {', '.join(names[:3])}"
+                         f"{', ...' if len(names) > 3 else ''}")
         if out.failed:
             first = next(iter(out.failed.items()))
             parts.append(f"{len(out.failed)} of {len(rows)} meshes failed to load and were "

@@ -5,8 +5,10 @@ An object is an ordered list of stripes (2D point paths, one per laser line); ea
 stripe becomes ``[l, d, o]`` (Eq. 1-3, `descriptor`); two objects are compared by the
 Bhattacharyya distances of Gaussian fits of each feature after trimming (Eq. 4-6,
 `matching`); `database.StripeDatabase` answers a query against thousands of objects in
-one vectorised pass; `fusion.FusedObjectDatabase` verifies the stripe distance with
-silhouette matchers.
+one vectorised pass.  `profile` keeps the stripes in scan order instead: a fixed-length,
+scale-free sequence of ``[l, d, e]`` per object (`profile.ProfileDatabase`), for object
+classes whose members differ in size; `fusion.FusedObjectDatabase` verifies the stripe
+distance with silhouette matchers.
 """
 
 from loopclosure.stripes.database import StripeDatabase
@@ -41,28 +43,46 @@ from loopclosure.stripes.matching import (
     stripe_distance,
     trim_range,
 )
+from loopclosure.stripes.profile import (
+    PROFILE_SAMPLES,
+    ProfileConfig,
+    ProfileDatabase,
+    StripeProfile,
+    describe_profile,
+    describe_profiles,
+    resample_profile,
+    stripe_shape,
+)
 
 __all__ = [
     "DEFAULT_VERIFIERS",
     "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
+    "PROFILE_SAMPLES",
     "DescriptorConfig",
     "FusedObjectDatabase",
+    "ProfileConfig",
+    "ProfileDatabase",
     "StripeDatabase",
     "StripeDescriptor",
+    "StripeProfile",
     "bhattacharyya",
     "chain_pixels",
     "describe_many",
+    "describe_profile",
+    "describe_profiles",
     "describe_stripes",
     "feature_distances",
     "fuse",
     "normalised",
+    "resample_profile",
     "resample_stripes",
     "search_weights",
     "stratified_split",
     "stripe_distance",
     "stripe_from_binary_image",
     "stripe_from_laser_image",
+    "stripe_shape",
     "stripes_from_laser_images",
     "stripes_from_points",
     "thin",

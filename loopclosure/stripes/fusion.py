@@ -13,19 +13,18 @@ place cascade's idea without learnt weights, which keeps it free of any data set
 - the fused distance is the weighted mean of the scores (`fuse`), equal weights by
   default.
 
-The stripe side of the fusion describes every object by `FUSED_STRIPE_COUNT` evenly
-spaced stripes (`FUSED_DESCRIPTOR`, `descriptor.resample_stripes`) rather than all
-of them: the paper's trimming (Eq. 4) compares the central run of an object swept
-by many stripes with the whole of one swept by few, which on real objects of one
-class but different lengths (or scanned at another laser step) moves the distance as
-far as a change of class; with one stripe count for all objects nothing is trimmed.
-32 is below the stripe count of the smallest object the default scanner resolves
-(about 37 stripes for 3 cm at 0.8 mm per frame), so every object is resampled, and
-still enough samples for the Gaussian fits of Eq. 6.  The silhouette verifiers keep
-the size cues the resampling drops.
+The stripe side of the fusion is the stripe profile (`profile.ProfileDatabase`:
+every object resampled to 32 positions along the sweep, scale-free, order kept), the
+stripe matcher for classes whose members differ in size and length; the silhouette
+verifiers add the footprint's outline, which the profile sees only along the sweep.
+`FusedObjectDatabase` also accepts the paper's `StripeDescriptor`s; then
+`FUSED_DESCRIPTOR` (32 evenly spaced stripes per object, `descriptor.resample_stripes`)
+is the description that avoids Eq. 4's trimming of objects swept by different
+stripe counts.
 
-`FusedObjectDatabase` holds one `StripeDatabase` and, per verifier, the silhouette
-descriptors of the same objects; a query is the object's stripe descriptor and its
+`FusedObjectDatabase` holds one `ProfileDatabase` (or `StripeDatabase`) and, per
+verifier, the silhouette descriptors of the same objects; a query is the object's
+stripe profile (or descriptor) and its
 silhouette polygon (the scanned footprint in the table plane, millimetres).  The
 default verifiers are FFT and ring projection (`loopclosure.matchers`), scale
 invariant: both cost microseconds per pair, so the fused matcher keeps the stripes'
@@ -45,14 +44,15 @@ from loopclosure.matchers import get_matcher
 from loopclosure.polygon import Polygon
 from loopclosure.stripes.database import StripeDatabase
 from loopclosure.stripes.descriptor import DescriptorConfig, StripeDescriptor
+from loopclosure.stripes.profile import ProfileDatabase, StripeProfile
 
 Array = NDArray[np.float64]
 
 #: Silhouette matchers fused with the stripes by default.
 DEFAULT_VERIFIERS: tuple[str, ...] = ("fft", "ring")
-#: Stripes per object on the stripe side of the fusion (module docstring).
+#: Stripes per object when the fusion's stripe side is the paper's descriptor.
 FUSED_STRIPE_COUNT = 32
-#: Descriptor parameters of the stripe side of the fusion.
+#: Descriptor parameters for `StripeDescriptor`s in the fusion (module docstring).
 FUSED_DESCRIPTOR = DescriptorConfig(stripe_count=FUSED_STRIPE_COUNT)
 
 
@@ -106,17 +106,18 @@ class FusedObjectDatabase:
     """Objects as stripe descriptors and silhouettes, queried with the fused distance.
 
     Args:
-        descriptors: one `StripeDescriptor` per object (made with `FUSED_DESCRIPTOR`
-            for the module's rule; queries must be described the same way).
+        descriptors: one `StripeProfile` per object (the module's rule), or one
+            `StripeDescriptor` (made with `FUSED_DESCRIPTOR`); queries must be
+            described the same way.
         silhouettes: one silhouette `Polygon` per object (same order).
         verifiers: silhouette matcher names (`loopclosure.matchers`).
         weights: fusion weights, stripes first then each verifier (None: equal).
-        stripe_weights: Eq. 5 weights of the stripe distance.
+        stripe_weights: Eq. 5 weights of the stripe distance (`StripeDescriptor`s only).
     """
 
     def __init__(
         self,
-        descriptors: Sequence[StripeDescriptor],
+        descriptors: Sequence[StripeProfile] | Sequence[StripeDescriptor],
         silhouettes: Sequence[Polygon],
         verifiers: Sequence[str] = DEFAULT_VERIFIERS,
         weights: Sequence[float] | None = None,
@@ -128,8 +129,14 @@ class FusedObjectDatabase:
         if weights is not None and len(weights) != 1 + len(verifiers):
             raise UserError(f"weights need {1 + len(verifiers)} values (stripes, then each "
                             f"verifier), got {len(weights)}")
-        self.stripes = (StripeDatabase(descriptors) if stripe_weights is None
-                        else StripeDatabase(descriptors, stripe_weights))
+        self.stripes: ProfileDatabase | StripeDatabase
+        if descriptors and all(isinstance(d, StripeProfile) for d in descriptors):
+            if stripe_weights is not None:
+                raise UserError("stripe_weights apply to StripeDescriptors, not profiles")
+            self.stripes = ProfileDatabase(descriptors)  # type: ignore[arg-type]
+        else:
+            self.stripes = (StripeDatabase(descriptors) if stripe_weights is None  # type: ignore[arg-type]
+                            else StripeDatabase(descriptors, stripe_weights))  # type: ignore[arg-type]
         self.weights = None if weights is None else tuple(float(w) for w in weights)
         self.matchers = [verifier(n) for n in verifiers]
         self.verifier_names = tuple(verifiers)
@@ -138,19 +145,21 @@ class FusedObjectDatabase:
     def __len__(self) -> int:
         return len(self.stripes)
 
-    def method_distances(self, descriptor: StripeDescriptor, silhouette: Polygon) -> list[Array]:
+    def method_distances(
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon
+    ) -> list[Array]:
         """``(K,)`` distances of the stripes, then of each verifier, to every object."""
-        out = [self.stripes.distances(descriptor)]
+        out = [self.stripes.distances(descriptor)]  # type: ignore[arg-type]
         for m, st in zip(self.matchers, self.stacks, strict=True):
             out.append(np.asarray(m.distances(m.describe(silhouette), st), dtype=float))
         return out
 
-    def distances(self, descriptor: StripeDescriptor, silhouette: Polygon) -> Array:
+    def distances(self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon) -> Array:
         """``(K,)`` fused distances of the query to every object (module docstring)."""
         return fuse(self.method_distances(descriptor, silhouette), self.weights)
 
     def query(
-        self, descriptor: StripeDescriptor, silhouette: Polygon, k: int = 10
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10
     ) -> tuple[NDArray[np.int64], Array]:
         """Indices and fused distances of the `k` nearest objects, nearest first."""
         d = self.distances(descriptor, silhouette)
