@@ -1,8 +1,24 @@
-"""Geometric verification of a loop-closure candidate: ICP between two local submaps.
+"""Geometric verification of a loop-closure candidate: registration of two local submaps.
 
 A candidate says "keyframe b (the query) is at the place of keyframe a".  The
 check registers b's local submap (points in b's sensor frame) onto a's local
-submap (points in a's sensor frame) from several initial guesses — the relative
+submap (points in a's sensor frame).
+
+Without a pose prior and with ``method = "correlative"`` (the default) it searches
+(`loopclosure.prior_free`): a correlative scan matcher scores every pose of a
+lattice of translations within ``max_distance`` of 0 and of headings about each
+heading hypothesis on a likelihood grid of a's submap (`loopclosure.correlative`),
+coarse then fine, and ICP refines the best lattice peak (and a runner-up that
+scores close to it, for the ambiguity test below).  Such a candidate is accepted on
+the rules below with the fitness threshold `min_fitness_partial` instead of
+`min_fitness`, provided the free-space consistency of the two submaps
+(`loopclosure.free_space` (2): hits over hits plus points landing in space the
+other submap observed as free) is at least `min_consistency`: two passes through
+a place in different directions share only part of their submaps, and the part
+not shared lies where the other never looked, which counts neither way.
+
+Otherwise (a prior, or ``method = "icp"``) it runs ICP from several initial
+guesses — the relative
 pose predicted by the current pose estimates, or without one the heading
 hypotheses of the place database (`loopclosure.headings`), each at the given
 translation (e.g. the two places' centroids aligned) and, with `origin_guesses`,
@@ -50,8 +66,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data import se2
+from data.errors import UserError
 from loopclosure.multi_start import initial_guesses, register_multi
+from loopclosure.prior_free import PriorFreeConfig, match_prior_free
 from loopclosure.registration import (
+    FAILED_VARIANCE,
     IcpConfig,
     IcpResult,
     RegistrationTarget,
@@ -85,6 +104,14 @@ class GeometricCheckConfig:
         source_voxel: voxel of the query submap before ICP [m] (the candidate's submap
             keeps its own resolution).
         keep: guesses refined by ICP after the coarse overlap prescreen.
+        method: the check without a prior: ``"correlative"`` (lattice search, then
+            ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
+            heading hypotheses at the given translation and at 0).
+        min_fitness_partial: fitness threshold of the correlative check (no prior),
+            which judges partial overlap by its free-space consistency instead.
+        min_consistency: free-space consistency the correlative check needs, in [0, 1]
+            (`loopclosure.free_space`).
+        search: the correlative search's parameters.
         covariance_floor: standard deviations (x [m], y [m], theta [deg]) below which
             the loop constraint's covariance never goes.
         icp: ICP parameters (wider gate than odometry: the guesses are coarser).
@@ -105,10 +132,18 @@ class GeometricCheckConfig:
     origin_guesses: bool = True
     source_voxel: float = 0.1
     keep: int = 6
+    method: str = "correlative"
+    min_fitness_partial: float = 0.25
+    min_consistency: float = 0.9
+    search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
+
+    def __post_init__(self) -> None:
+        if self.method not in ("correlative", "icp"):
+            raise UserError(f"loops.check.method must be correlative or icp, got {self.method!r}")
 
 
 @dataclass(slots=True)
@@ -123,6 +158,10 @@ class LoopVerification:
         fitness, inlier_ratio, rms, degeneracy: of the best ICP run.
         margin: fitness of the best minus the best run at a different pose.
         hypotheses: number of ICP runs.
+        consistency: free-space consistency of the two submaps at `relative`
+            (`loopclosure.free_space`; NaN when not computed: a check from a prior or
+            by multi-start ICP).
+        conflict_ratio: fraction of both submaps' points in the other's free space.
     """
 
     accepted: bool
@@ -135,6 +174,8 @@ class LoopVerification:
     degeneracy: float
     margin: float
     hypotheses: int
+    consistency: float = float("nan")
+    conflict_ratio: float = float("nan")
 
 
 def _offset_grid(step: float) -> Array:
@@ -156,6 +197,57 @@ def _different(a: Array, b: Array, cfg: GeometricCheckConfig) -> bool:
     return bool(
         np.hypot(d[0], d[1]) > cfg.ambiguity_distance
         or abs(np.degrees(d[2])) > cfg.ambiguity_angle_deg
+    )
+
+
+def _verify_correlative(
+    query_points: ArrayLike,
+    candidate: RegistrationTarget,
+    headings: ArrayLike | None,
+    max_distance: float | None,
+    cfg: GeometricCheckConfig,
+) -> LoopVerification:
+    """The prior-free check by correlative search (`loopclosure.prior_free`)."""
+    multi = match_prior_free(query_points, candidate, headings=headings,
+                             max_distance=max_distance, source_voxel=cfg.source_voxel,
+                             icp=cfg.icp, config=cfg.search)
+    if not multi.results:
+        return LoopVerification(
+            accepted=False, reason="registration failed", relative=np.zeros(3),
+            covariance=_floored(FAILED_VARIANCE * np.eye(3), cfg.covariance_floor),
+            fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0,
+            hypotheses=0, consistency=0.0, conflict_ratio=0.0)
+    best = multi.results[0]
+    free = multi.consistency[0]
+    others = [r.fitness for r in multi.results[1:] if r.ok and _different(r.pose, best.pose, cfg)]
+    margin = best.fitness - (max(others) if others else 0.0)
+    reason = "accepted"
+    partial = best.fitness < cfg.min_fitness or best.inlier_ratio < cfg.min_inlier_ratio
+    if not best.ok:
+        reason = "registration failed"
+    elif best.fitness < cfg.min_fitness_partial:
+        reason = f"fitness {best.fitness:.2f} < {cfg.min_fitness_partial}"
+    elif free.consistency < cfg.min_consistency:
+        reason = f"inconsistent free space ({free.consistency:.2f} < {cfg.min_consistency})"
+    elif best.rms > cfg.max_rms:
+        reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"
+    elif best.degeneracy < cfg.min_degeneracy:
+        reason = f"degenerate (corridor-like, {best.degeneracy:.3f})"
+    elif partial and best.degeneracy < cfg.min_degeneracy_partial:
+        reason = (f"partial overlap {best.fitness:.2f} and degenerate "
+                  f"(corridor-like, {best.degeneracy:.3f})")
+    elif margin < cfg.min_fitness_margin:
+        reason = f"ambiguous (fitness margin {margin:.2f})"
+    elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
+        reason = f"not a revisit ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
+    return LoopVerification(
+        accepted=reason == "accepted", reason=reason,
+        relative=np.asarray(best.pose, dtype=float),
+        covariance=_floored(np.asarray(best.covariance, dtype=float), cfg.covariance_floor),
+        fitness=float(best.fitness), inlier_ratio=float(best.inlier_ratio),
+        rms=float(best.rms), degeneracy=float(best.degeneracy), margin=float(margin),
+        hypotheses=len(multi.results), consistency=float(free.consistency),
+        conflict_ratio=float(free.conflict_ratio),
     )
 
 
@@ -189,6 +281,8 @@ def verify(
             [m] (None: no limit).
     """
     cfg = config or GeometricCheckConfig()
+    if prior is None and cfg.method == "correlative":
+        return _verify_correlative(query_points, candidate, headings, max_distance, cfg)
     base = np.zeros(3) if prior is None else np.asarray(prior, dtype=float).reshape(3)
     if prior is None and translation is not None:
         base[:2] = np.asarray(translation, dtype=float).reshape(2)

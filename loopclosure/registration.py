@@ -312,14 +312,17 @@ class RegistrationTarget:
             (matched point to point with `IcpConfig.point_to_point_clutter`).
         config: the `IcpConfig` the normals were made with (and the default for
             `register`).
+        derived: other products of the points, made and cached by their users (e.g.
+            the geometric check's likelihood grid), by a key of their parameters.
     """
 
-    __slots__ = ("clutter", "config", "normals", "points", "tree", "usable")
+    __slots__ = ("clutter", "config", "derived", "normals", "points", "tree", "usable")
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None) -> None:
         self.config = config or IcpConfig()
         pts = as_points(points, "target points")
         self.points = pts
+        self.derived: dict = {}
         self.tree = cKDTree(pts) if len(pts) else None
         if self.tree is not None and len(pts) >= self.config.min_normal_neighbors:
             self.normals, self.usable, ratio = estimate_normals(pts, self.tree, self.config)

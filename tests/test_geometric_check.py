@@ -89,8 +89,9 @@ def test_prior_gate_rejects_a_match_far_from_the_prediction(offset: np.ndarray) 
     assert not result.accepted
 
 
-def test_partial_overlap_needs_the_prior_gate() -> None:
-    """A revisit sharing ~45% of its submap passes only as a pose-gated candidate."""
+def test_partial_overlap_needs_the_prior_gate_with_multi_start_icp() -> None:
+    """With ``method="icp"``, a revisit sharing ~45% of its submap passes only as a
+    pose-gated candidate (the correlative check judges it by free space instead)."""
     a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
     # The query's submap also holds a wing the candidate's never saw.
     wing = _walls([((6, 0), (14, 0)), ((14, 0), (14, 3)), ((14, 3), (7, 3)), ((8, -2), (12, -2))])
@@ -102,7 +103,8 @@ def test_partial_overlap_needs_the_prior_gate() -> None:
     assert cfg.min_fitness_gated <= gated.fitness < cfg.min_fitness
     assert gated.accepted, gated.reason
     np.testing.assert_allclose(gated.relative[:2], truth[:2], atol=0.01)
-    appearance = verify(query, target, headings=[truth[2]], translation=truth[:2])
+    appearance = verify(query, target, headings=[truth[2]], translation=truth[:2],
+                        config=GeometricCheckConfig(method="icp"))
     assert not appearance.accepted
     assert appearance.reason.startswith("fitness")
 
@@ -141,10 +143,12 @@ def test_origin_guesses_rescue_a_bad_centroid_translation() -> None:
     target = RegistrationTarget(_seen_from(ROOM, a))
     truth = se2.between(a, b)
     wrong = truth[:2] + np.array([3.0, -1.5])
-    found = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong)
+    icp = GeometricCheckConfig(method="icp")
+    found = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong,
+                   config=icp)
     assert found.accepted, found.reason
     np.testing.assert_allclose(found.relative[:2], truth[:2], atol=0.01)
-    off = GeometricCheckConfig(origin_guesses=False)
+    off = GeometricCheckConfig(method="icp", origin_guesses=False)
     lost = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong,
                   config=off)
     assert not (lost.accepted and np.allclose(lost.relative[:2], truth[:2], atol=0.05))

@@ -1,0 +1,217 @@
+"""Correlative scan matching: an exhaustive search of (x, y, theta) over a likelihood grid.
+
+The prior-free geometric check (`loopclosure.geometric_check`, ``method =
+"correlative"``) must find the pose of a query submap in a candidate's submap from
+heading hypotheses alone.  Instead of ICP from many starts it scores every pose of
+a lattice, as the correlative scan matcher of Olson (ICRA 2009) and the
+exhaustive level of Cartographer's matcher (Hess et al., ICRA 2016) do:
+
+    score(x, y, theta) = (1 / N) sum_i L(R(theta) p_i + (x, y))                  (1)
+
+with ``p_i`` the N query points (query sensor frame [m]) and L the likelihood grid
+of the candidate's submap (`LikelihoodGrid`, candidate sensor frame): for the
+distance ``d`` [m] from a cell centre to the nearest candidate point (Euclidean
+distance transform of the occupied cells, `scipy.ndimage.distance_transform_edt`),
+
+    L = max(0, 1 - (d / sigma)^2)                                               (2)
+
+the truncated quadratic of `loopclosure.registration`'s fitness, with a width
+`sigma` [m] that covers half the lattice step.  The grid has square cells of side
+`resolution` [m]; a point scores the cell it falls in (no interpolation).
+
+Lattice (`search`): translations on a square of cells ``(x, y) = (i, j) * step``
+with ``|i|, |j| <= radius / step`` about translation 0 (the sensor of a revisit is
+within a couple of metres of the candidate's: the window is the loop detector's
+``max_distance``), ``step`` a whole number of cells; headings every `angle_step`
+[rad] within `angle_window` of each heading hypothesis (`loopclosure.headings`'
+convention: the heading of the query in the candidate's frame).  Every pose is
+scored (no pruning), in one compiled loop (numba, ``cache=True``) over headings,
+points and translations: ``A * N * T^2`` grid reads.
+
+`peaks` returns the best poses that are distinct (more than `separation` [m] or
+`angle_separation` [rad] from every better one): the starts of the final ICP and
+the runner-up of the ambiguity test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
+
+from data import se2
+
+Array = NDArray[np.float64]
+
+
+class LikelihoodGrid:
+    """The likelihood (2) of a submap on a square grid, candidate frame.
+
+    Attributes:
+        values: ``(H, W)`` float32 likelihood; row = y, column = x.
+        origin: ``(2,)`` (x, y) [m] of the lower-left corner of cell (0, 0).
+        resolution: cell side [m].
+        sigma: width of the truncated quadratic (2) [m].
+        distance: ``(H, W)`` float32 distance d [m] of (2).
+    """
+
+    __slots__ = ("distance", "origin", "resolution", "sigma", "values")
+
+    def __init__(self, points: ArrayLike, resolution: float, sigma: float,
+                 pad: float = 1.0) -> None:
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.resolution = float(resolution)
+        self.sigma = float(sigma)
+        if len(pts) == 0:
+            self.origin = np.zeros(2)
+            self.distance = np.full((1, 1), np.inf, np.float32)
+            self.values = np.zeros((1, 1), np.float32)
+            return
+        lo = pts.min(axis=0) - pad
+        hi = pts.max(axis=0) + pad
+        shape = np.ceil((hi - lo) / resolution).astype(int) + 1
+        cells = np.floor((pts - lo) / resolution).astype(np.int64)
+        free = np.ones((shape[1], shape[0]), bool)
+        free[cells[:, 1], cells[:, 0]] = False
+        self.distance = (ndimage.distance_transform_edt(free) * resolution).astype(np.float32)
+        self.origin = lo
+        self.values = self._likelihood(self.sigma)
+
+    def _likelihood(self, sigma: float) -> NDArray[np.float32]:
+        return np.clip(1.0 - (self.distance / np.float32(sigma)) ** 2, 0.0, None)
+
+    def with_sigma(self, sigma: float) -> LikelihoodGrid:
+        """The same grid with another width `sigma` [m] (the distances are reused)."""
+        out = object.__new__(LikelihoodGrid)
+        out.origin, out.resolution, out.distance = self.origin, self.resolution, self.distance
+        out.sigma = float(sigma)
+        out.values = out._likelihood(out.sigma)
+        return out
+
+
+@numba.njit(cache=True)
+def _correlate(px, py, angles, grid, x0, y0, inv_res, half, step):  # pragma: no cover
+    """``(A, T, T)`` sums of (1) over the points, T = 2 half + 1; [a, j, i] = angle a,
+    y shift j - half, x shift i - half (in lattice steps); `x0`, `y0`: the grid origin
+    minus the lattice centre [m]."""
+    h, w = grid.shape
+    t = 2 * half + 1
+    out = np.zeros((len(angles), t, t))
+    for a in range(len(angles)):
+        c = np.cos(angles[a])
+        s = np.sin(angles[a])
+        for k in range(len(px)):
+            x = c * px[k] - s * py[k]
+            y = s * px[k] + c * py[k]
+            ix = int(np.floor((x - x0) * inv_res))
+            iy = int(np.floor((y - y0) * inv_res))
+            for j in range(t):
+                gy = iy + (j - half) * step
+                if gy < 0 or gy >= h:
+                    continue
+                for i in range(t):
+                    gx = ix + (i - half) * step
+                    if 0 <= gx < w:
+                        out[a, j, i] += grid[gy, gx]
+    return out
+
+
+@dataclass(slots=True)
+class SearchResult:
+    """Scores (1) of every lattice pose.
+
+    Attributes:
+        scores: ``(A, T, T)`` mean likelihood, [angle, y index, x index].
+        angles: ``(A,)`` headings [rad].
+        shifts: ``(T,)`` translations [m] of the lattice along x and along y, about
+            `centre`.
+        centre: ``(2,)`` centre of the translation square [m].
+    """
+
+    scores: Array
+    angles: Array
+    shifts: Array
+    centre: Array
+
+    def pose(self, flat: int) -> Array:
+        """``(3,)`` pose (x, y, theta) of the lattice pose with flat index `flat`."""
+        a, j, i = np.unravel_index(flat, self.scores.shape)
+        return np.array([self.centre[0] + self.shifts[i], self.centre[1] + self.shifts[j],
+                         self.angles[a]])
+
+
+def search_angles(headings: ArrayLike, window: float, step: float) -> Array:
+    """Headings [rad] every `step` within `window` of any hypothesis, on one lattice.
+
+    The lattice is ``k * step`` (k integer), so nearby hypotheses share their angles;
+    wrapped to [-pi, pi), sorted, unique.
+    """
+    h = np.atleast_1d(np.asarray(headings, dtype=float))
+    if len(h) == 0:
+        h = np.zeros(1)
+    n = int(np.ceil(window / step))
+    k = np.round(h / step).astype(np.int64)[:, None] + np.arange(-n, n + 1)[None, :]
+    return np.unique(np.round(se2.wrap_angle(k.ravel() * step), 12))
+
+
+def search(
+    points: ArrayLike,
+    grid: LikelihoodGrid,
+    angles: ArrayLike,
+    radius: float,
+    step_cells: int,
+    centre: ArrayLike = (0.0, 0.0),
+) -> SearchResult:
+    """Score (1) at every pose of the lattice (module docstring).
+
+    Args:
+        points: ``(N, 2)`` query points [m], query sensor frame.
+        grid: the candidate's `LikelihoodGrid`.
+        angles: ``(A,)`` headings [rad] (e.g. `search_angles`).
+        radius: half side of the translation square about `centre` [m].
+        step_cells: translation step in grid cells (step = step_cells * resolution).
+        centre: ``(2,)`` centre of the translation square [m] (candidate frame).
+    """
+    c0 = np.asarray(centre, dtype=float).reshape(2)
+    pts = np.asarray(points, dtype=float).reshape(-1, 2)
+    ang = np.asarray(angles, dtype=float).reshape(-1)
+    step = step_cells * grid.resolution
+    half = int(np.floor(radius / step + 1e-9))
+    shifts = np.arange(-half, half + 1) * step
+    if len(pts) == 0 or len(ang) == 0:
+        return SearchResult(np.zeros((len(ang), len(shifts), len(shifts))), ang, shifts, c0)
+    # Cell of a point moved by a shift of whole cells = its cell shifted: exact.
+    sums = _correlate(pts[:, 0].copy(), pts[:, 1].copy(), ang, grid.values,
+                      float(grid.origin[0] - c0[0]), float(grid.origin[1] - c0[1]),
+                      1.0 / grid.resolution, half, int(step_cells))
+    return SearchResult(sums / len(pts), ang, shifts, c0)
+
+
+def peaks(result: SearchResult, count: int, separation: float,
+          angle_separation: float) -> tuple[Array, Array]:
+    """The `count` best lattice poses, each more than `separation` [m] or
+    `angle_separation` [rad] away from every better one (greedy non-maximum
+    suppression, best first; vectorised over the lattice).
+
+    Returns ``(poses (k, 3), scores (k,))``, k <= count.
+    """
+    s = result.scores.copy()
+    if s.size == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    da = np.abs(se2.wrap_angle(result.angles[:, None] - result.angles[None, :]))
+    sh = result.shifts
+    poses, scores = [], []
+    for _ in range(count):
+        flat = int(np.argmax(s))
+        best = float(s.ravel()[flat])
+        if not np.isfinite(best):
+            break
+        a, j, i = np.unravel_index(flat, s.shape)
+        poses.append(result.pose(flat))
+        scores.append(best)
+        near = np.hypot(sh[None, :] - sh[i], sh[:, None] - sh[j]) <= separation  # (y, x)
+        s[da[a] <= angle_separation] = np.where(near, -np.inf, s[da[a] <= angle_separation])
+    return np.array(poses).reshape(-1, 3), np.array(scores)

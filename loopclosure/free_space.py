@@ -1,0 +1,151 @@
+"""Free-space consistency of two submaps at a relative pose: partial views are not punished.
+
+Two passes through a place in different directions share only part of their
+submaps: the overlap fraction of a true revisit can be as low as that of a wrong
+place.  What tells them apart is where the points that do *not* overlap fall.  A
+laser sees the space between its sensor and each return as free; a point of one
+submap that lands in space the other submap observed as free contradicts the
+match, one that lands where the other never looked (behind its walls, beyond its
+range, outside its field of view) says nothing.
+
+Free-space model (`RangeImage`): the submap's points, in its sensor frame [m] (the
+keyframe's sensor at the origin), binned by bearing into `bins` sectors about the
+origin; ``r(b)`` = the smallest range in sector b, then the minimum over the
+``2 spread + 1`` neighbouring sectors that hold points (a wall seen at a grazing
+angle, a sector edge, and a sector left empty between the points of a distant
+wall), 0 when none does (nothing observed).  A point at range rho, bearing in sector b, lies in
+observed free space when
+
+    rho < r(b) - margin                                                            (1)
+
+The smallest range of a submap merged from several scans is at most the keyframe's
+own return in that direction, so (1) errs towards "not observed" (neutral).
+
+Consistency (`consistency`) of the query submap Q (query frame) and the candidate
+submap P (candidate frame) at the pose T of the query in the candidate's frame:
+a point of Q is a *hit* when ``T q`` is within `tolerance` [m] of a point of P, a
+*conflict* when it is no hit and ``T q`` lies in P's free space (1); the same for
+the points of P at ``T^-1 p`` against Q.  Then
+
+    consistency = hits / (hits + conflicts)                                        (2)
+
+over both directions: the overlap normalised by the mutually visible part (points
+neither submap could have seen count in neither term), and
+``conflict_ratio = conflicts / (|Q| + |P|)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from data import se2
+
+Array = NDArray[np.float64]
+
+
+class RangeImage:
+    """The free space a submap observed, about its sensor origin (module docstring (1)).
+
+    Attributes:
+        ranges: ``(bins,)`` free range per bearing sector [m] (0: nothing observed);
+            sector k covers bearings ``[-pi + k 2 pi / bins, -pi + (k + 1) 2 pi / bins)``.
+    """
+
+    __slots__ = ("bins", "ranges")
+
+    def __init__(self, points: ArrayLike, bins: int = 720, spread: int = 2) -> None:
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        self.bins = int(bins)
+        r = np.full(self.bins, np.inf)
+        if len(pts):
+            np.minimum.at(r, self._sector(pts), np.hypot(pts[:, 0], pts[:, 1]))
+        out = r.copy()
+        for k in range(1, spread + 1):
+            out = np.minimum(out, np.minimum(np.roll(r, k), np.roll(r, -k)))
+        out[~np.isfinite(out)] = 0.0
+        self.ranges = out
+
+    def _sector(self, pts: Array) -> NDArray[np.intp]:
+        bearing = np.arctan2(pts[:, 1], pts[:, 0])
+        return ((bearing + np.pi) * (self.bins / (2 * np.pi))).astype(np.intp) % self.bins
+
+    def free(self, points: ArrayLike, margin: float) -> NDArray[np.bool_]:
+        """``(N,)`` True where a point [m] (this submap's frame) lies in observed free
+        space: closer than the sector's free range minus `margin` [m] (1)."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        if len(pts) == 0:
+            return np.zeros(0, bool)
+        return np.hypot(pts[:, 0], pts[:, 1]) < self.ranges[self._sector(pts)] - margin
+
+
+@dataclass(slots=True)
+class Consistency:
+    """Figures of (2) at one pose.
+
+    Attributes:
+        consistency: hits / (hits + conflicts), both directions (0 with neither).
+        conflict_ratio: conflicts / all points of both submaps.
+        hits, conflicts: counts over both directions.
+    """
+
+    consistency: float
+    conflict_ratio: float
+    hits: int
+    conflicts: int
+
+
+@dataclass(slots=True)
+class Submap:
+    """A submap prepared for (2): points [m] in its sensor frame, KD-tree, free space."""
+
+    points: Array
+    tree: cKDTree | None
+    image: RangeImage
+
+    @classmethod
+    def of(cls, points: ArrayLike, bins: int = 720, spread: int = 2) -> Submap:
+        """Prepare ``(N, 2)`` points (its sensor frame [m])."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        return cls(pts, cKDTree(pts) if len(pts) else None, RangeImage(pts, bins, spread))
+
+
+def _one_way(moved: Array, other: Submap, tolerance: float, margin: float) -> tuple[int, int]:
+    """Hits and conflicts of points `moved` into `other`'s frame."""
+    if len(moved) == 0:
+        return 0, 0
+    if other.tree is None:
+        return 0, 0
+    dist, _ = other.tree.query(moved, k=1, distance_upper_bound=tolerance)
+    hit = np.isfinite(dist)
+    conflict = ~hit & other.image.free(moved, margin)
+    return int(hit.sum()), int(conflict.sum())
+
+
+def consistency(
+    query: Submap, candidate: Submap, pose: ArrayLike, tolerance: float = 0.1,
+    margin: float = 0.3,
+) -> Consistency:
+    """(2) for the pose ``(x, y, theta)`` [m, m, rad] of the query in the candidate's frame.
+
+    Args:
+        query: the query submap (query frame).
+        candidate: the candidate submap (candidate frame).
+        pose: the relative pose.
+        tolerance: a point within this of the other submap's points is a hit [m].
+        margin: free space ends this far before the observed range [m] (1).
+    """
+    t = np.asarray(pose, dtype=float).reshape(3)
+    h1, c1 = _one_way(se2.transform_points(t, query.points), candidate, tolerance, margin)
+    h2, c2 = _one_way(se2.transform_points(se2.inverse(t), candidate.points), query,
+                      tolerance, margin)
+    hits, conflicts = h1 + h2, c1 + c2
+    total = len(query.points) + len(candidate.points)
+    return Consistency(
+        consistency=hits / (hits + conflicts) if hits + conflicts else 0.0,
+        conflict_ratio=conflicts / total if total else 0.0,
+        hits=hits, conflicts=conflicts,
+    )
