@@ -3,7 +3,7 @@
 Run from the repository root::
 
     python benchmarks/stripes_nuisance.py [--meshes DIR] [--labels CSV] [--per-class 2]
-                                          [--stripe-count N] [--scale-free]
+                                          [--stripe-count N] [--scale-free] [--profile]
 
 For a few objects of every class of a labelled mesh folder (default: the YCB
 multi-instance classes of ``../shared/data/meshes-ycb``) it scans each object once
@@ -18,6 +18,12 @@ It also prints the stripe counts and stripe widths per class (the paper: about 1
 stripes per object on 600 x 712 images) and, per class, the spread (standard
 deviation over the class's objects) of each object's mean ``d``: ``d`` is a size
 feature in pixels, so it separates classes only where a class has one size.
+
+With ``--profile`` the same table is made for the stripe profile
+(`loopclosure.stripes.profile`): per feature ``l``, ``d`` (scale-free), ``e`` the
+mean absolute difference of the two profiles, and for their combination the mean of
+the three each divided by its median between classes, the smaller of the two
+orientations (forward, reversed).
 
 Nothing is written; the meshes are read in place.
 """
@@ -38,8 +44,10 @@ from data.stripe_scanner import Mesh, ScannerConfig, scan_mesh  # noqa: E402
 from evaluation.stripes_objects import mesh_folder_objects  # noqa: E402
 from loopclosure.stripes import (  # noqa: E402
     DescriptorConfig,
+    ProfileDatabase,
     StripeDatabase,
     describe_many,
+    describe_profiles,
 )
 from loopclosure.stripes.matching import LAMBDA_PAPER, combine  # noqa: E402
 
@@ -67,6 +75,41 @@ NUISANCES: dict[str, tuple[dict, float]] = {
 """name -> (scanner overrides, fraction of faces removed)."""
 
 
+def _profile_parts(db: ProfileDatabase, queries: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(Q, M, 3)`` per-feature profile distances, forward and reversed."""
+    fw, rv = zip(*(db.feature_distances(q) for q in queries), strict=True)
+    return np.stack(fw), np.stack(rv)
+
+
+def _combined(fw: np.ndarray, rv: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Mean of the features divided by `scale`, the smaller orientation."""
+    return np.minimum((fw / scale).mean(axis=-1), (rv / scale).mean(axis=-1))
+
+
+def profile_table(meshes: list[Mesh], labels: np.ndarray, ref: list, base: ScannerConfig,
+                  rng: np.random.Generator) -> None:
+    """The nuisance table for the stripe profile (module docstring)."""
+    ref_p = describe_profiles([s.stripes for s in ref])
+    fw, rv = _profile_parts(ProfileDatabase(ref_p), ref_p)
+    between = labels[:, None] != labels[None, :]
+    both = np.minimum(fw, rv)
+    scale = np.array([float(np.median(both[..., t][between])) for t in range(3)])
+    comb = float(np.median(_combined(fw, rv, scale)[between]))
+    print(f"\n{'nuisance':22s} {'l':>6s} {'d':>6s} {'e':>6s} {'all':>6s}   "
+          "(stripe profile: same object, disturbed / different classes; medians)")
+    for name, (over, holes) in NUISANCES.items():
+        cfg = replace(base, **over)
+        scans = [scan_mesh(with_holes(m, holes, rng) if holes > 0 else m, cfg, rng)
+                 for m in meshes]
+        db = ProfileDatabase(describe_profiles([s.stripes for s in scans]))
+        f2, r2 = _profile_parts(db, ref_p)
+        idx = np.arange(len(ref_p))
+        f2, r2 = f2[idx, idx], r2[idx, idx]
+        ratios = [float(np.median(np.minimum(f2, r2)[:, t])) / scale[t] for t in range(3)]
+        ratios.append(float(np.median(_combined(f2, r2, scale))) / comb)
+        print(f"{name:22s} " + " ".join(f"{r:6.2f}" for r in ratios))
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
@@ -74,6 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--per-class", type=int, default=2)
     ap.add_argument("--stripe-count", type=int, default=None)
     ap.add_argument("--scale-free", action="store_true")
+    ap.add_argument("--profile", action="store_true", help="the stripe profile's table")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     if not args.meshes.is_dir():
@@ -99,6 +143,9 @@ def main(argv: list[str] | None = None) -> None:
         spread = np.std([ref_desc[i].d.mean() for i in idx])
         print(f"  {c:14s} stripes per object {n:6.1f}   mean stripe width {w:6.1f} px   "
               f"spread of mean d {spread:5.2f}")
+    if args.profile:
+        profile_table(meshes, labels, ref, base, rng)
+        return
     fd = StripeDatabase(ref_desc).pairwise_features()
     between = labels[:, None] != labels[None, :]
     scale = [float(np.median(fd[..., t][between])) for t in range(3)]

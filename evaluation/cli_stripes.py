@@ -166,9 +166,10 @@ def stripes(
                    f"{r.seconds:.2f} s{other_pose}")
     paper = " ".join(f"{c:3d}" for c in PAPER_TABLE_I["Our"])
     typer.echo(f"  paper 'Our'    top-10 {paper}   0.0375 h (Matlab)")
-    for name, wl in js["wins_and_losses"].items():
-        typer.echo(f"  stripes vs {name}: better on {', '.join(wl['wins']) or '-'}; "
-                   f"worse on {', '.join(wl['losses']) or '-'}")
+    for method, key in (("stripes", "wins_and_losses"), ("profile", "profile_wins_and_losses")):
+        for name, wl in js[key].items():
+            typer.echo(f"  {method} vs {name}: better on {', '.join(wl['wins']) or '-'}; "
+                       f"worse on {', '.join(wl['losses']) or '-'}")
     if paths:
         typer.echo(f"  report: {paths['report']}")
 

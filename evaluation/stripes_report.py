@@ -150,9 +150,10 @@ def write_stripes_report(result: StripesBenchmarkResult, out: str | Path) -> dic
         "silhouettes (once for all baselines) [s]": result.silhouette_seconds,
         "scanning (simulator, not counted) [s]": result.scanned.seconds,
     })
-    wl = result.wins_and_losses()
-    wl_rows = [[n, ", ".join(v["wins"]) or "-", ", ".join(v["losses"]) or "-",
-                ", ".join(v["ties"]) or "-"] for n, v in wl.items()]
+    wl_rows = [[f"{method} vs {n}", ", ".join(v["wins"]) or "-",
+                ", ".join(v["losses"]) or "-", ", ".join(v["ties"]) or "-"]
+               for method in ("stripes", "profile")
+               for n, v in result.wins_and_losses(method=method).items()]
     setting = key_values({
         "data set": result.dataset,
         "objects": js["objects"],
@@ -177,8 +178,8 @@ def write_stripes_report(result: StripesBenchmarkResult, out: str | Path) -> dic
          "Different pose (two or more scans per object): first scans as queries against the "
          "second scans, each from its own pose; \"instance\" = the nearest is the query's "
          "own object, \"other object\" = the nearest other object is of its class."),
-        ("Where stripes win and lose (Table II, per class)",
-         table(["against", "stripes better", "stripes worse", "tie"], wl_rows)
+        ("Where stripes and the stripe profile win and lose (Table II, per class)",
+         table(["method vs baseline", "better", "worse", "tie"], wl_rows)
          + "\n\nThe paper: stripes lose on banana and pen against shape."),
         ("Timing: representation + matching of the whole set", timing),
         ("Figures", "\n\n".join([
