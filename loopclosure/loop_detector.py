@@ -64,6 +64,19 @@ and calls, for every keyframe:
    a revisit: the geometric check rejects a verified relative pose longer than
    `max_distance`.  At most `max_loops` are accepted per query, from either search.
 
+Sessions
+--------
+Keyframes may come from several logs (sessions) of one place: a host continuing a
+saved map adds the saved keyframes first (``add_keyframe(..., session=0,
+place_scan=...)``), then the new log's (``session=1``).  A keyframe of another session
+is always eligible (recency is a rule within a log), and pose estimates are compared
+only between keyframes of the same *frame*: a session starts in a frame of its own
+(its odometry's), so the pose search never looks across sessions and an appearance
+candidate from another frame is checked with no prior, as a candidate outside the
+gate, whatever the query's own search accepted.  Once the host has fixed the
+transform between the two frames from such loops, `join` puts the session's keyframes
+into the older frame and the searches treat them as one log.
+
 Every candidate tried is returned (accepted or not, with the reason and the figures
 of each stage), so the host can report them all (``loops.csv``).
 
@@ -260,14 +273,24 @@ class LoopClosureDetector:
         self._since_global = 0
         self._since_free = 0  # keyframes since a prior-free check or an accepted loop
         self._proposed: dict[int, NDArray[np.int64]] = {}  # key -> appearance proposals
+        self._sessions: list[int] = []  # key -> session (module docstring, "Sessions")
+        self._frames: list[int] = []  # key -> frame its pose estimates are given in
+        self._place_scans: list[Scan | None] = []
 
     # -- keyframes -------------------------------------------------------------------
 
-    def add_keyframe(self, key: int, stamp: float, scan: Scan) -> bool:
+    def add_keyframe(
+        self, key: int, stamp: float, scan: Scan, *, session: int = 0,
+        place_scan: Scan | None = None,
+    ) -> bool:
         """Describe and store keyframe `key` (keys are 0, 1, 2, ... in order).
 
         A sensor covering less than `full_circle_deg` is described by a virtual scan
         of ``submap(key)`` (its own scan when there is no `submap` callback).
+        `place_scan` describes it from that scan instead (the `place_scan` of a
+        keyframe restored from a saved map).  `session` labels the log the keyframe
+        comes from (module docstring, "Sessions"); its frame starts as the session's
+        own.
 
         Returns False when no polygon could be made (all beams invalid, a degenerate
         local map): the keyframe is then never a candidate, but keys stay aligned.
@@ -281,16 +304,20 @@ class LoopClosureDetector:
                 f"{len(self._stamps)}, got {key}"
             )
         cfg = self.config
-        if self._stamps and float(stamp) == self._stamps[-1]:
+        if self._stamps and self._sessions[-1] == session and float(stamp) == self._stamps[-1]:
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._stamps.append(float(stamp))
-        try:
+        self._sessions.append(int(session))
+        self._frames.append(int(session))
+        if place_scan is None:
             if np.degrees(scan.fov) >= cfg.full_circle_deg or self._submap is None:
-                polygon = polygon_from_scan(scan, cfg.polygon)
+                place_scan = scan
             else:
                 pts = self._submap_points(key)
-                virtual = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
-                polygon = polygon_from_scan(virtual, cfg.polygon)
+                place_scan = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
+        self._place_scans.append(place_scan)
+        try:
+            polygon = polygon_from_scan(place_scan, cfg.polygon)
         except DegeneratePolygonError:
             self._centroids.append(np.zeros(2))
             self._described.append(False)
@@ -299,6 +326,24 @@ class LoopClosureDetector:
         self._described.append(True)
         self.database.add_descriptors(key, self.database.describe(polygon), stamp=stamp)
         return True
+
+    def place_scan(self, key: int) -> Scan | None:
+        """The 360-degree scan keyframe `key`'s place was described from (its own scan
+        or the virtual scan of its submap; what a saved map stores)."""
+        self._check_key(key)
+        return self._place_scans[key]
+
+    def join(self, session: int, frame: int) -> None:
+        """From now on the pose estimates of `session`'s keyframes are given in `frame`
+        (the frame of an older session it was joined to: module docstring)."""
+        for k, s in enumerate(self._sessions):
+            if s == session:
+                self._frames[k] = int(frame)
+
+    def frame(self, key: int) -> int:
+        """The frame keyframe `key`'s pose estimates are given in."""
+        self._check_key(key)
+        return self._frames[key]
 
     def _target(self, key: int) -> RegistrationTarget:
         """The registration target of `key`'s submap, rebuilt when its version changed."""
@@ -325,7 +370,8 @@ class LoopClosureDetector:
     # -- detection -------------------------------------------------------------------
 
     def eligible(self, key: int) -> NDArray[np.bool_]:
-        """Boolean mask over keys ``0..key-1`` of keyframes old enough to be candidates."""
+        """Boolean mask over keys ``0..key-1`` of keyframes old enough to be candidates
+        (every keyframe of another session is)."""
         self._check_key(key)
         cfg = self.config
         stamps = np.asarray(self._stamps[:key])
@@ -333,6 +379,7 @@ class LoopClosureDetector:
         ok = ids < key - cfg.exclude_recent
         if self._clock:
             ok &= np.abs(stamps - self._stamps[key]) >= cfg.exclude_recent_s
+        ok |= np.asarray(self._sessions[:key]) != self._sessions[key]
         return ok & np.asarray(self._described[:key], dtype=bool)
 
     def _check_key(self, key: int) -> None:
@@ -367,13 +414,20 @@ class LoopClosureDetector:
         gate = cfg.local_radius + cfg.local_sigmas * sigma
         query_points = self._submap_points(key)
         appearance = self._appearance(key, eligible)
-        pose = [] if cfg.search == "appearance" else self._local(key, poses, eligible, gate)
+        frames = np.asarray(self._frames[: len(eligible)])
+        same = frames == self._frames[key]  # pose estimates comparable with the query's
+        pose = [] if cfg.search == "appearance" else self._local(
+            key, poses, eligible & same, gate)
         out: list[LoopCandidate] = []
         self._since_free += 1
+
+        def gated(k: int) -> bool:
+            return bool(same[k]) and self._distance(poses, k, key) <= gate
+
         # Inside the gate, appearance first; a pose candidate already tried, or within
         # 5 keyframes of an accepted one (that place is closed), is skipped.
-        inside = [(int(m.key), m) for m in appearance
-                  if self._distance(poses, int(m.key), key) <= gate] + [(k, None) for k in pose]
+        inside = [(int(m.key), m) for m in appearance if gated(int(m.key))] + [
+            (k, None) for k in pose]
         for k, m in inside:
             if sum(c.accepted for c in out) >= cfg.max_loops:
                 break
@@ -381,19 +435,23 @@ class LoopClosureDetector:
                                  for c in out):
                 continue
             out.append(self._check_prior(key, k, m, poses, cov, sigma, query_points))
-        if any(c.accepted for c in out):
+        anchored = any(c.accepted for c in out)
+        if anchored:
             self._since_free = 0
-            return out  # the pose is anchored: a place outside the gate contradicts it
-        free = [m for m in appearance if self._distance(poses, int(m.key), key) > gate]
+        # Outside the gate: in the query's frame only when the pose is not anchored (a
+        # place outside the gate would contradict the accepted one); in another frame
+        # (a session not joined yet) always, the two frames being unrelated.
+        free = [m for m in appearance if not gated(int(m.key))
+                and not (anchored and same[int(m.key)])]
         if not (0 < cfg.free_every <= self._since_free):
             free = [m for m in free if self._supported(key, int(m.key))]
         if not free:
             return out
         self._since_free = 0
         for m in free:
-            out.append(self._check_global(key, m, query_points, poses))
             if sum(c.accepted for c in out) >= cfg.max_loops:
                 break
+            out.append(self._check_global(key, m, query_points, poses))
         return out
 
     def _supported(self, key: int, match: int) -> bool:
@@ -511,7 +569,8 @@ class LoopClosureDetector:
             query_points, self._target(cand), headings=headings, translation=translation,
             max_distance=cfg.max_distance, config=cfg.check,
         )
-        distance = float("nan") if poses is None else self._distance(poses, cand, key)
+        distance = (float("nan") if poses is None or self._frames[cand] != self._frames[key]
+                    else self._distance(poses, cand, key))
         return LoopCandidate.checked(
             key, cand, "appearance", result, predicted_distance=distance, **_place_figures(m)
         )

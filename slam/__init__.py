@@ -11,7 +11,9 @@ A library user maps a log in three lines::
 from `loopclosure` -> iSAM2 -> final GNC) under one `PipelineConfig`; the
 `MappingResult` it returns holds every pose, loop candidate and timing, and
 `write_results` writes it as the CLI does (TUM/KITTI trajectories, g2o, loops.csv,
-a ROS map_server map, summary.json).  `PoseGraph` with `slam.optimize.optimize` is
+a ROS map_server map, summary.json, the saved map ``session.npz``);
+``Mapper(saved=read_saved_map(folder))`` continues a saved map with a new log
+(`slam.sessions`).  `PoseGraph` with `slam.optimize.optimize` is
 the back end on its own (batch LM with a robust kernel, or GNC).
 """
 
@@ -28,6 +30,8 @@ if TYPE_CHECKING:
     from slam.pipeline import LoopEvent, Mapper, MappingResult
     from slam.pose_graph import PoseGraph, RobustKernel
     from slam.results import write_results
+    from slam.session_file import SavedMap, SessionInfo, read_saved_map, write_saved_map
+    from slam.sessions import SessionsConfig
 
 # Where each exported name lives.  Loaded on first use, so the CLI (which lives in
 # `slam.cli` and so imports this package first) starts without gtsam and scipy.
@@ -46,6 +50,11 @@ _HOMES = {
     "PoseGraph": "slam.pose_graph",
     "RobustKernel": "slam.pose_graph",
     "write_results": "slam.results",
+    "SavedMap": "slam.session_file",
+    "SessionInfo": "slam.session_file",
+    "read_saved_map": "slam.session_file",
+    "write_saved_map": "slam.session_file",
+    "SessionsConfig": "slam.sessions",
 }
 
 
@@ -63,7 +72,12 @@ __all__ = [
     "PipelineConfig",
     "PoseGraph",
     "RobustKernel",
+    "SavedMap",
+    "SessionInfo",
+    "SessionsConfig",
     "SubmapConfig",
     "build_occupancy_grid",
+    "read_saved_map",
     "write_results",
+    "write_saved_map",
 ]

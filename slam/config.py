@@ -19,6 +19,7 @@ from slam.odometry.icp2d import Icp2dConfig
 from slam.odometry.kiss import KissConfig
 from slam.odometry.wheel import WheelConfig
 from slam.refine_scans import RefineConfig
+from slam.sessions import SessionsConfig
 
 
 @dataclass(slots=True)
@@ -83,6 +84,7 @@ class PipelineConfig:
             accumulated since the last accepted loop closure; cheap) or ``marginal``
             (iSAM2's marginal covariance of the newest keyframe; grows with the
             distance from the first pose and costs a marginal per keyframe).
+        sessions: when a new log continuing a saved map (``run --map``) is joined to it.
     """
 
     odometry: str = "icp2d"
@@ -97,6 +99,7 @@ class PipelineConfig:
     refine_scans: bool = False
     refine: RefineConfig = field(default_factory=RefineConfig)
     uncertainty: str = "since-loop"
+    sessions: SessionsConfig = field(default_factory=SessionsConfig)
 
     def submap_neighbours(self) -> int:
         """Keyframes on each side of a keyframe in its submap (`SubmapConfig.neighbours`)."""

@@ -44,6 +44,15 @@ from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.odometry import OdometryEstimate, make_odometry
 from slam.optimize import IncrementalSmoother, optimize
 from slam.refine_scans import refine_scan_poses
+from slam.session_file import SavedMap, SessionInfo
+from slam.session_result import complete_sessions
+from slam.sessions import (
+    PendingLoop,
+    consistent_group,
+    implied_transform,
+    saved_keyframes,
+    session_spans,
+)
 
 Array = NDArray[np.float64]
 Progress = Callable[[int, int, int], None]
@@ -75,6 +84,9 @@ class MappingResult:
         smoother: the back end (its graph holds every constraint).
         timings: seconds per stage.
         interrupted: the run was stopped before the end of its input.
+        sessions: every session of the map, oldest first (one without ``--map``).
+        saved_map: the run as a saved map (``session.npz``), None when interrupted.
+        loop_outliers: indices of the graph's loops the final optimisation rejected.
     """
 
     scan_stamps: Array
@@ -87,6 +99,9 @@ class MappingResult:
     timings: dict[str, float]
     interrupted: bool = False
     odometry_status: dict[str, int] = field(default_factory=dict)
+    sessions: list[SessionInfo] = field(default_factory=list)
+    saved_map: SavedMap | None = None
+    loop_outliers: set[int] = field(default_factory=set)
 
     @property
     def accepted_loops(self) -> list[LoopEvent]:
@@ -100,20 +115,21 @@ def peak_rss_mb() -> float:
 
 
 class Mapper:
-    """The SLAM pipeline (module docstring).  One instance maps one input."""
+    """The SLAM pipeline (module docstring).  One instance maps one input.
 
-    def __init__(self, config: PipelineConfig | None = None) -> None:
+    With `saved` (a `SavedMap`, from `slam.session_file.read_saved_map`) the input is a
+    new session of that map: its keyframes are restored first and the new log is
+    joined to it by place recognition (`slam.sessions`); `name` names the session.
+    """
+
+    def __init__(
+        self, config: PipelineConfig | None = None, saved: SavedMap | None = None,
+        name: str = "",
+    ) -> None:
         self.config = cfg = config or PipelineConfig()
         self.odometry = make_odometry(cfg.odometry, cfg.front_end_config())
         self.keyframes = KeyframeSelector(cfg.keyframes)
-        self.smoother = IncrementalSmoother(
-            kernel=cfg.backend.kernel,
-            relinearize_threshold=cfg.backend.relinearize_threshold,
-        )
-        if cfg.backend.kernel_scale is not None:
-            from slam.pose_graph import RobustKernel
-
-            self.smoother.kernel = RobustKernel(cfg.backend.kernel, cfg.backend.kernel_scale)
+        self.smoother = self._new_smoother()
         if cfg.uncertainty not in ("since-loop", "marginal"):
             raise UserError(
                 f"unknown uncertainty {cfg.uncertainty!r}; choose since-loop or marginal"
@@ -139,6 +155,41 @@ class Mapper:
             np.array([cfg.backend.odometry_floor[0], cfg.backend.odometry_floor[1],
                       np.radians(cfg.backend.odometry_floor[2])]) ** 2
         )
+        # Sessions: the saved keyframes are keys 0 .. base-1, the new log's base ..
+        self.name = name
+        self._saved = saved
+        self._base = 0 if saved is None else saved.n_keyframes
+        self._old: list[Keyframe] = [] if saved is None else saved_keyframes(saved)
+        self._old_spans = {} if saved is None else session_spans(saved["kf_session"])
+        self._joined = saved is None
+        self._pending: list[PendingLoop] = []
+        self._joined_at: int | None = 0 if saved is None else None
+        self._joined_after: float | None = 0.0 if saved is None else None
+        self._path = 0.0  # odometry path length of the new session [m]
+        if saved is not None:
+            self._restore(saved)
+
+    def _new_smoother(self) -> IncrementalSmoother:
+        backend = self.config.backend
+        smoother = IncrementalSmoother(
+            kernel=backend.kernel, relinearize_threshold=backend.relinearize_threshold
+        )
+        if backend.kernel_scale is not None:
+            from slam.pose_graph import RobustKernel
+
+            smoother.kernel = RobustKernel(backend.kernel, backend.kernel_scale)
+        return smoother
+
+    def _restore(self, saved: SavedMap) -> None:
+        """The saved keyframes into the place database (session 0, the map frame)."""
+        start = time.perf_counter()
+        empty = Scan(0.0, np.zeros(0), np.zeros(0), 1.0)
+        for k, kf in enumerate(self._old):
+            self.detector.add_keyframe(
+                k, kf.stamp, kf.scan, session=0, place_scan=saved.place_scan(k) or empty
+            )
+        self._estimate = np.asarray(saved["kf_pose"], dtype=float).reshape(-1, 3).copy()
+        self.timings["restore"] = time.perf_counter() - start
 
     # -- the run ----------------------------------------------------------------------
 
@@ -175,32 +226,41 @@ class Mapper:
         if keyframe is not None:
             self._add_keyframe(keyframe, estimate)
 
+    @property
+    def joined(self) -> bool:
+        """The new session is in the saved map's frame (always true without one)."""
+        return self._joined
+
     def _add_keyframe(self, kf: Keyframe, estimate: OdometryEstimate) -> None:
         start = time.perf_counter()
+        key = self._base + kf.id
         if kf.id == 0:
             guess = kf.odom_pose
         else:
-            guess = se2.compose(self._estimate[kf.id - 1], kf.delta)
-        self.smoother.add_pose(kf.id, guess)
+            guess = se2.compose(self._estimate[key - 1], kf.delta)
+        self.smoother.add_pose(key, guess)
         if kf.id > 0:
             cov = kf.covariance + self._floor
-            self.smoother.add_odometry(kf.id - 1, kf.id, kf.delta, np.linalg.inv(cov))
-            self._drift = _propagate_drift(self._drift, self._estimate[kf.id - 1], kf.delta, cov)
+            self.smoother.add_odometry(key - 1, key, kf.delta, np.linalg.inv(cov))
+            self._drift = _propagate_drift(self._drift, self._estimate[key - 1], kf.delta, cov)
+            self._path += float(np.hypot(kf.delta[0], kf.delta[1]))
         self.timings["keyframes"] += time.perf_counter() - start
         start = time.perf_counter()
-        self.detector.add_keyframe(kf.id, kf.stamp, kf.scan)
+        self.detector.add_keyframe(key, kf.stamp, kf.scan, session=int(self._saved is not None))
         self.timings["loop_detection"] += time.perf_counter() - start
         self._update()
         start = time.perf_counter()
         covariance = (
-            self._marginal(kf.id) if self.config.uncertainty == "marginal" else self._drift
+            self._marginal(key) if self.config.uncertainty == "marginal" else self._drift
         )
-        candidates = self.detector.detect(kf.id, self._estimate, covariance)
+        candidates = self.detector.detect(key, self._estimate, covariance)
         self.timings["loop_detection"] += time.perf_counter() - start
         added = False
         for c in candidates:
-            event = LoopEvent(c, kf.stamp, self.keyframes.keyframes[c.match].stamp)
-            if c.accepted:
+            event = LoopEvent(c, kf.stamp, self._keyframe(c.match).stamp)
+            if c.accepted and not self._joined and c.match < self._base:
+                self._pending.append(PendingLoop(event, c.match, c.query, c.relative))
+            elif c.accepted:
                 event.factor = self.smoother.add_loop(
                     c.match, c.query, c.relative, np.linalg.inv(c.covariance)
                 )
@@ -210,6 +270,8 @@ class Mapper:
             self.loops.append(event)
         if added:
             self._update()
+        if self._pending and not self._joined:
+            self._try_join(kf)
 
     def _keep_points(self, scan: Scan, is_keyframe: bool) -> None:
         self._scan_points.append(scan.points().astype(np.float32))
@@ -220,7 +282,11 @@ class Mapper:
         start = time.perf_counter()
         self.smoother.update()
         est = self.smoother.estimate()
-        self._estimate = np.array([est[k] for k in range(len(est))])
+        if self._joined:
+            self._estimate = np.array([est[k] for k in range(len(est))]).reshape(-1, 3)
+        else:  # the saved poses, then the new session's in its own frame
+            new = [est[k] for k in range(self._base, self._base + len(est))]
+            self._estimate = np.vstack([self._estimate[: self._base], np.reshape(new, (-1, 3))])
         self.timings["optimisation"] += time.perf_counter() - start
 
     def _marginal(self, key: int) -> Array | None:
@@ -232,26 +298,91 @@ class Mapper:
     def _accepted(self) -> int:
         return sum(1 for e in self.loops if e.candidate.accepted)
 
+    # -- sessions ---------------------------------------------------------------------
+
+    def _try_join(self, kf: Keyframe) -> None:
+        """Join the new session when enough pending loops agree (`slam.sessions`): one
+        graph of both, the new poses moved into the map frame."""
+        group = consistent_group(self._pending, self._estimate, self.config.sessions)
+        if not group:
+            return
+        start = time.perf_counter()
+        saved, base = self._saved, self._base
+        assert saved is not None
+        first = self._pending[group[0]]
+        t = implied_transform(
+            self._estimate[first.match], first.relative, self._estimate[first.query]
+        )
+        joint = self._new_smoother()
+        for k in range(base):
+            joint.add_pose(k, saved["kf_pose"][k])
+        for (i, j), z, info in zip(saved["odom_ij"], saved["odom_z"], saved["odom_info"],
+                                   strict=True):
+            joint.add_odometry(int(i), int(j), z, info)
+        for (i, j), z, info in zip(saved["loop_ij"], saved["loop_z"], saved["loop_info"],
+                                   strict=True):
+            joint.add_loop(int(i), int(j), z, info)
+        offset = len(saved["loop_ij"])
+        graph = self.smoother.graph
+        for key in sorted(graph.initial):
+            joint.add_pose(key, se2.compose(t, self._estimate[key]))
+        for c in graph.odometry:
+            joint.add_odometry(c.i, c.j, c.measurement, c.information)
+        for c in graph.loops:
+            joint.add_loop(c.i, c.j, c.measurement, c.information)
+        for e in self.loops:
+            if e.factor is not None:
+                e.factor += offset
+        for n, p in enumerate(self._pending):
+            c = p.event.candidate
+            if n in group:
+                p.event.factor = joint.add_loop(
+                    p.match, p.query, p.relative, np.linalg.inv(c.covariance))
+            else:
+                c.accepted, c.reason = False, "inconsistent with the session join"
+        self._pending = []
+        self.smoother = joint
+        self._joined = True
+        self._joined_at = kf.id
+        self._joined_after = self._path
+        self.detector.join(1, 0)
+        self._drift = _rotate_covariance(first.event.candidate.covariance,
+                                         saved["kf_pose"][first.match][2])
+        self.timings["optimisation"] += time.perf_counter() - start
+        self._update()
+
+    def _keyframe(self, key: int) -> Keyframe:
+        """Keyframe `key` of any session (saved ones first)."""
+        return self._old[key] if key < self._base else self.keyframes.keyframes[key - self._base]
+
+    def _span(self, key: int) -> tuple[int, int]:
+        """First and last key of `key`'s session so far."""
+        if key < self._base:
+            return self._old_spans[int(self._saved["kf_session"][key])]
+        return self._base, self._base + len(self.keyframes.keyframes) - 1
+
     # -- submaps ----------------------------------------------------------------------
 
     def submap_version(self, key: int) -> int:
         """Version of `submap(key)`: the newest keyframe it includes (it grows until
         ``key + n`` exists, then never changes)."""
-        return min(key + self.config.submap_neighbours(), len(self.keyframes.keyframes) - 1)
+        return min(key + self.config.submap_neighbours(), self._span(key)[1])
 
     def submap(self, key: int) -> Array:
-        """Local map of keyframe `key` in its sensor frame (module docstring), cached."""
-        kfs = self.keyframes.keyframes
+        """Local map of keyframe `key` in its sensor frame (module docstring), cached;
+        only keyframes of its own session take part."""
         n = self.config.submap_neighbours()
+        lo = self._span(key)[0]
         hi = self.submap_version(key)
         cached = self._submaps.get(key)
         if cached is not None and cached[0] == hi:
             return cached[1]
-        centre = kfs[key].odom_pose
+        centre = self._keyframe(key).odom_pose
         parts = []
-        for j in range(max(0, key - n), hi + 1):
-            rel = se2.between(centre, kfs[j].odom_pose)
-            parts.append(se2.transform_points(rel, kfs[j].points))
+        for j in range(max(lo, key - n), hi + 1):
+            kf = self._keyframe(j)
+            rel = se2.between(centre, kf.odom_pose)
+            parts.append(se2.transform_points(rel, kf.points))
         pts = np.vstack(parts) if parts else np.zeros((0, 2))
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
         pts = voxel_downsample(pts, self.config.submap.voxel)
@@ -268,7 +399,8 @@ class Mapper:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
         graph = self.smoother.graph
-        poses = dict(enumerate(self._estimate))
+        poses = {k: self._estimate[k] for k in graph.initial}
+        rejected: set[int] = set()
         if graph.loops and self.config.backend.final_gnc and not interrupted:
             result = optimize(
                 graph, method="gnc", initial=poses,
@@ -279,9 +411,13 @@ class Mapper:
             for event in self.loops:
                 if event.factor is not None and event.factor in rejected:
                     event.rejected_by_gnc = True
+        for p in self._pending:  # the sessions were never joined
+            p.event.candidate.accepted = False
+            p.event.candidate.reason = "session not joined (too few consistent loops)"
         self.timings["final_optimisation"] += time.perf_counter() - start
+        local = {k.id: poses[self._base + k.id] for k in self.keyframes.keyframes}
         scan_poses = (
-            scan_poses_from_keyframes(self.keyframes, poses)
+            scan_poses_from_keyframes(self.keyframes, local)
             if self.keyframes.keyframes
             else np.zeros((len(self.keyframes.scan_stamps), 3))
         )
@@ -294,18 +430,20 @@ class Mapper:
                 self._keyframe_scans, self.config.refine,
             ).poses
             self.timings["refine_scans"] = time.perf_counter() - start
-        return MappingResult(
+        result = MappingResult(
             scan_stamps=np.asarray(self.keyframes.scan_stamps, dtype=float),
             scan_poses=scan_poses,
             odometry_poses=np.asarray(self.odometry_poses).reshape(-1, 3),
             keyframes=self.keyframes.keyframes,
-            keyframe_poses=poses,
+            keyframe_poses=local,
             loops=self.loops,
             smoother=self.smoother,
             timings=dict(self.timings),
             interrupted=interrupted,
             odometry_status=dict(self.status),
+            loop_outliers=rejected,
         )
+        return complete_sessions(self, result, poses)
 
 
 def _rotate_covariance(cov: Array, theta: float) -> Array:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,8 @@ from slam.map_io import write_map as write_map_files
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
 from slam.pipeline import MappingResult, peak_rss_mb
+from slam.session_file import FILE_NAME as SESSION_FILE
+from slam.session_file import write_saved_map
 
 
 def loop_records(result: MappingResult) -> list[LoopRecord]:
@@ -111,7 +114,7 @@ def write_results(
         files["odometry_tum"] = str(write_trajectories_odometry)
     graph = result.smoother.graph
     if graph.initial:
-        kept = [e.factor for e in result.loops if e.factor is not None and not e.rejected_by_gnc]
+        kept = [i for i in range(len(graph.loops)) if i not in result.loop_outliers]
         g = graph.to_g2o(result.keyframe_poses)
         kept_pairs = {(graph.loops[i].i, graph.loops[i].j) for i in kept}
         g.edges = [
@@ -122,6 +125,10 @@ def write_results(
         files["g2o"] = str(out / "graph.g2o")
     write_loops_csv(out / "loops.csv", loop_records(result))
     files["loops"] = str(out / "loops.csv")
+    if result.saved_map is not None:
+        files["session"] = str(write_saved_map(out / SESSION_FILE, result.saved_map))
+    write_json(out / "sessions.json", {"sessions": [asdict(s) for s in result.sessions]})
+    files["sessions"] = str(out / "sessions.json")
     if write_map and result.keyframes:
         files.update(_write_maps(out, result, map_config))
     accepted = [e for e in result.loops if e.candidate.accepted]
@@ -145,6 +152,7 @@ def write_results(
         "odometry_status": result.odometry_status,
         "trajectory_stamps": stamp_rule,
         "interrupted": result.interrupted,
+        "sessions": [asdict(s) for s in result.sessions],
         "files": files,
     }
     write_json(out / "summary.json", summary)

@@ -77,24 +77,36 @@ def run(
         list[str] | None,
         typer.Option("--set", help="Override one parameter, e.g. --set loops.local_max=2."),
     ] = None,
+    saved_map: Annotated[
+        Path | None,
+        typer.Option("--map", help="Continue this saved map (a run's --out folder): the "
+                     "input is a new session, joined to it by place recognition."),
+    ] = None,
     no_map: Annotated[bool, typer.Option("--no-map", help="Skip the occupancy map.")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Malformed input is an error.")] = False,
     json: Annotated[bool, typer.Option("--json", help="Print summary.json on stdout.")] = False,
 ) -> None:
-    """Map a log or bag: trajectory, pose graph, loop closures, occupancy map, summary."""
+    """Map a log or bag: trajectory, pose graph, loop closures, occupancy map, summary.
+
+    With ``--map DIR`` the log continues the map saved in DIR (its parameters, unless
+    --config / --set say otherwise) from an unknown start pose; ``sessions.json`` says
+    whether and where it was joined.
+    """
     from data.atomic_write import output_dir
     from slam.config_io import dump_config
     from slam.pipeline import Mapper
     from slam.results import write_results
+    from slam.session_file import read_saved_map
 
-    if input is None and odometry is None and config is None:
+    saved = read_saved_map(saved_map) if saved_map is not None else None
+    if input is None and odometry is None and config is None and saved is None:
         odometry = DEMO_FRONT_END
-    cfg = _config(config, odometry, overrides)
+    cfg = _config(config, odometry, overrides, saved.config if saved else None)
     output_dir(out)
     dump_config(cfg, out / "config.yaml")
     source, scans, total, source_name = _open_input(input, topic, odom_topic, strict)
     start = time.perf_counter()
-    result = _run_with_progress(Mapper(cfg), scans, total)
+    result = _run_with_progress(Mapper(cfg, saved=saved, name=source_name), scans, total)
     summary = write_results(
         out, result, source_name, wall_s=time.perf_counter() - start, write_map=not no_map,
         map_config=cfg.map,
@@ -109,14 +121,23 @@ def run(
         _print_summary(summary, out, [line for r in reports for line in r.lines])
 
 
-def _config(config: Path | None, odometry: str | None, overrides: list[str] | None) -> Any:
-    """The `PipelineConfig` of the run: defaults, `config` file, ``--odometry``, ``--set``."""
+def _config(
+    config: Path | None, odometry: str | None, overrides: list[str] | None,
+    saved: dict[str, Any] | None = None,
+) -> Any:
+    """The `PipelineConfig` of the run: defaults (or a saved map's `saved` tree), the
+    `config` file, ``--odometry``, ``--set``."""
     from data.errors import UserError
     from slam.config import PipelineConfig
-    from slam.config_io import apply_overrides, load_config
+    from slam.config_io import apply_overrides, from_dict, load_config
     from slam.odometry import FRONT_ENDS
 
-    cfg = load_config(PipelineConfig, config) if config else PipelineConfig()
+    if config:
+        cfg = load_config(PipelineConfig, config)
+    elif saved is not None:
+        cfg = from_dict(PipelineConfig, saved, where="the saved map's config")
+    else:
+        cfg = PipelineConfig()
     if odometry:
         overrides = [f"odometry={odometry}", *(overrides or [])]
     cfg = apply_overrides(cfg, overrides or [])
@@ -190,6 +211,16 @@ def _print_summary(summary: dict[str, Any], out: Path, report_lines: list[str]) 
         f"peak {summary['peak_rss_mb']:.0f} MB"
         + ("  (interrupted)" if summary.get("interrupted") else "")
     )
+    sessions = summary.get("sessions", [])
+    if len(sessions) > 1:
+        s = sessions[-1]
+        typer.echo(
+            f"session {len(sessions)} joined the saved map at its keyframe "
+            f"{s['joined_at_keyframe']} after {s['joined_after_m']:.1f} m "
+            f"({s['loops']} loops between the sessions)" if s["joined"]
+            else f"session {len(sessions)} was NOT joined to the saved map: written in "
+            "its own frame"
+        )
     for line in report_lines:
         typer.echo(line)
     typer.echo(f"results in {out}/")
