@@ -74,9 +74,18 @@ def test_elevation_is_mirror_and_order_free():
 
 def test_resample_profile_by_hand():
     f = np.array([[0.0, 10.0], [1.0, 20.0], [2.0, 0.0]])
-    got = resample_profile(f, 5)  # t = 0, .5, 1 -> tk = 0, .25, .5, .75, 1
-    np.testing.assert_allclose(got[:, 0], [0.0, 0.5, 1.0, 1.5, 2.0])
-    np.testing.assert_allclose(got[:, 1], [10.0, 15.0, 20.0, 10.0, 0.0])
+    # Stripes at t = 0, .5, 1; bins of half-width 1/8 around 0, .25, .5, .75, 1, the
+    # end bins clipped to [0, 1/8] and [7/8, 1].  Column 0 is the line 2t: the mean over
+    # a bin is its value at the bin's middle, 2 * (1/16) at the first bin.
+    got = resample_profile(f, 5)
+    np.testing.assert_allclose(got[:, 0], [0.125, 0.5, 1.0, 1.5, 1.875])
+    # Column 1 rises 10 -> 20 then falls to 0: the middle bin averages 10 + 20 * 7/16
+    # over its first half and 20 - 40 / 16 over its second.
+    np.testing.assert_allclose(got[:, 1], [11.25, 15.0, (18.75 + 17.5) / 2, 10.0, 2.5])
+    # Many stripes of a constant: the constant; of a line: the bin means of the line.
+    np.testing.assert_allclose(resample_profile(np.full((200, 1), 3.0), 7), 3.0)
+    line = resample_profile(np.linspace(0, 1, 101)[:, None], 3)[:, 0]
+    np.testing.assert_allclose(line, [0.125, 0.5, 0.875])
     np.testing.assert_allclose(resample_profile(f[:1], 3), np.repeat(f[:1], 3, axis=0))
     with pytest.raises(UserError, match="non-empty"):
         resample_profile(np.zeros((0, 3)), 4)
@@ -85,11 +94,13 @@ def test_resample_profile_by_hand():
 # ----------------------------------------------------------------------------- the profile
 
 
-def test_profile_rows_are_l_d_e_at_fractions_of_the_length():
+def test_profile_rows_are_l_d_e_over_fractions_of_the_length():
     stripes = [np.column_stack([np.arange(float(w)), np.zeros(w)]) for w in (10, 20, 30)]
     p = describe_profile(stripes, ProfileConfig(samples=3))
     assert p.profile.shape == (3, 3) and p.stripes == 3
-    np.testing.assert_allclose(p.profile[:, 0], [0.5, 1.0, 1.5])  # l = H / mean H (Eq. 3)
+    # l = H / mean H (Eq. 3) = 0.5, 1, 1.5 at t = 0, .5, 1, i.e. the line 0.5 + t; its
+    # means over the bins [0, 1/4], [1/4, 3/4], [3/4, 1].
+    np.testing.assert_allclose(p.profile[:, 0], [0.625, 1.0, 1.375])
     np.testing.assert_allclose(p.profile[:, 2], 0.0)  # flat stripes
     assert np.all(np.diff(p.profile[:, 1]) > 0)  # longer stripe, larger d
     with pytest.raises(DataError, match="empty stripe set"):

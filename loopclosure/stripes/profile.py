@@ -13,9 +13,10 @@ Why (each step answers one cause found on real scanned meshes):
   it compares the central part of a long object with the whole of a short one; the
   count itself is the object's length along the sweep divided by the laser step.  Here
   every object's stripe sequence is resampled to `ProfileConfig.samples` positions
-  evenly spaced along the sweep (linear interpolation over the normalised stripe
-  index ``t = i / (N - 1)``): position ``k`` of two objects is the same fraction of
-  their length, whatever their size and the laser step, and nothing is trimmed.
+  evenly spaced along the sweep (over the normalised stripe index ``t = i / (N - 1)``,
+  each position the mean of its share of the length: `resample_profile`): position
+  ``k`` of two objects is the same fraction of their length, whatever their size and
+  the laser step, and nothing is trimmed.
 - Size.  ``d`` (Eq. 1) is a mean log distance in pixels, so it measures the object's
   size.  Here the points of an object are divided by its mean stripe point count and
   multiplied by `SCALE_FREE_WIDTH` before Eq. 1 (the unit is then 1/100 of the
@@ -172,17 +173,43 @@ def _clean(stripes: Sequence[ArrayLike], name: str | None) -> list[Array]:
     return arrays
 
 
+def _integral(t: Array, f: Array, x: Array) -> Array:
+    """``F(x) = int_0^x f`` of the piecewise-linear ``f`` through ``(t, f)`` (``t`` increasing
+    from 0 to 1), at the points ``x`` in ``[0, 1]``."""
+    dt = np.diff(t)
+    knots = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * dt)])
+    i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, len(t) - 2)
+    u = x - t[i]
+    slope = (f[i + 1] - f[i]) / dt[i]
+    return knots[i] + f[i] * u + 0.5 * slope * u * u
+
+
 def resample_profile(features: ArrayLike, samples: int) -> Array:
-    """``(N, F)`` per-stripe features -> ``(samples, F)`` by linear interpolation over the
-    normalised stripe index ``t = i / (N - 1)`` (one stripe: that row repeated)."""
+    """``(N, F)`` per-stripe features -> ``(samples, F)``, each row the mean of the features
+    over its share of the object's length.
+
+    The stripes sit at ``t_i = i / (N - 1)`` along the object, joined linearly; row
+    ``k`` is the mean of that piecewise-linear function over the bin
+    ``[c_k - h, c_k + h]`` around ``c_k = k / (samples - 1)``, ``h = 1 / (2 (samples -
+    1))``, clipped to ``[0, 1]`` (the two end bins are half as wide): exact integrals,
+    no sub-sampling.  Why a bin mean and not the value at ``c_k``: an object swept by
+    many more stripes than `samples` would otherwise be described by one stripe in
+    ``N / samples``, which of them depending on the laser's phase, with every stripe's
+    own noise (gaps, speckle) kept; the mean over the bin is the anti-aliased
+    resampling.  For ``N <= samples`` it differs from linear interpolation only by the
+    averaging of the line over the bin.  One stripe: that row repeated.
+    """
     f = np.asarray(features, dtype=float)
     if f.ndim != 2 or len(f) == 0:
         raise UserError(f"features must be a non-empty (N, F) array, got shape {f.shape}")
     if len(f) == 1:
         return np.repeat(f, samples, axis=0)
     t = np.linspace(0.0, 1.0, len(f))
-    tk = np.linspace(0.0, 1.0, samples)
-    return np.column_stack([np.interp(tk, t, f[:, j]) for j in range(f.shape[1])])
+    c = np.linspace(0.0, 1.0, samples)
+    h = 0.5 / (samples - 1)
+    lo, hi = np.clip(c - h, 0.0, 1.0), np.clip(c + h, 0.0, 1.0)
+    return np.column_stack([(_integral(t, f[:, j], hi) - _integral(t, f[:, j], lo)) / (hi - lo)
+                            for j in range(f.shape[1])])
 
 
 def describe_profiles(
