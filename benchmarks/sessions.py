@@ -129,7 +129,8 @@ def main() -> int:
         if name == "intel":
             path, rel = args.data / "carmen/intel.clf.bz2", args.data / "carmen/intel.relations"
         else:
-            path, rel = args.data / f"carmen-corrected/{name}-corrected.log.gz", None
+            stem = name if name.endswith("-corrected") else f"{name}-corrected"
+            path, rel = args.data / f"carmen-corrected/{stem}.log.gz", None
         if not path.exists():
             print(f"skip {name}: {path} missing")
             continue

@@ -73,7 +73,8 @@ is always eligible (recency is a rule within a log), and pose estimates are comp
 only between keyframes of the same *frame*: a session starts in a frame of its own
 (its odometry's), so the pose search never looks across sessions and an appearance
 candidate from another frame is checked with no prior, as a candidate outside the
-gate, whatever the query's own search accepted.  Once the host has fixed the
+gate, whatever the query's own search accepted; it needs only `min_score_across`
+(the host joins two sessions on several loops that agree, not on one).  Once the host has fixed the
 transform between the two frames from such loops, `join` puts the session's keyframes
 into the older frame and the searches treat them as one log.
 
@@ -137,6 +138,9 @@ class LoopClosureConfig:
             keyframe; 0: never, as ``search = pose``).
         min_score: fused place-recognition score an appearance candidate needs, in
             [0, 1].
+        min_score_across: ... when it lies in another frame (a session not joined yet:
+            its loops join the sessions only when several agree, so the score need not
+            guard each one).
         global_verify: appearance candidates checked per query.
         free_every: check any appearance candidate outside the pose gate (no prior)
             every this many keyframes without an accepted loop (1: at every keyframe;
@@ -164,6 +168,7 @@ class LoopClosureConfig:
     local_max: int = 2
     global_every: int = 1
     min_score: float = 0.5
+    min_score_across: float = 0.0
     global_verify: int = 2
     free_every: int = 10
     sequence_keyframes: int = 2
@@ -483,9 +488,13 @@ class LoopClosureDetector:
             self.database.descriptors(key), allowed=np.flatnonzero(eligible)
         )
         chosen: list[PlaceMatch] = []
+        frame = self._frames[key]
         for m in matches:  # best first; one per place (keys within 5 are the same place)
-            if len(chosen) == cfg.global_verify or m.score < cfg.min_score:
+            if len(chosen) == cfg.global_verify:
                 break
+            across = self._frames[int(m.key)] != frame
+            if m.score < (cfg.min_score_across if across else cfg.min_score):
+                continue
             if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
                 chosen.append(m)
         self._proposed[key] = np.array([int(m.key) for m in chosen], dtype=np.int64)

@@ -227,6 +227,11 @@ class Mapper:
             self._add_keyframe(keyframe, estimate)
 
     @property
+    def saved(self) -> SavedMap | None:
+        """The saved map this run continues (None: a run of its own)."""
+        return self._saved
+
+    @property
     def joined(self) -> bool:
         """The new session is in the saved map's frame (always true without one)."""
         return self._joined

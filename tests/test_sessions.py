@@ -157,3 +157,29 @@ def test_truncated_or_foreign_saved_map_is_refused(two_sessions, tmp_path, capsy
         read_saved_map(newer)
     with pytest.raises(DataError, match="no saved map here"):
         read_saved_map(tmp_path / "nowhere")
+
+
+def test_cli_continues_a_saved_map(box_run, tmp_path, capsys) -> None:
+    from data.carmen.writer import write_log
+
+    scans = box_run.scans
+    half = len(scans) // 2
+    write_log(tmp_path / "first.log", scans[:half])
+    write_log(tmp_path / "second.log", _moved(scans[half:], MOVE))
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert main(["run", str(tmp_path / "first.log"), "--out", str(one), "--no-map",
+                 "--odometry", "icp2d"]) == 0
+    assert (one / "session.npz").is_file()
+    before = (one / "session.npz").read_bytes()
+    capsys.readouterr()
+    assert main(["run", str(tmp_path / "second.log"), "--map", str(one), "--out", str(two),
+                 "--no-map"]) == 0
+    assert "session 2 joined the saved map at its keyframe" in capsys.readouterr().out
+    sessions = json.loads((two / "sessions.json").read_text())["sessions"]
+    assert [s["joined"] for s in sessions] == [True, True]
+    assert sessions[1]["loops"] >= 3 and len(sessions[1]["transform"]) == 3
+    traj = np.loadtxt(two / "trajectory.tum")
+    assert len(traj) == len(scans) and np.all(np.diff(traj[:, 0]) > 0)
+    assert (one / "session.npz").read_bytes() == before  # the saved map is not altered
+    # The saved map's parameters carry over (the first run chose icp2d).
+    assert "odometry: icp2d" in (two / "config.yaml").read_text()

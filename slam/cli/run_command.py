@@ -179,17 +179,25 @@ def _run_with_progress(mapper: Any, scans: Any, total: int | None) -> Any:
         TimeRemainingColumn,
     )
 
+    # A new session of a saved map says whether it is localised in the map yet.
+    session = mapper.saved is not None
+
+    def where() -> str:
+        return ("  localised in the saved map" if mapper.joined
+                else "  not yet localised") if session else ""
+
     columns = [
         TextColumn("mapping"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("scans  {task.fields[kf]} keyframes  {task.fields[loops]} loops"),
+        TextColumn("scans  {task.fields[kf]} keyframes  {task.fields[loops]} loops"
+                   "{task.fields[where]}"),
         TimeElapsedColumn(), TimeRemainingColumn(),
     ]
     with Progress(*columns, transient=True) as bar:
-        task = bar.add_task("mapping", total=total, kf=0, loops=0)
+        task = bar.add_task("mapping", total=total, kf=0, loops=0, where=where())
 
         def progress(n: int, keyframes: int, loops: int) -> None:
             if n % 10 == 0 or n == total:
-                bar.update(task, completed=n, kf=keyframes, loops=loops)
+                bar.update(task, completed=n, kf=keyframes, loops=loops, where=where())
 
         return mapper.run(scans, progress=progress)
 
