@@ -183,3 +183,20 @@ def test_cli_continues_a_saved_map(box_run, tmp_path, capsys) -> None:
     assert (one / "session.npz").read_bytes() == before  # the saved map is not altered
     # The saved map's parameters carry over (the first run chose icp2d).
     assert "odometry: icp2d" in (two / "config.yaml").read_text()
+
+
+def test_a_third_session_joins_the_two(box_run, two_sessions, tmp_path) -> None:
+    _, _, joint, _ = two_sessions
+    path = write_saved_map(tmp_path / "session.npz", joint.saved_map)
+    scans = box_run.scans[: len(box_run.scans) // 3]
+    mapper = Mapper(PipelineConfig(odometry="icp2d"), saved=read_saved_map(path), name="third")
+    result = mapper.run(_moved(scans, np.array([-12.0, 40.0, -1.0])))
+    assert [s.name for s in result.sessions] == ["first", "second", "third"]
+    assert all(s.joined for s in result.sessions)
+    assert len(result.scan_stamps) == len(box_run.scans) + len(scans)
+    assert set(result.saved_map["kf_session"].tolist()) == {0, 1, 2}
+    # The third session lies where the first one does (same scans, same place).
+    n = len(scans)
+    first_poses = result.scan_poses[:n]
+    third_poses = result.scan_poses[-n:]
+    assert np.median(np.hypot(*(first_poses[:, :2] - third_poses[:, :2]).T)) < 0.05
