@@ -102,7 +102,15 @@ def test_profile_rows_are_l_d_e_over_fractions_of_the_length():
     # means over the bins [0, 1/4], [1/4, 3/4], [3/4, 1].
     np.testing.assert_allclose(p.profile[:, 0], [0.625, 1.0, 1.375])
     np.testing.assert_allclose(p.profile[:, 2], 0.0)  # flat stripes
-    assert np.all(np.diff(p.profile[:, 1]) > 0)  # longer stripe, larger d
+    # d is Eq. 1 on each stripe in units of its own width / 100: straight stripes of
+    # any width have about the same d (their width is l's business).
+    np.testing.assert_allclose(p.profile[:, 1], p.profile[1, 1], rtol=0.03)
+    # By hand: 4 points at unit spacing -> 25 units apart; pair distances 25 (x3),
+    # 50 (x2), 75.
+    one = describe_profile([np.column_stack([np.arange(4.0), np.zeros(4)])],
+                           ProfileConfig(samples=2))
+    want = (3 * np.log(26) + 2 * np.log(51) + np.log(76)) / 6
+    np.testing.assert_allclose(one.profile, [[1.0, want, 0.0]] * 2, rtol=1e-6)
     with pytest.raises(DataError, match="empty stripe set"):
         describe_profile([np.zeros((0, 2))])
     with pytest.raises(UserError, match="samples"):

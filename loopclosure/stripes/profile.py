@@ -18,10 +18,15 @@ Why (each step answers one cause found on real scanned meshes):
   ``k`` of two objects is the same fraction of their length, whatever their size and
   the laser step, and nothing is trimmed.
 - Size.  ``d`` (Eq. 1) is a mean log distance in pixels, so it measures the object's
-  size.  Here the points of an object are divided by its mean stripe point count and
-  multiplied by `SCALE_FREE_WIDTH` before Eq. 1 (the unit is then 1/100 of the
-  object's mean stripe width), so ``d`` measures the stripes' shape; ``l`` (Eq. 3) is
-  already relative.
+  size.  Here the points of each stripe are divided by that stripe's point count ``H``
+  and multiplied by `SCALE_FREE_WIDTH` before Eq. 1 (the unit is 1/100 of the
+  stripe's own width in pixel columns), so ``d`` measures the stripe's shape: how its
+  points spread relative to its width (a straight stripe, an arc, a stripe broken by
+  a cup's opening).  Dividing by the object's *mean* stripe width instead would keep
+  ``d`` a function of the stripe's relative width, which ``l`` (Eq. 3) already is:
+  over the stripes of real scanned objects ``d`` in such units correlates with
+  ``log l`` at about 0.75-0.95, against about -0.2 to -0.4 per stripe, so the profile
+  would count the footprint's width twice and the stripes' shape once.
 - Orientation.  Eq. 2's angles of a nearly flat stripe sit at the 0 / pi boundary,
   so one pixel of tilt moves ``o`` from about 0 to about pi (box tops, flat bases).
   The profile replaces ``o`` by the *elevation* ``e``: the mean over the pairs
@@ -35,7 +40,8 @@ Why (each step answers one cause found on real scanned meshes):
   against the other and against the other reversed.
 
 Per stripe (rows of the profile before resampling): ``[l, d, e]`` with ``l`` as Eq. 3
-(stripe point count over the object's mean), ``d`` as Eq. 1 on the scale-free points,
+(stripe point count over the object's mean), ``d`` as Eq. 1 on the stripe's points in
+units of its own width / `SCALE_FREE_WIDTH`,
 ``e`` the elevation (radians).  Stripes with fewer than `ProfileConfig.min_points`
 points get ``d = e = 0`` (as the paper's descriptor).  ``d`` and ``e`` use
 `ProfileConfig.points` sample points evenly spaced by index along long stripes (as
@@ -227,10 +233,9 @@ def describe_profiles(
     names = list(names) if names is not None else [None] * len(objects)
     sets: list[list[Array]] = []
     for obj, nm in zip(objects, names, strict=True):
-        arrays = _clean(obj, nm)
-        unit = float(np.mean([len(a) for a in arrays])) / SCALE_FREE_WIDTH
-        sets.append([a / unit for a in arrays])
-    d, e = stripe_shape([a for s in sets for a in s], cfg)
+        sets.append(_clean(obj, nm))
+    # Each stripe in units of its own width / SCALE_FREE_WIDTH (module docstring).
+    d, e = stripe_shape([a * (SCALE_FREE_WIDTH / len(a)) for s in sets for a in s], cfg)
     out = []
     start = 0
     for arrays, nm in zip(sets, names, strict=True):
