@@ -12,7 +12,9 @@ in the candidate's submap (the candidate's sensor frame) in three steps:
    0 (a revisit's sensor is within the loop detector's ``max_distance`` of the
    candidate's: the caller passes ``max_distance``, the square's half side is that
    plus `radius_margin`), headings every `coarse_angle_step_deg` within
-   `angle_window_deg` of each hypothesis (the whole circle without hypotheses).
+   `angle_window_deg` of each hypothesis and, with `opposite_headings`, of each
+   hypothesis plus pi (a corridor or a room seen in the other direction correlates
+   at both; the whole circle without hypotheses).
    Its `coarse_peaks` best distinct poses (more than `peak_separation` [m] or
    `peak_separation_deg` apart, `loopclosure.correlative.peaks`) seed
 2. **a fine lattice** about each: the query voxelised to `fine_voxel`, on the grid
@@ -61,6 +63,7 @@ class PriorFreeConfig:
     Attributes:
         angle_window_deg: headings searched within this of each hypothesis [deg].
         coarse_angle_step_deg: heading step of the coarse lattice [deg].
+        opposite_headings: also search about each hypothesis plus pi.
         angle_step_deg: heading step of the fine lattice [deg].
         radius: half side of the translation square without a ``max_distance`` [m].
         radius_margin: the square's half side is ``max_distance`` plus this [m].
@@ -86,6 +89,7 @@ class PriorFreeConfig:
 
     angle_window_deg: float = 10.0
     coarse_angle_step_deg: float = 3.0
+    opposite_headings: bool = True
     angle_step_deg: float = 1.0
     radius: float = 2.4
     radius_margin: float = 0.4
@@ -135,20 +139,15 @@ def _two_level(query: Array, candidate: RegistrationTarget, angles: Array, radiu
     lattice over the whole window, then a fine lattice about each coarse peak."""
     from loopclosure import correlative
 
-    def grid(sigma: float):
-        return _cached(candidate, ("likelihood", cfg.grid_resolution, sigma),
-                       lambda: base.with_sigma(sigma))
-
-    base = _cached(candidate, ("likelihood", cfg.grid_resolution, cfg.grid_sigma),
-                   lambda: correlative.LikelihoodGrid(candidate.points, cfg.grid_resolution,
-                                                      cfg.grid_sigma))
-
+    coarse_grid, fine_grid = _cached(
+        candidate, ("likelihood", cfg.grid_resolution, cfg.coarse_sigma, cfg.grid_sigma),
+        lambda: correlative.LikelihoodGrid.widths(candidate.points, cfg.grid_resolution,
+                                                  (cfg.coarse_sigma, cfg.grid_sigma)))
     coarse = correlative.search(voxel_downsample(query, cfg.coarse_voxel),
-                                grid(cfg.coarse_sigma), angles, radius, cfg.coarse_step_cells)
+                                coarse_grid, angles, radius, cfg.coarse_step_cells)
     seeds, _ = correlative.peaks(coarse, cfg.coarse_peaks, cfg.peak_separation,
                                  np.radians(cfg.peak_separation_deg))
     fine_points = voxel_downsample(query, cfg.fine_voxel)
-    fine_grid = grid(cfg.grid_sigma)
     coarse_step = cfg.coarse_step_cells * cfg.grid_resolution
     poses, scores = [], []
     for seed in seeds:  # a few seeds: one compiled call each
@@ -210,6 +209,9 @@ def match_prior_free(
     if headings is None or len(np.atleast_1d(headings)) == 0:
         angles = correlative.search_angles([0.0], np.pi, np.radians(cfg.coarse_angle_step_deg))
     else:
+        if cfg.opposite_headings:
+            h = np.atleast_1d(np.asarray(headings, dtype=float))
+            headings = np.concatenate([h, h + np.pi])
         angles = correlative.search_angles(headings, np.radians(cfg.angle_window_deg),
                                            np.radians(cfg.coarse_angle_step_deg))
     radius = cfg.radius if max_distance is None else max_distance + cfg.radius_margin

@@ -19,13 +19,16 @@ from tests.test_geometric_check import ROOM, _seen_from, _walls
 def test_likelihood_is_the_truncated_quadratic_of_the_distance() -> None:
     grid = LikelihoodGrid(np.array([[0.05, 0.05]]), resolution=0.1, sigma=0.3, pad=1.0)
     cell = np.floor((np.array([0.05, 0.05]) - grid.origin) / 0.1).astype(int)
-    assert grid.values[cell[1], cell[0]] == pytest.approx(1.0)
+    value = grid.likelihood()
+    q = 0.5 / 255  # stored to 1/255
+    assert value[cell[1], cell[0]] == pytest.approx(1.0)
     # Two cells to the right: d = 0.2 m -> 1 - (0.2 / 0.3)^2 = 5/9.
-    assert grid.values[cell[1], cell[0] + 2] == pytest.approx(5 / 9, abs=1e-6)
+    assert value[cell[1], cell[0] + 2] == pytest.approx(5 / 9, abs=q)
     # Three cells up and one right: d = sqrt(10) * 0.1 > 0.3 -> 0.
-    assert grid.values[cell[1] + 3, cell[0] + 1] == 0.0
-    wide = grid.with_sigma(0.6)
-    assert wide.values[cell[1], cell[0] + 2] == pytest.approx(1 - (0.2 / 0.6) ** 2, abs=1e-6)
+    assert value[cell[1] + 3, cell[0] + 1] == 0.0
+    narrow, wide = LikelihoodGrid.widths(np.array([[0.05, 0.05]]), 0.1, (0.3, 0.6), pad=1.0)
+    np.testing.assert_array_equal(narrow.values, grid.values)
+    assert wide.likelihood()[cell[1], cell[0] + 2] == pytest.approx(1 - (0.2 / 0.6) ** 2, abs=q)
 
 
 def test_search_scores_the_mean_likelihood_of_the_moved_points() -> None:
@@ -36,7 +39,7 @@ def test_search_scores_the_mean_likelihood_of_the_moved_points() -> None:
     centre = result.scores[0, 2, 2]
     assert centre == pytest.approx(0.5)  # (1 + 0) / 2
     # Shifted by +0.1 m in x: d = 0.1 m -> (1 - 1/9) / 2.
-    assert result.scores[0, 2, 3] == pytest.approx((1 - 1 / 9) / 2, abs=1e-6)
+    assert result.scores[0, 2, 3] == pytest.approx((1 - 1 / 9) / 2, abs=0.5 / 255)
     best, score = peaks(result, 1, 0.5, 0.1)
     np.testing.assert_allclose(best[0], [0.0, 0.0, 0.0], atol=1e-12)
     assert score[0] == pytest.approx(0.5)
@@ -149,13 +152,16 @@ def test_points_in_observed_free_space_reject_a_partial_match() -> None:
     assert result.consistency < GeometricCheckConfig().min_consistency
 
 
-def test_a_symmetric_room_is_ambiguous() -> None:
-    """A rectangle fits at theta and theta + pi: the check must not choose."""
+@pytest.mark.parametrize("both", [True, False])
+def test_a_symmetric_room_is_ambiguous(both: bool) -> None:
+    """A rectangle fits at theta and theta + pi: the check must not choose, also when
+    the hypotheses name only one of the two (the search adds the opposite heading)."""
     rect = _walls([((-3, -1.5), (3, -1.5)), ((3, -1.5), (3, 1.5)), ((3, 1.5), (-3, 1.5)),
                    ((-3, 1.5), (-3, -1.5))])
     a, b = np.array([0.2, 0.1, 0.0]), np.array([-0.1, 0.2, 0.4])
     query, target, truth = _pair(a, b, world=rect)
-    result = verify(query, target, headings=[truth[2], truth[2] + np.pi])
+    heads = [truth[2], truth[2] + np.pi] if both else [truth[2] + np.pi]
+    result = verify(query, target, headings=heads)
     assert not result.accepted
     assert "ambiguous" in result.reason or "degenerate" in result.reason
 
