@@ -464,6 +464,34 @@ class LoopClosureDetector:
             out.append(self._check_global(key, m, query_points, poses))
         return out
 
+    def detect_pose(
+        self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None,
+        below: int | None = None,
+    ) -> list[LoopCandidate]:
+        """The pose-gated search alone for keyframe `key`: candidates in its frame
+        within the gate (of keys below `below` when given), each checked from the
+        predicted relative pose.  No appearance query, no counters: for a host that
+        has just put keyframes into a frame where they meet older ones (a session
+        joined to a saved map: its keyframes from before the join)."""
+        cfg = self.config
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        eligible = self.eligible(key)
+        if below is not None:
+            eligible[below:] = False
+        if not eligible.any() or not self._described[key]:
+            return []
+        cov = None if covariance is None else np.asarray(covariance, dtype=float)
+        sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
+        gate = cfg.local_radius + cfg.local_sigmas * sigma
+        same = np.asarray(self._frames[: len(eligible)]) == self._frames[key]
+        out: list[LoopCandidate] = []
+        query_points = self._submap_points(key)
+        for k in self._local(key, poses, eligible & same, gate):
+            if sum(c.accepted for c in out) >= cfg.max_loops:
+                break
+            out.append(self._check_prior(key, k, None, poses, cov, sigma, query_points))
+        return out
+
     def _supported(self, key: int, match: int) -> bool:
         """The appearance searches of the `sequence_keyframes` keyframes before `key`
         each proposed a keyframe near `match` (module docstring)."""

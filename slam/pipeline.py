@@ -355,6 +355,33 @@ class Mapper:
                                          saved["kf_pose"][first.match][2])
         self.timings["optimisation"] += time.perf_counter() - start
         self._update()
+        self._catch_up(kf.id)
+
+    def _catch_up(self, joined_at: int) -> None:
+        """The new session's keyframes from before the join, nearest to it first, each
+        checked against the saved map by the pose search (they met it in their own
+        frame, where only a check with no prior could see it)."""
+        start = time.perf_counter()
+        kfs = self.keyframes.keyframes
+        drift = self._drift  # of the join keyframe; grows with every step back
+        for kf in reversed(kfs[:joined_at]):
+            key = self._base + kf.id
+            later = kfs[kf.id + 1]
+            drift = _propagate_drift(drift, self._estimate[key + 1], se2.inverse(later.delta),
+                                     later.covariance + self._floor)
+            added = False
+            for c in self.detector.detect_pose(key, self._estimate, drift, below=self._base):
+                event = LoopEvent(c, kf.stamp, self._keyframe(c.match).stamp)
+                if c.accepted:
+                    event.factor = self.smoother.add_loop(
+                        c.match, c.query, c.relative, np.linalg.inv(c.covariance))
+                    added = True
+                self.loops.append(event)
+            if added:
+                self.timings["loop_detection"] += time.perf_counter() - start
+                self._update()
+                start = time.perf_counter()
+        self.timings["loop_detection"] += time.perf_counter() - start
 
     def _keyframe(self, key: int) -> Keyframe:
         """Keyframe `key` of any session (saved ones first)."""

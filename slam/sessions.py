@@ -20,6 +20,10 @@ consistency as in PCM (Mangelson et al. 2018), a clique that one look-alike plac
 cannot form.  Then one graph is built from both (the new poses moved by T), the
 group's loops are added as loop factors (the others are rejected, "inconsistent with
 the session join"), and from there on both sessions are one log to the searches.
+The new keyframes from before the join, which met the saved map only in their own
+frame, are then checked against it once more by the pose search, nearest to the join
+first (`LoopClosureDetector.detect_pose`): the loops a single run would have closed
+there with a prior.
 
 This module holds the pieces that do not need the mapper: saved keyframes back as
 `Keyframe` objects, the consistency test, and a finished run as a `SavedMap`.
