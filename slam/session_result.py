@@ -83,7 +83,7 @@ def complete_sessions(mapper: Any, result: Any, poses: dict[int, Any]) -> Any:
         own = SessionInfo(name=name, scans=n_scans, keyframes=len(new_kfs), joined=True)
         sessions = [own]
         if saved is not None:
-            warn(f"{name}: the new session never revisited the saved map: it is written "
+            warn(f"{name or 'new session'}: it never revisited the saved map: it is written "
                  "in its own frame, alone, and the saved map is left as it was")
             result.loops = [e for e in result.loops if e.candidate.match >= base]
             for e in result.loops:

@@ -172,8 +172,8 @@ def build_saved_map(
     p_ranges, p_offsets = pack_ragged([np.zeros(0) if p is None else p.ranges for p in places])
     p_angles, _ = pack_ragged([np.zeros(0) if p is None else p.angles for p in places])
     kf_of = np.asarray(scan_keyframes, dtype=np.int64)
-    rel = se2.between(pose[kf_of], np.asarray(scan_poses, float)) if len(kf_of) else np.zeros(
-        (0, 3))
+    rel = (se2.between(pose[kf_of], np.asarray(scan_poses, float)).reshape(-1, 3)
+           if len(kf_of) and len(pose) else np.zeros((len(kf_of), 3)))
 
     def constraints(cs: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ij = np.array([[c.i, c.j] for c in cs], dtype=np.int64).reshape(-1, 2)
