@@ -20,13 +20,14 @@ Why (each step answers one cause found on real scanned meshes):
 - Size.  ``d`` (Eq. 1) is a mean log distance in pixels, so it measures the object's
   size.  Here the points of each stripe are divided by that stripe's point count ``H``
   and multiplied by `SCALE_FREE_WIDTH` before Eq. 1 (the unit is 1/100 of the
-  stripe's own width in pixel columns), so ``d`` measures the stripe's shape: how its
+  stripe's own width: ``H`` is its width in pixel columns where the detector found
+  the line in every column), so ``d`` measures the stripe's shape: how its
   points spread relative to its width (a straight stripe, an arc, a stripe broken by
   a cup's opening).  Dividing by the object's *mean* stripe width instead would keep
-  ``d`` a function of the stripe's relative width, which ``l`` (Eq. 3) already is:
-  over the stripes of real scanned objects ``d`` in such units correlates with
-  ``log l`` at about 0.75-0.95, against about -0.2 to -0.4 per stripe, so the profile
-  would count the footprint's width twice and the stripes' shape once.
+  ``d`` mostly a function of the stripe's relative width, which ``l`` (Eq. 3) already
+  is (over the stripes of real scanned objects it follows ``log l`` closely; per
+  stripe it hardly does), so the profile would count the footprint's width twice and
+  the stripes' shape once.
 - Orientation.  Eq. 2's angles of a nearly flat stripe sit at the 0 / pi boundary,
   so one pixel of tilt moves ``o`` from about 0 to about pi (box tops, flat bases).
   The profile replaces ``o`` by the *elevation* ``e``: the mean over the pairs
@@ -41,11 +42,10 @@ Why (each step answers one cause found on real scanned meshes):
 
 Per stripe (rows of the profile before resampling): ``[l, d, e]`` with ``l`` as Eq. 3
 (stripe point count over the object's mean), ``d`` as Eq. 1 on the stripe's points in
-units of its own width / `SCALE_FREE_WIDTH`,
-``e`` the elevation (radians).  Stripes with fewer than `ProfileConfig.min_points`
-points get ``d = e = 0`` (as the paper's descriptor).  ``d`` and ``e`` use
-`ProfileConfig.points` sample points evenly spaced by index along long stripes (as
-`descriptor.MAX_SAMPLES`).
+units of ``H / SCALE_FREE_WIDTH``, ``e`` the elevation (radians).  Stripes with fewer
+than `ProfileConfig.min_points` points get ``d = e = 0`` (as the paper's descriptor).
+``d`` and ``e`` use `ProfileConfig.points` sample points evenly spaced by index along
+long stripes (as `descriptor.MAX_SAMPLES`).
 
 Distance of two profiles ``P, Q`` (``(K, 3)`` each): per feature ``f`` the mean
 absolute difference ``D_f = 1/K sum_k |P[k, f] - Q[k, f]|``.  The three features
