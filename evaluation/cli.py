@@ -11,11 +11,12 @@ plots into DIR.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from evaluation.cli_options import JsonOption, OutOption
+from evaluation.cluster import ClusterOption
 from slam.cli.common import print_json
 from slam.json_io import write_json
 
@@ -156,6 +157,29 @@ def _percent_list(text: str, name: str) -> list[float]:
     return [v / 100.0 for v in values]
 
 
+def _robustness_on_cluster(
+    g2o: Path, graph: Any, ratios: list[float], kernels: list[str], seed: int,
+    policies: list[str], group_size: int, odometry_scale: float, cluster: str,
+) -> list[Any]:
+    """`run_robustness`'s results, one Dask task per cell (`evaluation.cluster`)."""
+    from data.errors import UserError
+    from evaluation.cluster import map_tasks
+    from evaluation.robustness import robustness_cells, robustness_task
+
+    cells = robustness_cells(str(g2o.resolve()), graph, ratios, kernels, seed=seed,
+                             policies=policies, group_size=group_size,
+                             odometry_scale=odometry_scale)
+    results = []
+    for outcome in map_tasks(robustness_task, cells, cluster=cluster,
+                             description="robustness"):
+        if outcome.status != "done":
+            c = outcome.item
+            raise UserError(f"robustness cell {c.kernel}, {c.policy} at "
+                            f"{100 * c.ratio:.0f}%: {outcome.error}")
+        results.append(outcome.value)
+    return results
+
+
 @eval_app.command("robustness")
 def eval_robustness(
     g2o: Annotated[Path, typer.Option("--g2o", help="Pose graph (g2o) with true loop edges.")],
@@ -179,14 +203,20 @@ def eval_robustness(
         float, typer.Option("--odometry-scale", help="Factor on the odometry information "
                             "(below 1: looser odometry).")
     ] = 1.0,
+    cluster: ClusterOption = None,
     json: JsonOption = False,
     out: OutOption = None,
 ) -> None:
-    """Inject false loop closures and measure each kernel's ATE against the clean optimum."""
+    """Inject false loop closures and measure each kernel's ATE against the clean optimum.
+
+    With ``--cluster`` every policy x ratio x kernel cell is one Dask task (the same
+    figures as the serial run; only the seconds differ).
+    """
     from rich.progress import Progress, TimeElapsedColumn
 
     from data.errors import UserError
     from data.g2o import read_g2o
+    from evaluation.cluster import parse_cluster
     from evaluation.outlier_policies import parse_policies
     from evaluation.robustness import run_robustness
     from slam.pose_graph import PoseGraph
@@ -198,17 +228,24 @@ def eval_robustness(
         raise UserError(f"--group-size must be at least 1, got {group_size}")
     if not odometry_scale > 0:
         raise UserError(f"--odometry-scale must be positive, got {odometry_scale}")
+    if cluster is not None:
+        parse_cluster(cluster)  # a bad --cluster fails before the clean optimum is solved
     graph = PoseGraph.from_g2o(read_g2o(g2o))
-    with Progress(*Progress.get_default_columns(), TimeElapsedColumn(), transient=True) as bar:
-        task = bar.add_task("robustness", total=len(policies) * len(ratios) * len(names))
+    if cluster is not None:
+        results = _robustness_on_cluster(g2o, graph, ratios, names, seed, policies,
+                                         group_size, odometry_scale, cluster)
+    else:
+        with Progress(*Progress.get_default_columns(), TimeElapsedColumn(),
+                      transient=True) as bar:
+            task = bar.add_task("robustness", total=len(policies) * len(ratios) * len(names))
 
-        def step(message: str) -> None:
-            bar.update(task, description=message)
-            bar.advance(task)
+            def step(message: str) -> None:
+                bar.update(task, description=message)
+                bar.advance(task)
 
-        results = run_robustness(graph, ratios, names, seed=seed, policies=policies,
-                                 group_size=group_size, odometry_scale=odometry_scale,
-                                 progress=step)
+            results = run_robustness(graph, ratios, names, seed=seed, policies=policies,
+                                     group_size=group_size, odometry_scale=odometry_scale,
+                                     progress=step)
     rows = [r.to_json() for r in results]
     summary = {"g2o": str(g2o), "seed": seed, "policies": policies, "group_size": group_size,
                "odometry_scale": odometry_scale, "results": rows}

@@ -141,6 +141,36 @@ def clean_optimum(graph: PoseGraph) -> dict[int, Array]:
     return poses_from_values(values, graph.dim)
 
 
+@dataclass(frozen=True, slots=True)
+class RobustnessCell:
+    """One independent cell of the benchmark: a policy x ratio x kernel on one graph.
+
+    The task of ``eval robustness --cluster`` (`robustness_task`): the graph is read
+    by the worker from `g2o` (scaled by `odometry_scale`), and `reference` is the
+    clean optimum the caller computed once, so every cell equals its serial run.
+    """
+
+    g2o: str
+    kernel: str
+    ratio: float
+    policy: str
+    seed: int
+    group_size: int
+    odometry_scale: float
+    reference: dict[int, Array]
+
+
+def _check(kernels: Sequence[str], policies: Sequence[str], odometry_scale: float) -> None:
+    for k in kernels:
+        if k not in ROBUSTNESS_KERNELS:
+            raise UserError(f"unknown kernel {k!r}; choose from {', '.join(ROBUSTNESS_KERNELS)}")
+    for p in policies:
+        if p not in POLICIES:
+            raise UserError(f"policy: unknown {p!r}; choose from {', '.join(POLICIES)}")
+    if not odometry_scale > 0:
+        raise UserError(f"odometry_scale must be positive, got {odometry_scale}")
+
+
 def run_robustness(
     graph: PoseGraph,
     ratios: Sequence[float],
@@ -161,58 +191,104 @@ def run_robustness(
     `reference`: that clean optimum (`clean_optimum` of the scaled graph), when the
     caller already has it.
     """
-    for k in kernels:
-        if k not in ROBUSTNESS_KERNELS:
-            raise UserError(f"unknown kernel {k!r}; choose from {', '.join(ROBUSTNESS_KERNELS)}")
-    for p in policies:
-        if p not in POLICIES:
-            raise UserError(f"policy: unknown {p!r}; choose from {', '.join(POLICIES)}")
-    if not odometry_scale > 0:
-        raise UserError(f"odometry_scale must be positive, got {odometry_scale}")
+    _check(kernels, policies, odometry_scale)
     if odometry_scale != 1.0:
         graph = with_information_scaled(graph, odometry_scale)
     if reference is None:
         reference = clean_optimum(graph)
-    threshold = default_outlier_residual(graph.dim)
     results = []
     for policy, ratio in ((p, r) for p in policies for r in ratios):
         corrupted, false_idx = inject_false_loops(
             graph, ratio, np.random.default_rng(seed), policy, group_size=group_size,
             reference=reference,
         )
-        false_set = set(false_idx)
-        reference_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
         for kernel in kernels:
             if progress:
                 progress(f"{kernel}, {policy} at {100 * ratio:.0f}% false loops")
-            start = time.perf_counter()
-            if kernel.startswith("gnc"):
-                ladder = (1.0,) if kernel == "gnc-stated" else ODOMETRY_LADDER
-                solution = optimize(corrupted, "none", "gnc", init="odometry",
-                                    gnc_start=GNC_START, odometry_ladder=ladder)
-            else:
-                solution = optimize(corrupted, kernel, "lm", init="odometry")
-            seconds = time.perf_counter() - start
-            residuals = np.array(
-                [whitened_residual(c, solution.poses, graph.dim) for c in corrupted.loops]
-            )
-            obeyed = residuals <= threshold
-            is_false = np.array([n in false_set for n in range(len(corrupted.loops))], dtype=bool)
-            results.append(
-                RobustnessResult(
-                    kernel=kernel,
-                    outlier_ratio=float(ratio),
-                    false_loops=len(false_idx),
-                    true_loops=len(graph.loops),
-                    ate_vs_clean_m=aligned_position_error(solution.poses, reference, graph.dim),
-                    false_factors_obeyed=int((obeyed & is_false).sum()),
-                    true_factors_rejected=int((~obeyed & ~is_false).sum()),
-                    seconds=seconds,
-                    policy=policy,
-                    seed=seed,
-                    odometry_scale=odometry_scale,
-                    tls_gap=tls_cost(corrupted, corrupted.gtsam_values(solution.poses))
-                    - reference_cost,
-                )
-            )
+            results.append(_solve_cell(
+                graph, corrupted, false_idx, reference, kernel, ratio, policy, seed,
+                odometry_scale))
     return results
+
+
+def robustness_cells(
+    g2o: str,
+    graph: PoseGraph,
+    ratios: Sequence[float],
+    kernels: Sequence[str],
+    *,
+    seed: int = 0,
+    policies: Sequence[str] = ("random",),
+    group_size: int = 10,
+    odometry_scale: float = 1.0,
+) -> list[RobustnessCell]:
+    """The cells of `run_robustness` on the graph read from `g2o`, in its order, each a
+    task for `robustness_task` (the clean optimum is computed here, once)."""
+    _check(kernels, policies, odometry_scale)
+    if odometry_scale != 1.0:
+        graph = with_information_scaled(graph, odometry_scale)
+    reference = clean_optimum(graph)
+    return [RobustnessCell(str(g2o), k, float(r), p, seed, group_size, odometry_scale,
+                           reference)
+            for p in policies for r in ratios for k in kernels]
+
+
+_GRAPHS: dict[tuple[str, float], PoseGraph] = {}
+
+
+def robustness_task(cell: RobustnessCell) -> RobustnessResult:
+    """One cell (`RobustnessCell`), as `run_robustness` computes it."""
+    key = (cell.g2o, cell.odometry_scale)
+    if key not in _GRAPHS:  # a worker reads each graph once
+        from data.g2o import read_g2o
+
+        graph = PoseGraph.from_g2o(read_g2o(cell.g2o))
+        if cell.odometry_scale != 1.0:
+            graph = with_information_scaled(graph, cell.odometry_scale)
+        _GRAPHS.clear()
+        _GRAPHS[key] = graph
+    graph = _GRAPHS[key]
+    corrupted, false_idx = inject_false_loops(
+        graph, cell.ratio, np.random.default_rng(cell.seed), cell.policy,
+        group_size=cell.group_size, reference=cell.reference,
+    )
+    return _solve_cell(graph, corrupted, false_idx, cell.reference, cell.kernel, cell.ratio,
+                       cell.policy, cell.seed, cell.odometry_scale)
+
+
+def _solve_cell(
+    graph: PoseGraph, corrupted: PoseGraph, false_idx: Sequence[int],
+    reference: dict[int, Array], kernel: str, ratio: float, policy: str, seed: int,
+    odometry_scale: float,
+) -> RobustnessResult:
+    """One kernel on one corrupted graph, from odometry, judged against `reference`."""
+    threshold = default_outlier_residual(graph.dim)
+    false_set = set(false_idx)
+    reference_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
+    start = time.perf_counter()
+    if kernel.startswith("gnc"):
+        ladder = (1.0,) if kernel == "gnc-stated" else ODOMETRY_LADDER
+        solution = optimize(corrupted, "none", "gnc", init="odometry",
+                            gnc_start=GNC_START, odometry_ladder=ladder)
+    else:
+        solution = optimize(corrupted, kernel, "lm", init="odometry")
+    seconds = time.perf_counter() - start
+    residuals = np.array(
+        [whitened_residual(c, solution.poses, graph.dim) for c in corrupted.loops]
+    )
+    obeyed = residuals <= threshold
+    is_false = np.array([n in false_set for n in range(len(corrupted.loops))], dtype=bool)
+    return RobustnessResult(
+        kernel=kernel,
+        outlier_ratio=float(ratio),
+        false_loops=len(false_idx),
+        true_loops=len(graph.loops),
+        ate_vs_clean_m=aligned_position_error(solution.poses, reference, graph.dim),
+        false_factors_obeyed=int((obeyed & is_false).sum()),
+        true_factors_rejected=int((~obeyed & ~is_false).sum()),
+        seconds=seconds,
+        policy=policy,
+        seed=seed,
+        odometry_scale=odometry_scale,
+        tls_gap=tls_cost(corrupted, corrupted.gtsam_values(solution.poses)) - reference_cost,
+    )

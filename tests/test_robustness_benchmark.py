@@ -63,3 +63,35 @@ def test_tls_gap_is_zero_at_the_reference_and_positive_for_least_squares() -> No
     assert abs(rows[0].tls_gap) < 1e-6
     # Plain least squares over false loops is a worse TLS solution than the clean one.
     assert rows[1].tls_gap > 0 and rows[1].false_factors_obeyed > 0
+
+
+def test_cluster_cells_equal_the_serial_sweep(tmp_path, capsys) -> None:
+    import json
+
+    from data.g2o import write_g2o
+    from evaluation.cluster import map_tasks
+    from evaluation.robustness import robustness_cells, robustness_task
+    from slam.cli.main import main
+
+    graph = _ring()
+    path = tmp_path / "ring.g2o"
+    write_g2o(path, graph.to_g2o())
+    serial = run_robustness(graph, [0.0, 0.3], ["none", "cauchy"], seed=1,
+                            policies=["random", "grouped"], group_size=3)
+    cells = robustness_cells(str(path), graph, [0.0, 0.3], ["none", "cauchy"], seed=1,
+                             policies=["random", "grouped"], group_size=3)
+    tasks = [o.value for o in map_tasks(robustness_task, cells, progress=False)]
+
+    def figures(rows: list) -> list[dict]:
+        return [{k: v for k, v in r.to_json().items() if k != "seconds"} for r in rows]
+
+    assert figures(tasks) == figures(serial)
+    # The CLI on a LocalCluster of two workers gives the same rows.
+    argv = ["eval", "robustness", "--g2o", str(path), "--outliers", "0,30", "--kernels",
+            "none,cauchy", "--seed", "1", "--json"]
+    assert main(argv) == 0
+    here = json.loads(capsys.readouterr().out)["results"]
+    assert main([*argv, "--cluster", "local:2"]) == 0
+    there = json.loads(capsys.readouterr().out)["results"]
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert drop(there) == drop(here)
