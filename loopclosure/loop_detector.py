@@ -71,17 +71,19 @@ saved map adds the saved keyframes first (``add_keyframe(..., session=0,
 place_scan=...)``), then the new log's (``session=1``).  A keyframe of another session
 is always eligible (recency is a rule within a log), and pose estimates are compared
 only between keyframes of the same *frame*: a session starts in a frame of its own
-(its odometry's), so the pose search never looks across sessions and an appearance
+(its odometry's), so the pose search never looks across sessions, and an appearance
 candidate from another frame is checked with no prior, as a candidate outside the
 gate, whatever the query's own search accepted; it needs only `min_score_across`
-(the host joins two sessions on several loops that agree, not on one).  Once the host has fixed the
-transform between the two frames from such loops, `join` puts the session's keyframes
-into the older frame and the searches treat them as one log.  A host that restarts
-keeps, for every keyframe, its stamp, its scan and `place_scan(key)`, and re-adds
-them in key order with ``add_keyframe(key, stamp, scan, session=0,
-place_scan=saved_place_scan)`` (descriptors are a function of the place scan, so the
-restored database answers as the old one did); `slam.pipeline.Mapper` does exactly
-this with a saved map.
+(the host joins two sessions on several loops that agree, not on one).  Once the
+host has fixed the transform between the two frames from such loops, `join` puts the
+session's keyframes into the older frame and the searches treat them as one log
+(`detect_pose` then lets the host re-check the keyframes it added before).
+
+A host that restarts keeps, for every keyframe, its stamp, its scan and
+`place_scan(key)`, and re-adds them in key order with ``add_keyframe(key, stamp,
+scan, session=0, place_scan=saved_place_scan)``: descriptors are a function of the
+place scan, so the restored database answers as the old one did.
+`slam.pipeline.Mapper` does exactly this with a saved map.
 
 Every candidate tried is returned (accepted or not, with the reason and the figures
 of each stage), so the host can report them all (``loops.csv``).
