@@ -11,6 +11,9 @@
                      -> optionally every scan registered onto the optimised
                         keyframes around it (`refine_scans`)
 
+A new session of a saved map (``Mapper(saved=...)``) restores the saved keyframes
+first and joins the new log to them by place recognition (`slam.sessions`).
+
 Frames: the map frame is the odometry frame of the first scan (the first
 keyframe's pose is its odometry pose and is held fixed).  All poses are planar
 ``(x, y, theta)`` of the sensor.
@@ -85,7 +88,8 @@ class MappingResult:
         timings: seconds per stage.
         interrupted: the run was stopped before the end of its input.
         sessions: every session of the map, oldest first (one without ``--map``).
-        saved_map: the run as a saved map (``session.npz``), None when interrupted.
+        saved_map: the run as a saved map (``session.npz``; of an interrupted run too:
+            what was mapped).
         loop_outliers: indices of the graph's loops the final optimisation rejected.
     """
 
