@@ -196,3 +196,22 @@ def test_the_likelihood_grid_is_cached_on_the_target() -> None:
                              source_voxel=0.1, icp=IcpConfig())
     assert all(target.derived[k] is v for k, v in grids.items()) and grids
     np.testing.assert_array_equal(first.results[0].pose, again.results[0].pose)
+
+
+def test_an_unknown_method_is_a_user_error() -> None:
+    from data.errors import UserError
+
+    with pytest.raises(UserError, match="correlative or icp"):
+        GeometricCheckConfig(method="ransac")
+
+
+def test_a_prior_keeps_the_multi_start_check() -> None:
+    """With a prior the check is the pose-gated ICP, whatever the method."""
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    query, target, truth = _pair(a, b, noise=0.005)
+    cov = np.diag([0.1, 0.1, 0.02]) ** 2
+    new = verify(query, target, prior=truth, prior_covariance=cov)
+    old = verify(query, target, prior=truth, prior_covariance=cov,
+                 config=GeometricCheckConfig(method="icp"))
+    np.testing.assert_array_equal(new.relative, old.relative)
+    assert new.fitness == old.fitness and np.isnan(new.consistency)
