@@ -133,7 +133,7 @@ class GeometricCheckConfig:
     source_voxel: float = 0.1
     keep: int = 6
     method: str = "correlative"
-    min_fitness_partial: float = 0.25
+    min_fitness_partial: float = 0.2
     min_consistency: float = 0.9
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
