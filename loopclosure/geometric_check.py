@@ -7,11 +7,13 @@ submap (points in a's sensor frame).
 Without a pose prior and with ``method = "correlative"`` (the default) it searches
 (`loopclosure.prior_free`): a correlative scan matcher scores every pose of a
 lattice of translations within ``max_distance`` of 0 and of headings about each
-heading hypothesis on a likelihood grid of a's submap (`loopclosure.correlative`),
-coarse then fine, and ICP refines the best lattice peak (and a runner-up that
-scores close to it, for the ambiguity test below).  Such a candidate is accepted on
-the rules below with the fitness threshold `min_fitness_partial` instead of
-`min_fitness`, provided the free-space consistency of the two submaps
+heading hypothesis and its opposite on a likelihood grid of a's submap
+(`loopclosure.correlative`), coarse then fine, and ICP refines the best lattice
+peak (and a runner-up that scores close to it, for the ambiguity test below).  Such
+a candidate is accepted on the rules below with the fitness threshold
+`min_fitness_partial` instead of `min_fitness` and `min_inlier_ratio` (a fit below
+either is a partial overlap, which must be well constrained), provided the
+free-space consistency of the two submaps
 (`loopclosure.free_space` (2): hits over hits plus points landing in space the
 other submap observed as free) is at least `min_consistency`: two passes through
 a place in different directions share only part of their submaps, and the part
