@@ -57,7 +57,7 @@ distinct sample counts (at most `max_samples`), never over stripes, points or pa
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -190,27 +190,38 @@ def point_context(
     there is no padding and no Python loop over stripes, points or pairs.
     """
     cfg = config or DescriptorConfig()
+    d = np.zeros(len(stripes))
+    o = np.zeros(len(stripes))
+    for group, pts in sampled_batches(stripes, cfg.max_samples, cfg.min_points):
+        s = pts.shape[1]
+        per_chunk = max(1, cfg.chunk_pairs // max(s * (s - 1) // 2, 1))
+        for start in range(0, len(group), per_chunk):
+            g = slice(start, start + per_chunk)
+            d[group[g]], o[group[g]] = _pair_features(pts[g])
+    return d, o
+
+
+def sampled_batches(
+    stripes: Sequence[ArrayLike], max_samples: int | None, min_points: int
+) -> Iterator[tuple[NDArray[np.intp], Array]]:
+    """The stripes of at least `min_points` points in batches of equal sample count:
+    ``(indices into stripes, (k, s, 2) points)``, each stripe's points all or
+    `max_samples` evenly spaced (`_sample_indices`; None: the longest stripe's count)."""
     arrays = [np.asarray(c, dtype=float).reshape(-1, 2) for c in stripes]
-    n = len(arrays)
-    d = np.zeros(n)
-    o = np.zeros(n)
-    if n == 0:
-        return d, o
+    if not arrays:
+        return
     h = np.array([len(a) for a in arrays], dtype=np.int64)
-    cap = int(h.max()) if cfg.max_samples is None else int(cfg.max_samples)
+    cap = int(h.max()) if max_samples is None else int(max_samples)
     samples = np.minimum(h, max(cap, 2))
-    described = h >= max(cfg.min_points, 2)
+    described = h >= max(min_points, 2)
+    if not described.any():
+        return
     flat = np.concatenate(arrays)
     offsets = np.concatenate([[0], np.cumsum(h)[:-1]])
     for s in np.unique(samples[described]):
         group = np.flatnonzero(described & (samples == s))
         idx = _sample_indices(h[group], int(s))
-        per_chunk = max(1, cfg.chunk_pairs // max(int(s) * (int(s) - 1) // 2, 1))
-        for start in range(0, len(group), per_chunk):
-            g = group[start : start + per_chunk]
-            pts = flat[offsets[g, None] + idx[start : start + per_chunk]]  # (k, s, 2)
-            d[g], o[g] = _pair_features(pts)
-    return d, o
+        yield group, flat[offsets[group, None] + idx]
 
 
 def resample_stripes(arrays: Sequence[Array], count: int | None) -> list[Array]:

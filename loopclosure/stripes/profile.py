@@ -68,7 +68,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data.errors import DataError, UserError
-from loopclosure.stripes.descriptor import MAX_SAMPLES, MIN_POINTS, SCALE_FREE_WIDTH
+from loopclosure.stripes.descriptor import (
+    MAX_SAMPLES,
+    MIN_POINTS,
+    SCALE_FREE_WIDTH,
+    sampled_batches,
+)
 
 Array = NDArray[np.float64]
 
@@ -120,15 +125,6 @@ class StripeProfile:
     name: str | None = None
 
 
-def _sample_indices(h: NDArray[np.int64], s: int) -> NDArray[np.int64]:
-    """``(n, s)`` indices: all points when ``h <= s`` (padded with the last), else ``s``
-    evenly spaced (both ends kept)."""
-    k = np.arange(s)[None, :]
-    hh = h[:, None]
-    spaced = np.rint(k * (hh - 1) / max(s - 1, 1)).astype(np.int64)
-    return np.where(hh > s, spaced, np.minimum(k, np.maximum(hh - 1, 0)))
-
-
 def _distance_and_elevation(points: Array) -> tuple[Array, Array]:
     """Eq. 1's ``d`` and the elevation ``e`` of a batch ``(n, S, 2)`` of stripes."""
     s = points.shape[1]
@@ -150,22 +146,10 @@ def stripe_shape(
     Vectorised in batches of equal sample count (no loop over stripes or pairs).
     """
     cfg = config or ProfileConfig()
-    arrays = [np.asarray(c, dtype=float).reshape(-1, 2) for c in stripes]
-    n = len(arrays)
-    d = np.zeros(n)
-    e = np.zeros(n)
-    if n == 0:
-        return d, e
-    h = np.array([len(a) for a in arrays], dtype=np.int64)
-    cap = int(h.max()) if cfg.points is None else int(cfg.points)
-    samples = np.minimum(h, max(cap, 2))
-    described = h >= max(cfg.min_points, 2)
-    flat = np.concatenate(arrays)
-    offsets = np.concatenate([[0], np.cumsum(h)[:-1]])
-    for s in np.unique(samples[described]):
-        group = np.flatnonzero(described & (samples == s))
-        idx = _sample_indices(h[group], int(s))
-        d[group], e[group] = _distance_and_elevation(flat[offsets[group, None] + idx])
+    d = np.zeros(len(stripes))
+    e = np.zeros(len(stripes))
+    for group, pts in sampled_batches(stripes, cfg.points, cfg.min_points):
+        d[group], e[group] = _distance_and_elevation(pts)
     return d, e
 
 
