@@ -64,7 +64,9 @@ class LoopRecord:
     """One loop-closure candidate as reported in ``loops.csv``.
 
     `relative` is the pose of keyframe `b` in the frame of keyframe `a` (x, y, theta),
-    from the geometric check (NaN when the check did not produce one).
+    from the geometric check (NaN when the check did not produce one).  `consistency`
+    is the free-space consistency of the two submaps in [0, 1], from a check without a
+    pose prior (NaN for the others).
     """
 
     keyframe_a: int
@@ -81,6 +83,7 @@ class LoopRecord:
     fitness: float = float("nan")
     rms: float = float("nan")
     inlier_ratio: float = float("nan")
+    consistency: float = float("nan")
     relative: Array = field(default_factory=lambda: np.full(3, np.nan))
     rejected_by_gnc: bool = False
     prior: bool = False
@@ -89,7 +92,7 @@ class LoopRecord:
 LOOP_COLUMNS = (
     "keyframe_a", "keyframe_b", "stamp_a", "stamp_b", "search", "prior", "accepted",
     "rejected_by_gnc", "reason", "prefilter_distance", "prefilter_rank", "verifier_distance",
-    "score", "fitness", "rms", "inlier_ratio", "dx", "dy", "dtheta",
+    "score", "fitness", "rms", "inlier_ratio", "consistency", "dx", "dy", "dtheta",
 )
 
 

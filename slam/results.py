@@ -46,6 +46,7 @@ def loop_records(result: MappingResult) -> list[LoopRecord]:
                 fitness=v.fitness if v else float("nan"),
                 rms=v.rms if v else float("nan"),
                 inlier_ratio=v.inlier_ratio if v else float("nan"),
+                consistency=v.consistency if v else float("nan"),
                 relative=c.relative,
                 rejected_by_gnc=e.rejected_by_gnc,
             )

@@ -92,6 +92,10 @@ def test_cli_run_writes_every_output(tmp_path) -> None:
         assert n == sum(r["accepted"] for r in rows if r["search"] == search)
     assert sum(summary["loops_by_stage"].values()) == summary["loops_accepted"]
     assert all(r["prior"] for r in rows if r["search"] == "pose")
+    # free-space consistency: a fraction, reported by checks without a prior only
+    assert all(np.isnan(r["consistency"]) for r in rows if r["prior"])
+    assert all(0.0 <= r["consistency"] <= 1.0 for r in rows
+               if not r["prior"] and not np.isnan(r["consistency"]))
     assert "global_every: 2" in (out / "config.yaml").read_text()
     traj = np.loadtxt(out / "trajectory.tum")
     assert len(traj) == len(run.scans) and np.all(np.diff(traj[:, 0]) > 0)
