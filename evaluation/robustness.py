@@ -160,6 +160,18 @@ class RobustnessCell:
     reference: dict[int, Array]
 
 
+def _prepared(
+    graph: PoseGraph, kernels: Sequence[str], policies: Sequence[str], odometry_scale: float,
+    reference: dict[int, Array] | None,
+) -> tuple[PoseGraph, dict[int, Array]]:
+    """The arguments checked; the graph with its odometry scaled and its clean optimum
+    (`reference` when given)."""
+    _check(kernels, policies, odometry_scale)
+    if odometry_scale != 1.0:
+        graph = with_information_scaled(graph, odometry_scale)
+    return graph, clean_optimum(graph) if reference is None else reference
+
+
 def _check(kernels: Sequence[str], policies: Sequence[str], odometry_scale: float) -> None:
     for k in kernels:
         if k not in ROBUSTNESS_KERNELS:
@@ -191,11 +203,7 @@ def run_robustness(
     `reference`: that clean optimum (`clean_optimum` of the scaled graph), when the
     caller already has it.
     """
-    _check(kernels, policies, odometry_scale)
-    if odometry_scale != 1.0:
-        graph = with_information_scaled(graph, odometry_scale)
-    if reference is None:
-        reference = clean_optimum(graph)
+    graph, reference = _prepared(graph, kernels, policies, odometry_scale, reference)
     results = []
     for policy, ratio in ((p, r) for p in policies for r in ratios):
         corrupted, false_idx = inject_false_loops(
@@ -224,10 +232,7 @@ def robustness_cells(
 ) -> list[RobustnessCell]:
     """The cells of `run_robustness` on the graph read from `g2o`, in its order, each a
     task for `robustness_task` (the clean optimum is computed here, once)."""
-    _check(kernels, policies, odometry_scale)
-    if odometry_scale != 1.0:
-        graph = with_information_scaled(graph, odometry_scale)
-    reference = clean_optimum(graph)
+    _, reference = _prepared(graph, kernels, policies, odometry_scale, None)
     return [RobustnessCell(str(g2o), k, float(r), p, seed, group_size, odometry_scale,
                            reference)
             for p in policies for r in ratios for k in kernels]
