@@ -421,9 +421,7 @@ class LoopClosureDetector:
             raise UserError(f"detect: poses has {len(poses)} rows, keyframe {key} needs {key + 1}")
         if not eligible.any() or not self._described[key]:
             return []
-        cov = None if covariance is None else np.asarray(covariance, dtype=float)
-        sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
-        gate = cfg.local_radius + cfg.local_sigmas * sigma
+        cov, sigma, gate = self._gate(covariance)
         query_points = self._submap_points(key)
         appearance = self._appearance(key, eligible)
         frames = np.asarray(self._frames[: len(eligible)])
@@ -482,9 +480,7 @@ class LoopClosureDetector:
             eligible[below:] = False
         if not eligible.any() or not self._described[key]:
             return []
-        cov = None if covariance is None else np.asarray(covariance, dtype=float)
-        sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
-        gate = cfg.local_radius + cfg.local_sigmas * sigma
+        cov, sigma, gate = self._gate(covariance)
         same = np.asarray(self._frames[: len(eligible)]) == self._frames[key]
         out: list[LoopCandidate] = []
         query_points = self._submap_points(key)
@@ -493,6 +489,14 @@ class LoopClosureDetector:
                 break
             out.append(self._check_prior(key, k, None, poses, cov, sigma, query_points))
         return out
+
+    def _gate(self, covariance: ArrayLike | None) -> tuple[Array | None, float, float]:
+        """``(covariance, sigma, gate)``: the query's covariance as an array (or None),
+        the largest standard deviation of its position [m] and the pose gate's radius
+        ``local_radius + local_sigmas * sigma`` [m]."""
+        cov = None if covariance is None else np.asarray(covariance, dtype=float)
+        sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
+        return cov, sigma, self.config.local_radius + self.config.local_sigmas * sigma
 
     def _supported(self, key: int, match: int) -> bool:
         """The appearance searches of the `sequence_keyframes` keyframes before `key`
