@@ -365,7 +365,7 @@ class Mapper:
         """The new session's keyframes from before the join, nearest to it first, each
         checked against the saved map by the pose search (they met it in their own
         frame, where only a check with no prior could see it)."""
-        start = time.perf_counter()
+        start, optimisation = time.perf_counter(), self.timings["optimisation"]
         kfs = self.keyframes.keyframes
         drift = self._drift  # of the join keyframe; grows with every step back
         for kf in reversed(kfs[:joined_at]):
@@ -382,10 +382,9 @@ class Mapper:
                     added = True
                 self.loops.append(event)
             if added:
-                self.timings["loop_detection"] += time.perf_counter() - start
                 self._update()
-                start = time.perf_counter()
-        self.timings["loop_detection"] += time.perf_counter() - start
+        self.timings["loop_detection"] += (time.perf_counter() - start) - (
+            self.timings["optimisation"] - optimisation)  # _update times its own part
 
     def _keyframe(self, key: int) -> Keyframe:
         """Keyframe `key` of any session (saved ones first)."""

@@ -168,7 +168,7 @@ def build_saved_map(
     scans = [k.scan for k in keyframes]
     ranges, offsets = pack_ragged([s.ranges for s in scans])
     angles, _ = pack_ragged([s.angles for s in scans])
-    places = [p if p is not None else None for p in place_scans]
+    places = list(place_scans)
     p_ranges, p_offsets = pack_ragged([np.zeros(0) if p is None else p.ranges for p in places])
     p_angles, _ = pack_ragged([np.zeros(0) if p is None else p.angles for p in places])
     kf_of = np.asarray(scan_keyframes, dtype=np.int64)
