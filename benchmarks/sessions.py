@@ -68,12 +68,19 @@ def moved(scans: list, seed: int) -> tuple[list, np.ndarray]:
     return [dataclasses.replace(s, odom=se2.compose(move, s.odom)) for s in scans], move
 
 
+def aligned_error(poses: np.ndarray, reference: np.ndarray, fit: slice = slice(None),
+                  judged: slice = slice(None)) -> float:
+    """RMS position error [m] of the `judged` scans after the rigid alignment that best
+    fits the `fit` scans to the reference (scans in the same order)."""
+    p = np.column_stack([poses[:, :2], np.zeros(len(poses))])
+    q = np.column_stack([reference[: len(poses), :2], np.zeros(len(poses))])
+    rot, t, _ = umeyama(p[fit], q[fit])
+    return float(np.sqrt(np.mean(np.sum((p[judged] @ rot.T + t - q[judged]) ** 2, axis=1))))
+
+
 def ate(poses: np.ndarray, reference: np.ndarray) -> float:
     """RMS position error after the best rigid alignment [m] (scans in the same order)."""
-    p = np.column_stack([poses[:, :2], np.zeros(len(poses))])
-    q = np.column_stack([reference[:, :2], np.zeros(len(reference))])
-    rot, t, _ = umeyama(p, q)
-    return float(np.sqrt(np.mean(np.sum((p @ rot.T + t - q) ** 2, axis=1))))
+    return aligned_error(poses, reference)
 
 
 def relations_error(stamps: np.ndarray, poses: np.ndarray, relations: list) -> float:
@@ -106,11 +113,8 @@ class Log:
     def placed_error(self, poses: np.ndarray) -> float:
         """RMS error [m] of the second half once the first half is aligned to the
         reference (how well the join placed it; reference poses needed)."""
-        h = self.half
-        p = np.column_stack([poses[:, :2], np.zeros(len(poses))])
-        q = np.column_stack([self.reference[: len(poses), :2], np.zeros(len(poses))])
-        rot, t, _ = umeyama(p[:h], q[:h])
-        return float(np.sqrt(np.mean(np.sum((p[h:] @ rot.T + t - q[h:]) ** 2, axis=1))))
+        return aligned_error(poses, self.reference, slice(None, self.half),
+                             slice(self.half, None))
 
     def score(self, stamps: np.ndarray, poses: np.ndarray) -> float:
         if self.relations is not None:
