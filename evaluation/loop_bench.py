@@ -35,9 +35,14 @@ Protocol
      highest fused score;
    * ``<name>-alone`` (optional, any stage matcher, e.g. ``flirt-alone``): that matcher
      over the whole database (stacked once, rows selected per query), no prefilter;
-   * **final**: the fused top-1 through the geometric check exactly as the global
-     search runs it (`LoopClosureDetector.verify_place`), whatever its score;
-     score = fused score of an accepted proposal (rejected: no proposal).
+   * **final**: the database's candidates through the geometric check exactly as the
+     global search runs it (`LoopClosureDetector.verify_places`), whatever their
+     scores: the best ``loops.global_verify`` distinct places in fused order, checked
+     with no prior until ``loops.max_loops`` are accepted, accepted ones that put the
+     query in places farther apart than ``loops.agree_distance`` rejected (the
+     map's poses of the database keyframes, the front end's here, say where each
+     place is; the query's own pose is never used).  The proposal is the first
+     accepted candidate, score = its fused score (none accepted: no proposal).
 
 4. **Truth and measures**: `evaluation.loop_bench_truth` (revisit within 2 m; a
    proposal is correct within 2 m, after the check also within 0.2 m / 2 degrees).
@@ -72,6 +77,7 @@ from evaluation.loop_bench_truth import (
     pr_curve,
     recall_at_k,
 )
+from loopclosure.loop_detector import distinct_places
 from loopclosure.place_database import PlaceDatabase
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper, MappingResult
@@ -293,8 +299,9 @@ def run_loop_bench(
             f"{100 * min_coverage:.0f}%"
         )
     start = time.perf_counter()
-    raw = _query_all(mapper, ref, covered, rows, _query_plan(n_kf, max_queries), timing_every,
-                     tol.max_distance, progress)
+    poses = np.array([result.keyframe_poses[kf.id] for kf in result.keyframes], float)
+    raw = _query_all(mapper, ref, covered, poses, rows, _query_plan(n_kf, max_queries),
+                     timing_every, tol.max_distance, progress)
     query_s = time.perf_counter() - start
     bench = _evaluate(name, raw, ref, covered, rows, tol, result, config)
     bench.wall_s = {"mapping": map_s, "queries": query_s}
@@ -313,6 +320,8 @@ class _Raw:
     seconds: dict[str, list[float]] = field(default_factory=dict)
     hits: dict[str, list[NDArray[np.bool_]]] = field(default_factory=dict)
     accepted: list[bool] = field(default_factory=list)
+    final_match: list[int] = field(default_factory=list)
+    final_score: list[float] = field(default_factory=list)
     relative: list[Array] = field(default_factory=list)
     reason: list[str] = field(default_factory=list)
 
@@ -328,6 +337,7 @@ def _query_all(
     mapper: _RecordingMapper,
     ref: Array,
     covered: NDArray[np.bool_],
+    poses: Array,
     rows: Sequence[str],
     plan: NDArray[np.bool_],
     timing_every: int,
@@ -364,15 +374,15 @@ def _query_all(
         older = keys < k
         mask = np.zeros(len(keys), bool)
         mask[older] = eligible[keys[older]] & covered[keys[older]]
-        _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, rows, alone, stacks,
-                   timing_every, radius, kmax)
+        _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, poses, rows, alone,
+                   stacks, timing_every, radius, kmax)
     return out
 
 
 def _one_query(
     out: _Raw, k: int, desc: dict[str, Any] | None, db: PlaceDatabase, detector: Any,
     mapper: _RecordingMapper, keys: NDArray[np.intp], mask: NDArray[np.bool_], ref: Array,
-    rows: Sequence[str], alone: dict[str, str], stacks: dict[str, Any],
+    poses: Array, rows: Sequence[str], alone: dict[str, str], stacks: dict[str, Any],
     timing_every: int, radius: float, kmax: int,
 ) -> None:
     """One query's proposals of every row (module docstring), appended to `out`."""
@@ -390,6 +400,8 @@ def _one_query(
         for r in (*cfg.prefilter, "prefilter"):
             out.hits.setdefault(r, []).append(np.zeros(kmax, bool))
         out.accepted.append(False)
+        out.final_match.append(-1)
+        out.final_score.append(-np.inf)
         out.relative.append(np.full(3, np.nan))
         out.reason.append("empty database" if desc is not None else "no descriptor")
         return
@@ -430,9 +442,13 @@ def _one_query(
         j = int(np.argmin(d))
         out.put(r, int(keys[sel[j]]), -float(d[j]))
     t = time.perf_counter()
-    cand = detector.verify_place(k, best, mapper.query_submaps.get(k))
+    checked = detector.verify_places(k, distinct_places(matches, detector.config.global_verify),
+                                     poses, mapper.query_submaps.get(k))
     out.time("final", t_query + time.perf_counter() - t)
+    cand = next((c for c in checked if c.accepted), checked[0])
     out.accepted.append(bool(cand.accepted))
+    out.final_match.append(int(cand.match))
+    out.final_score.append(float(cand.fused_score) if cand.accepted else -np.inf)
     out.relative.append(np.asarray(cand.relative, float))
     out.reason.append(str(cand.reason))
 
@@ -457,8 +473,7 @@ def _evaluate(
         secs = raw.seconds.get(r, [])
         stages[r] = StageResult(r, match, score, correct, pr_curve(score, correct, revisits),
                                 1e3 * float(np.mean(secs)) if secs else float("nan"))
-    match = np.asarray(raw.match.get("fused", []), np.intp)
-    fused = np.asarray(raw.score.get("fused", []), float)
+    match = np.asarray(raw.final_match, np.intp)
     accepted = np.asarray(raw.accepted, bool)
     relative = np.asarray(raw.relative, float).reshape(-1, 3)
     errors = np.full((len(q), 2), np.nan)
@@ -471,7 +486,7 @@ def _evaluate(
             ref[q[has_match]], ref[match[has_match]], relative[has_match],
             max_distance=tol.max_distance, trans_tol=tol.trans_tol,
             rot_tol_deg=tol.rot_tol_deg) & accepted[has_match]
-    final_score = np.where(accepted, fused, -np.inf)
+    final_score = np.asarray(raw.final_score, float)
     secs = raw.seconds.get("final", [])
     final = StageResult("final", np.where(accepted, match, -1), final_score, final_ok,
                         pr_curve(final_score, final_ok, revisits),

@@ -55,7 +55,11 @@ and calls, for every keyframe:
    candidate every `free_every` keyframes without an accepted loop.  Appearance
    candidates are tried first; a pose candidate already tried, or within 5 keyframes
    of an accepted one (the same place), is skipped, so a loop both searches propose
-   is checked once and reported as ``appearance``.
+   is checked once and reported as ``appearance``.  Two candidates outside the gate
+   that are both accepted must agree: the map's poses of the two places, each
+   composed with its checked relative pose, must put the query within
+   `agree_distance` of each other; else both are rejected as ambiguous (a self-similar
+   building: the same corridor, seen from the query, fits two places of the map).
 
    Keyframes newer than `exclude_recent` keyframes or `exclude_recent_s` seconds are
    never candidates (they are odometry's business); the time rule is dropped for the
@@ -99,8 +103,9 @@ Example (a host whose submaps are the keyframes' own scans, which never change):
 
 from __future__ import annotations
 
+import dataclasses
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -148,7 +153,12 @@ class LoopClosureConfig:
         min_score_across: ... when it lies in another frame (a session not joined yet:
             its loops join the sessions only when several agree, so the score need not
             guard each one).
-        global_verify: appearance candidates checked per query.
+        global_verify: appearance candidates checked per query (distinct places,
+            best fused score first).
+        agree_distance: two candidates checked with no prior that are both accepted
+            for one query must put the query within this of each other in the map
+            [m]; else the query is ambiguous (a look-alike of one of the places) and
+            both are rejected.
         free_every: check any appearance candidate outside the pose gate (no prior)
             every this many keyframes without an accepted loop (1: at every keyframe;
             0: only those the previous keyframe supports).
@@ -177,6 +187,7 @@ class LoopClosureConfig:
     min_score: float = 0.5
     min_score_across: float = 0.0
     global_verify: int = 2
+    agree_distance: float = 1.0
     free_every: int = 10
     sequence_keyframes: int = 2
     sequence_keys: int = 3
@@ -458,11 +469,8 @@ class LoopClosureDetector:
         if not free:
             return out
         self._since_free = 0
-        for m in free:
-            if sum(c.accepted for c in out) >= cfg.max_loops:
-                break
-            out.append(self._check_global(key, m, query_points, poses))
-        return out
+        return out + self._verify_free(key, free, query_points, poses,
+                                       cfg.max_loops - sum(c.accepted for c in out))
 
     def detect_pose(
         self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None,
@@ -526,16 +534,12 @@ class LoopClosureDetector:
         matches = self.database.query(
             self.database.descriptors(key), allowed=np.flatnonzero(eligible)
         )
-        chosen: list[PlaceMatch] = []
         frame = self._frames[key]
-        for m in matches:  # best first; one per place (keys within 5 are the same place)
-            if len(chosen) == cfg.global_verify:
-                break
-            across = self._frames[int(m.key)] != frame
-            if m.score < (cfg.min_score_across if across else cfg.min_score):
-                continue
-            if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
-                chosen.append(m)
+        chosen = distinct_places([
+            m for m in matches
+            if m.score >= (cfg.min_score_across if self._frames[int(m.key)] != frame
+                           else cfg.min_score)
+        ], cfg.global_verify)
         self._proposed[key] = np.array([int(m.key) for m in chosen], dtype=np.int64)
         return chosen
 
@@ -583,23 +587,57 @@ class LoopClosureDetector:
             **_place_figures(match),
         )
 
-    def verify_place(
-        self, key: int, match: PlaceMatch, query_points: ArrayLike | None = None
-    ) -> LoopCandidate:
-        """The geometric check of one appearance candidate with no pose prior.
+    def verify_places(
+        self, key: int, matches: Sequence[PlaceMatch], poses: ArrayLike,
+        query_points: ArrayLike | None = None,
+    ) -> list[LoopCandidate]:
+        """The geometric checks of several appearance candidates with no pose prior.
 
-        `match` is a `PlaceMatch` of a database query for keyframe `key` (its headings
-        and stage figures); the check starts from its heading hypotheses and a
-        centroid-aligned translation, as for a candidate outside the pose gate.
+        `matches` (a database query's `PlaceMatch` list for keyframe `key`) are checked
+        in order, as the global search of `detect` checks them, until `max_loops` are
+        accepted, and the accepted ones must agree (`agree_distance`, module
+        docstring).  `poses` ``(n, 3)`` are the map's estimates of keyframes
+        ``0..n-1`` (the candidates' poses; the query's own is not used).
         `query_points` is the query's submap (``(N, 2)`` [m], its sensor frame;
-        default ``submap(key)``).  For benchmarks that judge the appearance search
-        alone (no search, no counters).
+        default ``submap(key)``).  Each check starts from the match's heading
+        hypotheses and a centroid-aligned translation, as for a candidate outside the
+        pose gate.  For benchmarks that judge the appearance search alone (no search,
+        no counters).
         """
         self._check_key(key)
-        self._check_key(int(match.key))
+        for m in matches:
+            self._check_key(int(m.key))
         pts = self._submap_points(key) if query_points is None else np.asarray(
             query_points, dtype=float).reshape(-1, 2)
-        return self._check_global(key, match, pts)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        return self._verify_free(key, list(matches), pts, poses, self.config.max_loops)
+
+    def _verify_free(
+        self, key: int, matches: list[PlaceMatch], query_points: Array, poses: Array | None,
+        budget: int,
+    ) -> list[LoopCandidate]:
+        """Checks with no prior of `matches`, in order, until `budget` are accepted;
+        then accepted candidates in one frame that put the query more than
+        `agree_distance` apart (``poses[match] * relative``) are all rejected."""
+        out: list[LoopCandidate] = []
+        for m in matches:
+            if sum(c.accepted for c in out) >= budget:
+                break
+            out.append(self._check_global(key, m, query_points, poses))
+        accepted = [i for i, c in enumerate(out) if c.accepted]
+        if poses is None or len(accepted) < 2:
+            return out
+        implied = {i: se2.compose(poses[out[i].match], out[i].relative)[:2] for i in accepted}
+        for i in accepted:
+            far = [float(np.hypot(*(implied[i] - implied[j]))) for j in accepted
+                   if j != i and self._frames[out[j].match] == self._frames[out[i].match]]
+            spread = max(far, default=0.0)
+            if spread > self.config.agree_distance:
+                out[i] = dataclasses.replace(
+                    out[i], accepted=False,
+                    reason=f"ambiguous places (another accepted place puts the query "
+                           f"{spread:.1f} m away)")
+        return out
 
     def _check_global(
         self, key: int, m: PlaceMatch, query_points: Array, poses: Array | None = None
@@ -622,6 +660,18 @@ class LoopClosureDetector:
         return LoopCandidate.checked(
             key, cand, "appearance", result, predicted_distance=distance, **_place_figures(m)
         )
+
+
+def distinct_places(matches: Sequence[PlaceMatch], limit: int) -> list[PlaceMatch]:
+    """The first `limit` of `matches` (best first) that are distinct places: a match
+    within 5 keys of one already taken is the same place and is skipped."""
+    chosen: list[PlaceMatch] = []
+    for m in matches:
+        if len(chosen) == limit:
+            break
+        if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
+            chosen.append(m)
+    return chosen
 
 
 def _place_figures(m: PlaceMatch) -> dict:

@@ -190,3 +190,39 @@ def test_search_values_and_small_databases(keyframes) -> None:
     det = LoopClosureDetector(submap=lambda key: keyframes[key].points())
     det.add_keyframe(0, 0.0, keyframes[0])
     assert det.detect(0, np.zeros((1, 3))) == []  # one keyframe: nothing to match
+
+
+# -- candidates checked with no prior must agree ----------------------------------------
+
+
+@pytest.mark.parametrize(("second_place", "accepted"), [((0.0, 0.0, 0.0), True),
+                                                        ((5.0, 0.0, 0.0), False)])
+def test_accepted_places_must_agree_on_where_the_query_is(second_place, accepted) -> None:
+    # Three keyframes of one scan: the query (key 2) fits both older places at the
+    # identity.  The map puts the two places together (the query is at one spot: both
+    # loops stand) or 5 m apart (one of them is a look-alike: both are rejected).
+    scan = simulate_run("box", seed=0).scans[40]
+    det = LoopClosureDetector(LoopClosureConfig(exclude_recent=0, exclude_recent_s=0.0),
+                              submap=lambda key: scan.points())
+    for key in range(3):
+        det.add_keyframe(key, float(key), scan)
+    matches = det.database.query(det.database.descriptors(2), allowed=[0, 1])
+    poses = np.array([[0.0, 0.0, 0.0], second_place, [0.0, 0.0, 0.0]])
+    out = det.verify_places(2, matches, poses)
+    assert [c.match for c in out] == [0, 1]
+    np.testing.assert_allclose([c.relative for c in out], 0.0, atol=1e-3)
+    assert [c.accepted for c in out] == [accepted, accepted]
+    if not accepted:
+        assert all(c.reason.startswith("ambiguous places") and "5.0 m" in c.reason for c in out)
+
+
+def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
+    from loopclosure.loop_detector import distinct_places
+    from loopclosure.place_database import PlaceMatch
+
+    def match(key: int) -> PlaceMatch:
+        return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
+                          score=1.0, headings=(), stamp=0.0, pose=None)
+
+    got = distinct_places([match(k) for k in (10, 14, 16, 30, 12, 40)], 3)
+    assert [m.key for m in got] == [10, 16, 30]
