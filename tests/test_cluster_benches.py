@@ -1,0 +1,80 @@
+"""The `bench` commands with ``--cluster``: on a 2-worker Dask LocalCluster, the same
+rows as the serial run; a bad address fails before any work."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from data.sim import MotionConfig, simulate_run, write_run
+from slam.cli.main import main
+
+distributed = pytest.importorskip("distributed", reason="needs the `distributed` package")
+
+TIMINGS = {"wall_s", "ms_per_scan", "read_s", "seconds", "outputs"}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """The scheduler address of a LocalCluster of 2 worker processes on the loopback."""
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+        scheduler_port=0, dashboard_address=None, silence_logs=50,
+    ) as local:
+        yield local.scheduler_address
+
+
+def _untimed(value):
+    """`value` without its timings (they are all that may differ between two runs)."""
+    if isinstance(value, dict):
+        return {k: _untimed(v) for k, v in value.items() if k not in TIMINGS}
+    if isinstance(value, list):
+        return [_untimed(v) for v in value]
+    return value
+
+
+def _json(capsys, argv: list[str]) -> dict:
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    return json.loads(captured.out)
+
+
+def _fails_at_once(capsys, argv: list[str], out: Path) -> None:
+    """`argv` with a bad ``--cluster`` exits 2 with one clear line and writes nothing."""
+    code = main([*argv, "--out", str(out), "--cluster", "nonsense"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--cluster nonsense" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------------------ slam
+
+
+@pytest.fixture(scope="module")
+def sim_log(tmp_path_factory) -> dict[str, Path]:
+    run = simulate_run("box", seed=4, motion=MotionConfig(laps=0.3), fov_deg=180.0, beams=181,
+                       max_range=12.0)
+    return write_run(run, tmp_path_factory.mktemp("slam_log"))
+
+
+def test_bench_slam_on_a_cluster_equals_the_serial_run(sim_log, cluster, tmp_path,
+                                                       capsys) -> None:
+    argv = ["bench", "slam", str(sim_log["log"]), "--reference", str(sim_log["groundtruth"]),
+            "--limit", "80", "--no-map", "--json"]
+    here = _json(capsys, [*argv, "--out", str(tmp_path / "here")])
+    there = _json(capsys, [*argv, "--out", str(tmp_path / "there"), "--cluster", cluster])
+    assert [m["method"] for m in there["methods"]] == ["pipeline", "wheel", "kiss-icp"]
+    assert all(m["error"] is None for m in there["methods"])
+    assert _untimed(there) == _untimed(here)
+    for name in ("pipeline.tum", "wheel.tum", "kiss-icp.tum", "pipeline/trajectory.tum",
+                 "pipeline/loops.csv", "pipeline/loops_vs_reference.csv"):
+        assert (tmp_path / "there" / name).read_bytes() == \
+            (tmp_path / "here" / name).read_bytes(), name
+    assert (tmp_path / "there" / "report.md").is_file()
+
+
+def test_bench_slam_bad_cluster_fails_before_reading(sim_log, tmp_path, capsys) -> None:
+    _fails_at_once(capsys, ["bench", "slam", str(sim_log["log"])], tmp_path / "out")
