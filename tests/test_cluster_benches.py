@@ -13,7 +13,7 @@ from slam.cli.main import main
 
 distributed = pytest.importorskip("distributed", reason="needs the `distributed` package")
 
-TIMINGS = {"wall_s", "ms_per_scan", "read_s", "seconds", "outputs"}
+TIMINGS = {"wall_s", "ms_per_scan", "ms_per_query", "read_s", "seconds", "outputs"}
 
 
 @pytest.fixture(scope="module")
@@ -78,3 +78,21 @@ def test_bench_slam_on_a_cluster_equals_the_serial_run(sim_log, cluster, tmp_pat
 
 def test_bench_slam_bad_cluster_fails_before_reading(sim_log, tmp_path, capsys) -> None:
     _fails_at_once(capsys, ["bench", "slam", str(sim_log["log"])], tmp_path / "out")
+
+
+# ----------------------------------------------------------------------------- loops
+
+
+def test_bench_loops_on_a_cluster_equals_the_serial_run(cluster, capsys) -> None:
+    """Two stage blocks (the cascade, FLIRT alone), each mapping the world on its worker."""
+    argv = ["bench", "loops", "--world", "box", "--limit", "250", "--max-queries", "25",
+            "--stages", "pairs,prefilter,flirt@10,fused,flirt-alone", "--json"]
+    here = _json(capsys, argv)
+    there = _json(capsys, [*argv, "--cluster", cluster])
+    assert list(there["stages"]) == ["pairs", "prefilter", "flirt@10", "fused", "flirt-alone"]
+    assert there["queries"] > 10
+    assert _untimed(there) == _untimed(here)
+
+
+def test_bench_loops_bad_cluster_fails_before_mapping(tmp_path, capsys) -> None:
+    _fails_at_once(capsys, ["bench", "loops", "--world", "box"], tmp_path / "out")
