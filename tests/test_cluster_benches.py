@@ -96,3 +96,36 @@ def test_bench_loops_on_a_cluster_equals_the_serial_run(cluster, capsys) -> None
 
 def test_bench_loops_bad_cluster_fails_before_mapping(tmp_path, capsys) -> None:
     _fails_at_once(capsys, ["bench", "loops", "--world", "box"], tmp_path / "out")
+
+
+# ---------------------------------------------------------------------------- places
+
+
+def test_places_blocks_on_a_cluster_equal_the_serial_matrix_bit_for_bit(cluster) -> None:
+    from evaluation.place_datasets import load_dataset
+    from evaluation.places_matrix import PlaceSource, matrix_by_blocks
+
+    polygons = load_dataset("box", seed=1).polygons
+    for name in ("fft", "ring"):
+        here, *_ = matrix_by_blocks(name, {}, polygons)
+        there, *_ = matrix_by_blocks(name, {}, polygons, source=PlaceSource("box", 1),
+                                     cluster=cluster)
+        assert here.shape == (len(polygons), len(polygons))
+        assert here.tobytes() == there.tobytes(), name
+
+
+def test_bench_places_on_a_cluster_equals_the_serial_run(cluster, capsys) -> None:
+    argv = ["bench", "places", "--dataset", "box", "--methods", "fft,ring", "--seed", "1",
+            "--json"]
+    here = _json(capsys, argv)
+    there = _json(capsys, [*argv, "--cluster", cluster])
+    assert set(there["methods"]) == {"fft", "ring"} and not there["failed"]
+    untimed = {k for k in here["methods"]["fft"] if k.startswith("ms_")}
+    drop = lambda doc: {n: {k: v for k, v in m.items() if k not in untimed}  # noqa: E731
+                        for n, m in doc["methods"].items()}
+    assert drop(there) == drop(here)
+    assert _untimed({**there, "methods": None}) == _untimed({**here, "methods": None})
+
+
+def test_bench_places_bad_cluster_fails_before_loading(tmp_path, capsys) -> None:
+    _fails_at_once(capsys, ["bench", "places", "--dataset", "box"], tmp_path / "out")
