@@ -3,11 +3,15 @@
 ``register(bench)`` adds both commands to the ``bench`` command group (wired in by
 `evaluation.cli`).  Bad input raises `data.errors.UserError` / `DataError`, which the
 entry point prints as one ``error:`` line with exit status 2.  Progress bars go to
-stderr, results to stdout (``--json``: one JSON document).
+stderr, results to stdout (``--json``: one JSON document).  ``--cluster``
+(`evaluation.cluster`) runs each matcher of ``bench stripes`` (the unit of work: one
+matcher on the scanned set) and each seed of ``bench landmarks`` as one Dask task,
+the workers building their inputs themselves; the figures are the same.
 """
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated
 
@@ -15,7 +19,18 @@ import typer
 
 from data.atomic_write import output_dir
 from data.errors import UserError
+from evaluation.cluster import ClusterOption
 from slam.cli.common import stage_progress
+
+
+def _no_progress(stage: str, done: int, total: int) -> None:
+    return None
+
+
+def _bars(cluster: str | None):
+    """The stage bars, or none with a cluster (the engine shows its bar over the tasks:
+    one live display at a time)."""
+    return stage_progress() if cluster is None else nullcontext(_no_progress)
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:
@@ -86,16 +101,23 @@ def stripes(
     out: Annotated[
         Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
     ] = None,
+    cluster: ClusterOption = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """The stripes paper's Table I / II, Bull's eye and timing, with silhouette baselines."""
+    """The stripes paper's Table I / II, Bull's eye and timing, with silhouette baselines.
+
+    With ``--cluster`` every matcher is one Dask task (the same figures; only the seconds
+    differ).
+    """
     from dataclasses import replace
 
     from data.stripe_scanner import DAILY_CLASSES, ScannerConfig
     from data.stripe_scanner.meshes import check_conventions
+    from evaluation.cluster import parse_cluster
     from evaluation.stripes_benchmark import (
         PAPER_TABLE_I,
         StripesBenchmarkConfig,
+        StripesSource,
         baseline_matcher,
         run_stripes_benchmark,
     )
@@ -104,6 +126,7 @@ def stripes(
     from loopclosure.stripes import DescriptorConfig
     from slam.cli.common import print_json
 
+    parse_cluster(cluster)  # a bad --cluster fails before any work
     if (dataset is None) == (meshes is None):
         raise UserError("give exactly one of --dataset daily-sim or --meshes DIR")
     if dataset is not None and dataset != "daily-sim":
@@ -142,11 +165,16 @@ def stripes(
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)
+        source = StripesSource(daily=False, meshes=str(meshes), units=units, up=up_axis,
+                               labels=str(labels) if labels is not None else None,
+                               folder=str(Path.cwd()))
     else:
         chosen = _names(classes) or DAILY_CLASSES
         objects = daily_objects(seed, per_class, chosen)
-    with stage_progress() as progress:
-        result = run_stripes_benchmark(objects, cfg, progress)
+        source = StripesSource(daily=True, seed=seed, per_class=per_class,
+                               classes=_names(classes))
+    with _bars(cluster) as progress:
+        result = run_stripes_benchmark(objects, cfg, progress, source=source, cluster=cluster)
     paths = write_stripes_report(result, out) if out is not None else {}
     js = result.to_json()
     if paths:

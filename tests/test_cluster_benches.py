@@ -129,3 +129,23 @@ def test_bench_places_on_a_cluster_equals_the_serial_run(cluster, capsys) -> Non
 
 def test_bench_places_bad_cluster_fails_before_loading(tmp_path, capsys) -> None:
     _fails_at_once(capsys, ["bench", "places", "--dataset", "box"], tmp_path / "out")
+
+
+# --------------------------------------------------------------------------- stripes
+
+
+def test_bench_stripes_on_a_cluster_equals_the_serial_run(cluster, capsys) -> None:
+    """One task per matcher: stripes, profile, fft, and ring (a verifier of the fused row)."""
+    argv = ["bench", "stripes", "--dataset", "daily-sim", "--classes", "apple,pen",
+            "--per-class", "2", "--step", "0.004", "--baselines", "fft", "--seed", "1",
+            "--json"]
+    here = _json(capsys, argv)
+    there = _json(capsys, [*argv, "--cluster", cluster])
+    assert set(there["baselines"]) == {"fft"} and there["fused"] is not None
+    drop = {"scan_seconds", "silhouette_seconds", "speedup_vs_paper", "paper_seconds"}
+    assert _untimed({k: v for k, v in there.items() if k not in drop}) == \
+        _untimed({k: v for k, v in here.items() if k not in drop})
+
+
+def test_bench_stripes_bad_cluster_fails_before_scanning(tmp_path, capsys) -> None:
+    _fails_at_once(capsys, ["bench", "stripes", "--dataset", "daily-sim"], tmp_path / "out")
