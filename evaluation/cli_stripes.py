@@ -202,44 +202,82 @@ def stripes(
         typer.echo(f"  report: {paths['report']}")
 
 
+def _seed_list(seed: int, seeds: str | None) -> list[int]:
+    if seeds is None:
+        values = [seed]
+    else:
+        try:
+            values = [int(v) for v in seeds.split(",") if v.strip()]
+        except ValueError:
+            raise UserError(f"--seeds must be comma-separated integers, got {seeds!r}") from None
+        if not values:
+            raise UserError("--seeds needs at least one seed")
+    for v in values:
+        if v < 0:
+            raise UserError(f"--seed must be non-negative, got {v}")
+    return list(dict.fromkeys(values))
+
+
+def _precision_text(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
 def landmarks(
     seed: Annotated[int, typer.Option("--seed", help="Seed of world, motion and noise.")] = 0,
+    seeds: Annotated[
+        str | None,
+        typer.Option("--seeds", help="Several seeds, comma-separated (one run each; "
+                     "with --out one subfolder seed-N each)."),
+    ] = None,
     laps: Annotated[float, typer.Option("--laps", help="Laps of the figure-eight route.")] = 2.0,
     out: Annotated[
         Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
     ] = None,
+    cluster: ClusterOption = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Recognised objects as landmarks: recognition precision and ATE with / without them."""
-    from evaluation.landmarks_benchmark import run_landmarks_benchmark, write_landmarks_report
+    """Recognised objects as landmarks: recognition precision and ATE with / without them.
+
+    With ``--cluster`` every seed is one Dask task (the same figures; only the seconds
+    differ).  ``--seeds 0,1,2`` runs several seeds (``--json``: ``{"runs": [...]}``).
+    """
+    from evaluation.cluster import parse_cluster
+    from evaluation.landmarks_benchmark import LandmarksCell, run_landmarks_cells
     from slam.cli.common import print_json
+    from slam.json_io import write_json
     from slam.landmarks import LandmarkRunConfig
 
-    if seed < 0:
-        raise UserError(f"--seed must be non-negative, got {seed}")
+    parse_cluster(cluster)  # a bad --cluster fails before any work
+    chosen = _seed_list(seed, seeds)
     if not laps > 0:
         raise UserError(f"--laps must be positive, got {laps}")
     if out is not None:
         output_dir(out)  # a bad --out fails now, not after the runs
+        if cluster is not None:
+            out = out.resolve()  # the workers write into it from their own folders
     cfg = LandmarkRunConfig(laps=laps)
-    with stage_progress() as progress:
-        result = run_landmarks_benchmark(seed, cfg, progress)
-    paths = write_landmarks_report(result, out) if out is not None else {}
-    js = result.to_json()
-    if paths:
-        js["outputs"] = {k: str(v) for k, v in paths.items()}
+    many = seeds is not None
+    folders = [None if out is None else str(out / f"seed-{s}" if many else out) for s in chosen]
+    cells = [LandmarksCell(s, cfg, f) for s, f in zip(chosen, folders, strict=True)]
+    with _bars(cluster) as progress:
+        docs = run_landmarks_cells(cells, cluster=cluster, progress=progress)
+    doc = {"runs": docs} if many else docs[0]
+    if many and out is not None:
+        doc["outputs"] = {"results": str(write_json(out / "results.json", doc))}
     if json:
-        print_json(js)
+        print_json(doc)
         return
-    typer.echo(
-        f"landmarks (seed {seed}): {js['clusters']} object clusters, {js['recognitions']} "
-        f"recognitions, precision {js['recognition_precision']:.3f}, recall "
-        f"{js['recognition_recall']:.3f}, {js['landmarks']} landmarks"
-    )
-    typer.echo(f"  ATE without landmarks {js['ate_without_m']:.3f} m, with landmarks "
-               f"{js['ate_with_m']:.3f} m")
-    if paths:
-        typer.echo(f"  report: {paths['report']}")
+    for js in docs:
+        typer.echo(
+            f"landmarks (seed {js['seed']}): {js['clusters']} object clusters, "
+            f"{js['recognitions']} recognitions, precision "
+            f"{_precision_text(js['recognition_precision'])}, recall "
+            f"{js['recognition_recall']:.3f}, {js['landmarks']} landmarks"
+        )
+        typer.echo(f"  ATE without landmarks {js['ate_without_m']:.3f} m, with landmarks "
+                   f"{js['ate_with_m']:.3f} m")
+        if "outputs" in js:
+            typer.echo(f"  report: {js['outputs']['report']}")
 
 
 def register(bench: typer.Typer) -> None:

@@ -149,3 +149,49 @@ def test_bench_stripes_on_a_cluster_equals_the_serial_run(cluster, capsys) -> No
 
 def test_bench_stripes_bad_cluster_fails_before_scanning(tmp_path, capsys) -> None:
     _fails_at_once(capsys, ["bench", "stripes", "--dataset", "daily-sim"], tmp_path / "out")
+
+
+# ------------------------------------------------------------------------- landmarks
+
+
+def test_landmark_seeds_on_a_cluster_equal_the_serial_runs(cluster, tmp_path) -> None:
+    from evaluation.landmarks_benchmark import LandmarksCell, run_landmarks_cells
+    from tests.test_landmarks import _tiny_config
+
+    cells = [LandmarksCell(seed, _tiny_config()) for seed in (3, 4)]
+    here = run_landmarks_cells(cells)
+    there = run_landmarks_cells(cells, cluster=cluster)
+    assert [d["seed"] for d in there] == [3, 4]
+    assert _untimed(there) == _untimed(here)
+
+
+def test_bench_landmarks_bad_cluster_fails_before_simulating(tmp_path, capsys) -> None:
+    _fails_at_once(capsys, ["bench", "landmarks", "--seeds", "0,1"], tmp_path / "out")
+
+
+# ---------------------------------------------------------------------------- README
+
+
+def _commands_with_cluster(app, prefix: str = "loopclosure") -> list[str]:
+    import inspect
+
+    found = []
+    for command in app.registered_commands:
+        name = command.name or command.callback.__name__.replace("_", "-")
+        if "cluster" in inspect.signature(command.callback).parameters:
+            found.append(f"{prefix} {name}")
+    for group in app.registered_groups:
+        found += _commands_with_cluster(group.typer_instance, f"{prefix} {group.name}")
+    return found
+
+
+def test_the_readme_lists_every_command_that_takes_cluster() -> None:
+    from slam.cli.main import build_app
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## Map many logs, here or on a cluster")[1].split("\n## ")[0]
+    # (the command groups are module-level: every app built adds its commands again)
+    commands = list(dict.fromkeys(_commands_with_cluster(build_app())))
+    assert len(commands) == 7, commands
+    for command in commands:
+        assert f"`{command} " in section and "--cluster" in section, command
