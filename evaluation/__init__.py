@@ -9,10 +9,15 @@ Metrics: `retrieval`, `loop_metrics`, `trajectory_error`, `relations_metric`,
   `stripes_retrieval`, `stripes_report`; ``bench landmarks``: `landmarks_benchmark`;
 - ``bench slam``: `slam_benchmark` (runner), `slam_input`, `slam_methods`,
   `slam_reference`, `loop_verdicts`, `slam_report`;
+- ``bench loops``: `loop_bench` (runner), `loop_bench_input`, `loop_bench_truth`,
+  `loop_bench_report`;
+- ``batch`` (many logs mapped, here or on a cluster): `batch`, on the engine of
+  `cluster`;
 - the demo report of ``loopclosure run``: `demo_report`.
 
 The commands are in `cli` (registered through the ``loopclosure.commands`` entry
-point) and `cli_places`, `cli_stripes`, `cli_slam`; reports use `report` and `plots`.
+point) and `cli_places`, `cli_stripes`, `cli_slam`, `cli_loops`, `cli_batch`;
+reports use `report` and `plots`.
 """
 
 from __future__ import annotations

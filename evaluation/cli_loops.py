@@ -7,14 +7,16 @@ by `evaluation.cli`).  Contract::
         --reference-from-log --odometry-noise SEED) [--world box|surface] [--seed N]
         [--stages fft,ring,prefilter,flirt,mrm,fused,flirt-alone] [--max-queries N]
         [--config FILE] [--set key=value ...] [--limit N] [--min-coverage F]
-        [--out DIR] [--json]
+        [--out DIR] [--json] [--cluster ADDRESS]
 
 Without INPUT (or with ``--world``) the simulated world of the embedded demo is
 mapped (``box`` by default; the demo's 180-degree laser) and its ground truth is the
 reference.  The runner is `evaluation.loop_bench` (protocol in its docstring), the
 measures `evaluation.loop_bench_truth`, the table, JSON document and output folder
 `evaluation.loop_bench_report`.  ``--json`` prints one object with ``queries``,
-``revisits``, ``stages``, ``final`` and ``recall_at_k``.  Progress bars go to stderr.
+``revisits``, ``stages``, ``final`` and ``recall_at_k``.  ``--cluster``
+(`evaluation.cluster`) runs each stage block (the unit of work: the cascade, and each
+``NAME-alone`` row) as one Dask task; the rows are the same.  Progress bars go to stderr.
 Bad input (no reference for a log, two references, a reference covering too few
 keyframes, an unknown stage) raises `UserError` (one ``error:`` line, exit 2).
 """
@@ -22,9 +24,8 @@ keyframes, an unknown stage) raises `UserError` (one ``error:`` line, exit 2).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
-import numpy as np
 import typer
 
 from data.atomic_write import output_dir
@@ -41,52 +42,12 @@ from evaluation.cli_options import (
     TopicOption,
     print_table,
 )
+from evaluation.cluster import ClusterOption
+from evaluation.loop_bench_input import relations_reference_fn, trajectory_reference_fn
 from slam.cli.common import stage_progress
 
-
-def _relations_fn(data: Any, relations: Path) -> Any:
-    """Reference of the keyframes from relations (`relations_reference`; NaN = none)."""
-    from data.relations import read_relations
-    from evaluation.slam_reference import relations_in_range, relations_reference
-
-    rels = read_relations(relations)
-    used = relations_in_range(rels, data.stamps)
-    if not used:
-        raise UserError(f"{relations}: none of its {len(rels)} relations has both stamps "
-                        f"among the {len(data.scans)} scans read")
-
-    def reference(result: Any) -> np.ndarray:
-        kf = [k.scan_index for k in result.keyframes]
-        ref = relations_reference(data.stamps, used, kf, result.odometry_poses)
-        out = np.full((len(kf), 3), np.nan)
-        pos = {int(s): i for i, s in enumerate(ref.scan_index)}
-        for i, s in enumerate(kf):
-            if s in pos:
-                out[i] = ref.poses[pos[s]]
-        return out
-
-    return reference
-
-
-def _trajectory_fn(data: Any, trajectory: Any) -> Any:
-    """Reference of the keyframes from a trajectory stamped like the scans."""
-    from evaluation.slam_input import evaluation_stamps
-    from evaluation.slam_reference import keyframe_reference
-
-    stamps, _ = evaluation_stamps(data.stamps)
-
-    def reference(result: Any) -> np.ndarray:
-        kf = [k.scan_index for k in result.keyframes]
-        ref = keyframe_reference(trajectory, stamps, kf)
-        out = np.full((len(kf), 3), np.nan)
-        pos = {int(s): i for i, s in enumerate(ref.stamps.astype(int))}
-        xyt = ref.xytheta()
-        for i, s in enumerate(kf):
-            if s in pos:
-                out[i] = xyt[pos[s]]
-        return out
-
-    return reference
+_relations_fn = relations_reference_fn  # the names other scripts import
+_trajectory_fn = trajectory_reference_fn
 
 
 def loops(
@@ -122,14 +83,22 @@ def loops(
         Path | None,
         typer.Option("--out", help="Folder for report.md, results.json, queries.csv, plots."),
     ] = None,
+    cluster: ClusterOption = None,
     json: JsonOption = False,
 ) -> None:
-    """Appearance-only loop detection per stage: recall at 100%/99% precision, AP, recall@K."""
-    from evaluation.loop_bench import parse_stages, run_loop_bench
+    """Appearance-only loop detection per stage: recall at 100%/99% precision, AP, recall@K.
+
+    With ``--cluster`` every stage block (the cascade, each NAME-alone row) is one Dask
+    task (the same rows; only the seconds differ).
+    """
+    from evaluation.cluster import parse_cluster
+    from evaluation.loop_bench import loop_benchmark, parse_stages
+    from evaluation.loop_bench_input import LoopSource
     from evaluation.loop_bench_report import json_document, summary_lines, table_rows
     from slam.config import PipelineConfig
     from slam.config_io import apply_overrides, load_config
 
+    parse_cluster(cluster)  # a bad --cluster fails before any work
     given = [relations is not None, reference is not None, reference_from_log]
     if sum(given) > 1:
         raise UserError("give one of --relations, --reference and --reference-from-log")
@@ -147,36 +116,21 @@ def loops(
     cfg = load_config(PipelineConfig, config) if config else PipelineConfig()
     cfg = apply_overrides(cfg, overrides or [])
     rows = parse_stages(stages, cfg)
+    source = LoopSource(
+        str(input) if input is not None else None, world=world, seed=seed, limit=limit,
+        odometry_noise=odometry_noise, topic=topic,
+        relations=str(relations) if relations is not None else None,
+        reference=str(reference) if reference is not None else None,
+        reference_from_log=reference_from_log, folder=str(Path.cwd()),
+    )
+    run = dict(stages=rows, max_queries=max_queries, min_coverage=min_coverage, source=source)
     with stage_progress(label_width=8, remaining=True) as update:
-        if input is None:
-            from data.sim import simulate_run
-            from data.sim.run import check_world
-            from slam.cli.run_command import DEMO_SENSOR
-
-            name = check_world(world or "box")
-            run = simulate_run(name, seed=seed, **DEMO_SENSOR)
-            truth = run.ground_truth.xytheta()
-            scans: list[Any] = run.scans[:limit] if limit else run.scans
-            label = f"simulated {name} world (seed {seed})"
-
-            def ref_fn(result: Any) -> np.ndarray:
-                return truth[[k.scan_index for k in result.keyframes]]
-        else:
-            from data.trajectory_io import read_tum
-            from evaluation.slam_input import load_input
-            from evaluation.slam_reference import logged_reference
-
-            data = load_input(input, limit=limit, odometry_noise=odometry_noise, topic=topic,
-                              progress=update)
-            scans, label = data.scans, str(input)
-            if relations is not None:
-                ref_fn = _relations_fn(data, relations)
-            elif reference is not None:
-                ref_fn = _trajectory_fn(data, read_tum(reference))
-            else:
-                ref_fn = _trajectory_fn(data, logged_reference(data))
-        bench = run_loop_bench(label, scans, cfg, ref_fn, stages=rows, max_queries=max_queries,
-                               min_coverage=min_coverage, progress=update)
+        inp = source.open(progress=update)
+        if cluster is None:
+            bench = loop_benchmark(inp, cfg, progress=update, **run)
+    if cluster is not None:
+        bench = loop_benchmark(inp, cfg, cluster=cluster, **run)
+    label = inp.label
     paths: dict[str, Path] = {}
     if out is not None:
         from evaluation.loop_bench_report import write_outputs

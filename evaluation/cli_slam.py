@@ -6,6 +6,7 @@ by `evaluation.cli`).  Contract::
     loopclosure bench slam INPUT [--relations FILE] [--reference TUM | --reference-from-log]
         [--methods pipeline,wheel,kiss-icp] [--config FILE] [--set key=value ...]
         [--odometry-noise SEED] [--limit N] [--out DIR] [--json] [--no-map]
+        [--cluster ADDRESS]
 
 The runner and every measure are in `evaluation.slam_benchmark` (read its docstring
 for the protocol), the table and the output folder in `evaluation.slam_report`.  The
@@ -13,8 +14,10 @@ terminal gets one table, one column per method; ``--json`` prints one JSON objec
 ``{"input", "scans", "methods": [{"method", "wall_s", "ms_per_scan", "relations",
 "ate", "loops", ...}], ...}``.  ``--out DIR`` writes ``report.md``, ``results.json``,
 ``trajectories.png``, ``<method>.tum`` and the pipeline's usual outputs in
-``DIR/pipeline/``.  Progress bars go to stderr.  Bad input raises `UserError` /
-`DataError` (one ``error:`` line, exit 2).
+``DIR/pipeline/``.  ``--cluster`` (`evaluation.cluster`) runs each method on the log as
+one Dask task (the unit of work: one method on one log), the workers reading the log
+and writing their files themselves; the table is the same.  Progress bars go to
+stderr.  Bad input raises `UserError` / `DataError` (one ``error:`` line, exit 2).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from evaluation.cli_options import (
     TopicOption,
     print_table,
 )
+from evaluation.cluster import ClusterOption
 from slam.cli.common import stage_progress
 
 
@@ -65,15 +69,18 @@ def slam(
     no_map: Annotated[
         bool, typer.Option("--no-map", help="Skip the pipeline's occupancy map in --out.")
     ] = False,
+    cluster: ClusterOption = None,
     json: JsonOption = False,
 ) -> None:
-    """Our pipeline, wheel odometry and KISS-ICP on one log: relations error, ATE, time, loops."""
-    from data.relations import read_relations
-    from data.trajectory_io import read_tum
-    from evaluation.slam_benchmark import run_slam_benchmark
-    from evaluation.slam_input import load_input, warn_without_odometry
+    """Our pipeline, wheel odometry and KISS-ICP on one log: relations error, ATE, time, loops.
+
+    With ``--cluster`` every method is one Dask task (the same table; only the seconds
+    differ).
+    """
+    from evaluation.cluster import parse_cluster
+    from evaluation.slam_benchmark import SlamSource, benchmark
+    from evaluation.slam_input import warn_without_odometry
     from evaluation.slam_methods import parse_methods
-    from evaluation.slam_reference import logged_reference
     from evaluation.slam_report import json_document, summary_lines, table_rows, write_outputs
     from slam.cli.common import print_json
     from slam.config import PipelineConfig
@@ -81,6 +88,7 @@ def slam(
     from slam.odometry import FRONT_ENDS
 
     names = parse_methods(methods)
+    parse_cluster(cluster)  # a bad --cluster fails before the log is read
     if reference is not None and reference_from_log:
         raise UserError("give either --reference FILE or --reference-from-log, not both")
     if out is not None:
@@ -89,21 +97,24 @@ def slam(
     cfg = apply_overrides(cfg, overrides or [])
     if cfg.odometry not in FRONT_ENDS:
         raise UserError(f"unknown odometry {cfg.odometry!r}; choose {', '.join(FRONT_ENDS)}")
-    rels = read_relations(relations) if relations is not None else None
-    ref = read_tum(reference) if reference is not None else None
+    source = SlamSource(
+        str(input), limit=limit, odometry_noise=odometry_noise, topic=topic,
+        odom_topic=odom_topic, strict=strict,
+        relations=str(relations) if relations is not None else None,
+        reference=str(reference) if reference is not None else None,
+        reference_from_log=reference_from_log, folder=str(Path.cwd()),
+    )
+    if cluster is not None and out is not None:
+        out = out.resolve()  # the workers write into it from their own folders
+    run = dict(source=source, out=out, write_map=not no_map)
     with stage_progress("scans", label_width=9, remaining=True) as update:
-        data = load_input(input, limit=limit, odometry_noise=odometry_noise, topic=topic,
-                          odom_topic=odom_topic, strict=strict, progress=update)
-        ref_name = str(reference) if reference is not None else None
-        if reference_from_log:
-            ref, ref_name = logged_reference(data), "logged poses"
-        warn_without_odometry(data, names)
-        bench = run_slam_benchmark(
-            data, names, cfg, relations=rels,
-            relations_file=str(relations) if relations is not None else None,
-            reference=ref, reference_name=ref_name, progress=update,
-        )
-    paths = write_outputs(bench, out, write_map=not no_map) if out is not None else {}
+        context = source.open(progress=update)
+        warn_without_odometry(context.data, names)
+        if cluster is None:
+            bench = benchmark(context, names, cfg, progress=update, **run)
+    if cluster is not None:
+        bench = benchmark(context, names, cfg, cluster=cluster, **run)
+    paths = write_outputs(bench) if out is not None else {}
     if json:
         doc = json_document(bench)
         if paths:

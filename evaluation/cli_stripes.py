@@ -3,11 +3,15 @@
 ``register(bench)`` adds both commands to the ``bench`` command group (wired in by
 `evaluation.cli`).  Bad input raises `data.errors.UserError` / `DataError`, which the
 entry point prints as one ``error:`` line with exit status 2.  Progress bars go to
-stderr, results to stdout (``--json``: one JSON document).
+stderr, results to stdout (``--json``: one JSON document).  ``--cluster``
+(`evaluation.cluster`) runs each matcher of ``bench stripes`` (the unit of work: one
+matcher on the scanned set) and each seed of ``bench landmarks`` as one Dask task,
+the workers building their inputs themselves; the figures are the same.
 """
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Annotated
 
@@ -15,7 +19,18 @@ import typer
 
 from data.atomic_write import output_dir
 from data.errors import UserError
+from evaluation.cluster import ClusterOption
 from slam.cli.common import stage_progress
+
+
+def _no_progress(stage: str, done: int, total: int) -> None:
+    return None
+
+
+def _bars(cluster: str | None):
+    """The stage bars, or none with a cluster (the engine shows its bar over the tasks:
+    one live display at a time)."""
+    return stage_progress() if cluster is None else nullcontext(_no_progress)
 
 
 def _names(text: str | None) -> tuple[str, ...] | None:
@@ -86,16 +101,23 @@ def stripes(
     out: Annotated[
         Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
     ] = None,
+    cluster: ClusterOption = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """The stripes paper's Table I / II, Bull's eye and timing, with silhouette baselines."""
+    """The stripes paper's Table I / II, Bull's eye and timing, with silhouette baselines.
+
+    With ``--cluster`` every matcher is one Dask task (the same figures; only the seconds
+    differ).
+    """
     from dataclasses import replace
 
     from data.stripe_scanner import DAILY_CLASSES, ScannerConfig
     from data.stripe_scanner.meshes import check_conventions
+    from evaluation.cluster import parse_cluster
     from evaluation.stripes_benchmark import (
         PAPER_TABLE_I,
         StripesBenchmarkConfig,
+        StripesSource,
         baseline_matcher,
         run_stripes_benchmark,
     )
@@ -104,6 +126,7 @@ def stripes(
     from loopclosure.stripes import DescriptorConfig
     from slam.cli.common import print_json
 
+    parse_cluster(cluster)  # a bad --cluster fails before any work
     if (dataset is None) == (meshes is None):
         raise UserError("give exactly one of --dataset daily-sim or --meshes DIR")
     if dataset is not None and dataset != "daily-sim":
@@ -142,11 +165,16 @@ def stripes(
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)
+        source = StripesSource(daily=False, meshes=str(meshes), units=units, up=up_axis,
+                               labels=str(labels) if labels is not None else None,
+                               folder=str(Path.cwd()))
     else:
         chosen = _names(classes) or DAILY_CLASSES
         objects = daily_objects(seed, per_class, chosen)
-    with stage_progress() as progress:
-        result = run_stripes_benchmark(objects, cfg, progress)
+        source = StripesSource(daily=True, seed=seed, per_class=per_class,
+                               classes=_names(classes))
+    with _bars(cluster) as progress:
+        result = run_stripes_benchmark(objects, cfg, progress, source=source, cluster=cluster)
     paths = write_stripes_report(result, out) if out is not None else {}
     js = result.to_json()
     if paths:
@@ -174,44 +202,82 @@ def stripes(
         typer.echo(f"  report: {paths['report']}")
 
 
+def _seed_list(seed: int, seeds: str | None) -> list[int]:
+    if seeds is None:
+        values = [seed]
+    else:
+        try:
+            values = [int(v) for v in seeds.split(",") if v.strip()]
+        except ValueError:
+            raise UserError(f"--seeds must be comma-separated integers, got {seeds!r}") from None
+        if not values:
+            raise UserError("--seeds needs at least one seed")
+    for v in values:
+        if v < 0:
+            raise UserError(f"--seed must be non-negative, got {v}")
+    return list(dict.fromkeys(values))
+
+
+def _precision_text(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
 def landmarks(
     seed: Annotated[int, typer.Option("--seed", help="Seed of world, motion and noise.")] = 0,
+    seeds: Annotated[
+        str | None,
+        typer.Option("--seeds", help="Several seeds, comma-separated (one run each; "
+                     "with --out one subfolder seed-N each)."),
+    ] = None,
     laps: Annotated[float, typer.Option("--laps", help="Laps of the figure-eight route.")] = 2.0,
     out: Annotated[
         Path | None, typer.Option("--out", help="Write report.md, results.json, PNGs here.")
     ] = None,
+    cluster: ClusterOption = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
-    """Recognised objects as landmarks: recognition precision and ATE with / without them."""
-    from evaluation.landmarks_benchmark import run_landmarks_benchmark, write_landmarks_report
+    """Recognised objects as landmarks: recognition precision and ATE with / without them.
+
+    With ``--cluster`` every seed is one Dask task (the same figures; only the seconds
+    differ).  ``--seeds 0,1,2`` runs several seeds (``--json``: ``{"runs": [...]}``).
+    """
+    from evaluation.cluster import parse_cluster
+    from evaluation.landmarks_benchmark import LandmarksCell, run_landmarks_cells
     from slam.cli.common import print_json
+    from slam.json_io import write_json
     from slam.landmarks import LandmarkRunConfig
 
-    if seed < 0:
-        raise UserError(f"--seed must be non-negative, got {seed}")
+    parse_cluster(cluster)  # a bad --cluster fails before any work
+    chosen = _seed_list(seed, seeds)
     if not laps > 0:
         raise UserError(f"--laps must be positive, got {laps}")
     if out is not None:
         output_dir(out)  # a bad --out fails now, not after the runs
+        if cluster is not None:
+            out = out.resolve()  # the workers write into it from their own folders
     cfg = LandmarkRunConfig(laps=laps)
-    with stage_progress() as progress:
-        result = run_landmarks_benchmark(seed, cfg, progress)
-    paths = write_landmarks_report(result, out) if out is not None else {}
-    js = result.to_json()
-    if paths:
-        js["outputs"] = {k: str(v) for k, v in paths.items()}
+    many = seeds is not None
+    folders = [None if out is None else str(out / f"seed-{s}" if many else out) for s in chosen]
+    cells = [LandmarksCell(s, cfg, f) for s, f in zip(chosen, folders, strict=True)]
+    with _bars(cluster) as progress:
+        docs = run_landmarks_cells(cells, cluster=cluster, progress=progress)
+    doc = {"runs": docs} if many else docs[0]
+    if many and out is not None:
+        doc["outputs"] = {"results": str(write_json(out / "results.json", doc))}
     if json:
-        print_json(js)
+        print_json(doc)
         return
-    typer.echo(
-        f"landmarks (seed {seed}): {js['clusters']} object clusters, {js['recognitions']} "
-        f"recognitions, precision {js['recognition_precision']:.3f}, recall "
-        f"{js['recognition_recall']:.3f}, {js['landmarks']} landmarks"
-    )
-    typer.echo(f"  ATE without landmarks {js['ate_without_m']:.3f} m, with landmarks "
-               f"{js['ate_with_m']:.3f} m")
-    if paths:
-        typer.echo(f"  report: {paths['report']}")
+    for js in docs:
+        typer.echo(
+            f"landmarks (seed {js['seed']}): {js['clusters']} object clusters, "
+            f"{js['recognitions']} recognitions, precision "
+            f"{_precision_text(js['recognition_precision'])}, recall "
+            f"{js['recognition_recall']:.3f}, {js['landmarks']} landmarks"
+        )
+        typer.echo(f"  ATE without landmarks {js['ate_without_m']:.3f} m, with landmarks "
+                   f"{js['ate_with_m']:.3f} m")
+        if "outputs" in js:
+            typer.echo(f"  report: {js['outputs']['report']}")
 
 
 def register(bench: typer.Typer) -> None:

@@ -16,6 +16,12 @@ ground truth:
 - landmark position errors (estimate vs true object centre, both after the ATE
   alignment of the with-landmarks trajectory) and observation errors (measured
   range / bearing vs those of the true centre from the true keyframe pose).
+
+Unit of work: one seed is one task (`LandmarksCell`, run by `landmarks_task`): the
+experiment is simulated from its seed and configuration in the process that runs
+it, which writes that seed's report when asked and returns its JSON figures.
+`run_landmarks_cells` runs the seeds here in order or on a Dask cluster
+(`evaluation.cluster`); the figures are the same either way, only the seconds differ.
 """
 
 from __future__ import annotations
@@ -151,6 +157,61 @@ class LandmarksBenchmarkResult:
                             "iterations": res.with_landmarks.iterations},
             "config": res.config.to_json(),
         }
+
+
+@dataclass(frozen=True, slots=True)
+class LandmarksCell:
+    """One task: the experiment for `seed` with `config`, its report written into
+    `out` (`write_landmarks_report`) when given."""
+
+    seed: int
+    config: LandmarkRunConfig
+    out: str | None = None
+
+
+_PROGRESS: list[Callable[[str, int, int], None]] = []
+"""The progress callback of the cells run in this process (none on a worker)."""
+
+
+def landmarks_task(cell: LandmarksCell) -> dict[str, Any]:
+    """One seed (`LandmarksCell`): its JSON figures (`LandmarksBenchmarkResult.to_json`),
+    with ``outputs`` (the files written) when it has an output folder."""
+    bench = run_landmarks_benchmark(cell.seed, cell.config, _PROGRESS[-1] if _PROGRESS else None)
+    js = bench.to_json()
+    if cell.out is not None:
+        js["outputs"] = {k: str(v) for k, v in write_landmarks_report(bench, cell.out).items()}
+    return js
+
+
+def run_landmarks_cells(
+    cells: list[LandmarksCell],
+    *,
+    cluster: str | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Every cell's figures, in order, here (with `progress`) or on `cluster`.
+
+    Raises:
+        UserError: a cell failed (its seed and error line).
+    """
+    from data.errors import UserError
+    from evaluation.cluster import map_tasks
+
+    if progress is not None:
+        _PROGRESS.append(progress)
+    try:
+        docs = []
+        for o in map_tasks(landmarks_task, cells, cluster=cluster, retries=0,
+                           description="bench landmarks", progress=cluster is not None):
+            if o.status == "interrupted":
+                raise KeyboardInterrupt
+            if o.status != "done":
+                raise UserError(f"bench landmarks, seed {o.item.seed}: {o.error}")
+            docs.append(o.value)
+    finally:
+        if progress is not None:
+            _PROGRESS.pop()
+    return docs
 
 
 def run_landmarks_benchmark(

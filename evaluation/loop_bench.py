@@ -56,12 +56,25 @@ fusion, headings); final = fused + the geometric check; ``-alone`` rows = the ma
 over every database keyframe.  The database's occasional re-estimate of its
 normalisation scales (O(log M) times in a run) is left out of every row's time.
 Database size = keyframes each query searched.
+
+Unit of work
+------------
+One stage block on one log is one task (`LoopTask`, run by `loop_task`;
+`stage_blocks`): the cascade (every row but the ``-alone`` ones, and the final check,
+which come out of one database query per keyframe), and each ``-alone`` row on its
+own.  Each block maps the log (step 1) in the process it runs in, once per process
+(the blocks run here share one mapping), so its keyframes are those of every other
+block; it returns its rows (a `LoopBlock`), and the table is assembled from the
+blocks in row order.  With ``cluster`` (`evaluation.cluster`) the workers read the
+input themselves from a `LoopSource` (the same paths on every node of a real
+cluster); the rows equal the serial ones, only the seconds differ.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -70,6 +83,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
+from evaluation.loop_bench_input import LoopInput, LoopSource
 from evaluation.loop_bench_truth import (
     PRCurve,
     pose_correct,
@@ -269,43 +283,177 @@ def run_loop_bench(
     tolerances: Tolerances | None = None,
     progress: Progress = _no_progress,
 ) -> LoopBench:
-    """Map `scans`, then query every keyframe's place with no pose prior (module docstring).
+    """Map `scans`, then query every keyframe's place with no pose prior (module docstring),
+    here, one stage block after the other (`loop_benchmark`).
 
     Raises:
         UserError: fewer than two keyframes, or a reference covering less than
             `min_coverage` of them (the message gives the coverage).
     """
+    return loop_benchmark(LoopInput(name, scans, reference), config, stages=stages,
+                          max_queries=max_queries, min_coverage=min_coverage,
+                          timing_every=timing_every, tolerances=tolerances, progress=progress)
+
+
+def stage_blocks(rows: Sequence[str]) -> list[tuple[tuple[str, ...], bool]]:
+    """The units of work of `rows`: ``(rows, cascade)`` blocks.
+
+    The first block is the cascade (every row but the ``-alone`` ones, and the final
+    check: they come out of one database query), then one block per ``-alone`` row
+    (a matcher over the whole database, the costliest rows).
+    """
+    alone = [r for r in rows if r.endswith(ALONE)]
+    return [(tuple(r for r in rows if r not in alone), True), *(((r,), False) for r in alone)]
+
+
+@dataclass(frozen=True, slots=True)
+class LoopTask:
+    """One stage block (`stage_blocks`) of the benchmark on the input `source` names (a
+    `LoopSource`, or the key of an input held in this process's memory)."""
+
+    source: LoopSource | str
+    config: PipelineConfig
+    rows: tuple[str, ...]
+    cascade: bool
+    max_queries: int | None
+    min_coverage: float
+    timing_every: int
+    tolerances: Tolerances
+
+
+@dataclass(slots=True)
+class LoopBlock:
+    """What one `LoopTask` returns: its rows, its query seconds and, for the cascade
+    block, the whole `LoopBench` of its rows (queries, final check, recall@K)."""
+
+    stages: dict[str, StageResult]
+    query_s: float
+    bench: LoopBench | None = None
+
+
+_INPUTS: dict[LoopSource | str, tuple[LoopInput, Progress]] = {}
+"""The inputs this process holds, by the `LoopTask.source` that names them."""
+_MAPPED: dict[tuple[Any, str], tuple[_RecordingMapper, MappingResult, float]] = {}
+"""The mapping of each input here (source, config), shared by its blocks."""
+
+
+def loop_benchmark(
+    inp: LoopInput,
+    config: PipelineConfig,
+    *,
+    stages: Sequence[str] | None = None,
+    max_queries: int | None = None,
+    min_coverage: float = 0.5,
+    timing_every: int = 10,
+    tolerances: Tolerances | None = None,
+    progress: Progress = _no_progress,
+    source: LoopSource | None = None,
+    cluster: str | None = None,
+) -> LoopBench:
+    """The benchmark of `inp`, one `LoopTask` per stage block (`stage_blocks`).
+
+    Without `cluster` the blocks run here, on `inp`, sharing one mapping; with it (an
+    `evaluation.cluster` address) on Dask, each worker reading `source` (the source
+    `inp` was opened from: required) and mapping it once.  The rows are the same
+    either way; only the seconds differ.
+    """
+    from evaluation.cluster import map_tasks
+
+    if cluster is not None and source is None:
+        raise UserError("a cluster run needs the input as a LoopSource, not scans in memory")
+    _query_plan(1, max_queries)  # a bad --max-queries fails before the mapping
     tol = tolerances or Tolerances()
     rows = list(stages) if stages is not None else default_stages(config)
-    start = time.perf_counter()
-    mapper = _RecordingMapper(bench_config(config))
-    total = len(scans)
+    key: LoopSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
+    tasks = [LoopTask(key, config, block, cascade, max_queries, min_coverage, timing_every, tol)
+             for block, cascade in stage_blocks(rows)]
+    _INPUTS[key] = (inp, progress)
+    try:
+        blocks = [_block(o) for o in map_tasks(loop_task, tasks, cluster=cluster, retries=0,
+                                               description="bench loops",
+                                               progress=cluster is not None)]
+    finally:
+        _INPUTS.pop(key, None)
+        for mapped in [m for m in _MAPPED if m[0] == key]:
+            del _MAPPED[mapped]
+    bench = blocks[0].bench
+    found = {name: stage for b in blocks for name, stage in b.stages.items()}
+    bench.stages = {r: found[r] for r in rows}
+    bench.wall_s = {"mapping": bench.wall_s["mapping"],
+                    "queries": sum(b.query_s for b in blocks)}
+    return bench
 
-    def mapped(n: int, keyframes: int, loops: int) -> None:
-        if n % 20 == 0 or n == total:
-            progress("mapping", n, total)
 
-    result = mapper.run(scans, progress=mapped)
-    map_s = time.perf_counter() - start
+def _block(outcome: Any) -> LoopBlock:
+    if outcome.status == "interrupted":
+        raise KeyboardInterrupt
+    if outcome.status != "done":
+        raise UserError(f"bench loops, {', '.join(outcome.item.rows) or 'final'}: "
+                        f"{outcome.error}")
+    return outcome.value
+
+
+def _input_of(source: LoopSource | str) -> tuple[LoopInput, Progress]:
+    """The input `source` names: held here already, or read now (once per process)."""
+    if source not in _INPUTS:
+        if not isinstance(source, LoopSource):
+            raise UserError("bench loops: this worker does not hold the scans in memory; "
+                            "give the input as a LoopSource")
+        _INPUTS.clear()  # a worker holds one input at a time
+        _INPUTS[source] = (source.open(), _no_progress)
+    return _INPUTS[source]
+
+
+def _mapping(
+    source: Any, inp: LoopInput, config: PipelineConfig, progress: Progress
+) -> tuple[_RecordingMapper, MappingResult, float]:
+    """`inp` mapped with the loop searches off (protocol step 1), once per process."""
+    key = (source, repr(config))
+    if key not in _MAPPED:
+        start = time.perf_counter()
+        mapper = _RecordingMapper(bench_config(config))
+        total = len(inp.scans)
+
+        def mapped(n: int, keyframes: int, loops: int) -> None:
+            if n % 20 == 0 or n == total:
+                progress("mapping", n, total)
+
+        result = mapper.run(inp.scans, progress=mapped)
+        _MAPPED.clear()  # a process holds one mapping at a time
+        _MAPPED[key] = (mapper, result, time.perf_counter() - start)
+    return _MAPPED[key]
+
+
+def loop_task(task: LoopTask) -> LoopBlock:
+    """One stage block (`LoopTask`): the input mapped (once per process), its queries
+    and their truth; a `LoopBlock`."""
+    inp, progress = _input_of(task.source)
+    mapper, result, map_s = _mapping(task.source, inp, task.config, progress)
     n_kf = len(result.keyframes)
     if n_kf < 2:
-        raise UserError(f"{name}: {n_kf} keyframe(s) mapped; the benchmark needs at least 2")
-    ref = np.asarray(reference(result), float).reshape(n_kf, 3)
+        raise UserError(f"{inp.label}: {n_kf} keyframe(s) mapped; the benchmark needs at "
+                        "least 2")
+    ref = np.asarray(inp.reference(result), float).reshape(n_kf, 3)
     covered = np.isfinite(ref).all(axis=1)
-    if covered.sum() < max(2, min_coverage * n_kf):
+    if covered.sum() < max(2, task.min_coverage * n_kf):
         raise UserError(
-            f"{name}: the reference covers {int(covered.sum())} of {n_kf} keyframes "
+            f"{inp.label}: the reference covers {int(covered.sum())} of {n_kf} keyframes "
             f"({100 * covered.mean():.1f}%); the benchmark needs at least "
-            f"{100 * min_coverage:.0f}%"
+            f"{100 * task.min_coverage:.0f}%"
         )
+    tol = task.tolerances
     start = time.perf_counter()
     poses = np.array([result.keyframe_poses[kf.id] for kf in result.keyframes], float)
-    raw = _query_all(mapper, ref, covered, poses, rows, _query_plan(n_kf, max_queries),
-                     timing_every, tol.max_distance, progress)
+    raw = _query_all(mapper, ref, covered, poses, task.rows,
+                     _query_plan(n_kf, task.max_queries), task.timing_every, tol.max_distance,
+                     progress, cascade=task.cascade,
+                     label="queries" if task.cascade else task.rows[0])
     query_s = time.perf_counter() - start
-    bench = _evaluate(name, raw, ref, covered, rows, tol, result, config)
+    if not task.cascade:
+        return LoopBlock(_stage_results(raw, ref, task.rows, tol), query_s)
+    bench = _evaluate(inp.label, raw, ref, covered, task.rows, tol, result, task.config)
     bench.wall_s = {"mapping": map_s, "queries": query_s}
-    return bench
+    return LoopBlock(bench.stages, query_s, bench)
 
 
 @dataclass(slots=True)
@@ -343,8 +491,13 @@ def _query_all(
     timing_every: int,
     radius: float,
     progress: Progress,
+    cascade: bool = True,
+    label: str = "queries",
 ) -> _Raw:
-    """Every planned, covered keyframe queries the database of its older keyframes."""
+    """Every planned, covered keyframe queries the database of its older keyframes.
+
+    `cascade`: the rows of the cascade and the final check are computed (else only
+    the ``-alone`` rows of `rows`)."""
     detector = mapper.detector
     source = detector.database
     cfg = source.config
@@ -369,23 +522,24 @@ def _query_all(
             continue
         done += 1
         if done % 10 == 0 or done == n_plan:
-            progress("queries", done, n_plan)
+            progress(label, done, n_plan)
         eligible = detector.eligible(k)
         older = keys < k
         mask = np.zeros(len(keys), bool)
         mask[older] = eligible[keys[older]] & covered[keys[older]]
-        _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, poses, rows, alone,
-                   stacks, timing_every, radius, kmax)
+        _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, poses, alone, stacks,
+                   timing_every, radius, kmax, cascade)
     return out
 
 
 def _one_query(
     out: _Raw, k: int, desc: dict[str, Any] | None, db: PlaceDatabase, detector: Any,
     mapper: _RecordingMapper, keys: NDArray[np.intp], mask: NDArray[np.bool_], ref: Array,
-    poses: Array, rows: Sequence[str], alone: dict[str, str], stacks: dict[str, Any],
-    timing_every: int, radius: float, kmax: int,
+    poses: Array, alone: dict[str, str], stacks: dict[str, Any],
+    timing_every: int, radius: float, kmax: int, cascade: bool,
 ) -> None:
-    """One query's proposals of every row (module docstring), appended to `out`."""
+    """One query's proposals of every row (module docstring), appended to `out`; only
+    the ``-alone`` rows unless `cascade`."""
     cfg = db.config
     sel = np.flatnonzero(mask)
     out.keys.append(k)
@@ -395,8 +549,11 @@ def _one_query(
     none = (-1, -np.inf)
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     if len(sel) == 0 or desc is None:  # empty database / no descriptor: no candidate
-        for r in dict.fromkeys((*cfg.prefilter, "prefilter", *verifier_rows, *alone, "fused")):
+        cascade_rows = (*cfg.prefilter, "prefilter", *verifier_rows) if cascade else ()
+        for r in dict.fromkeys((*cascade_rows, *alone, *(["fused"] if cascade else []))):
             out.put(r, *none)
+        if not cascade:
+            return
         for r in (*cfg.prefilter, "prefilter"):
             out.hits.setdefault(r, []).append(np.zeros(kmax, bool))
         out.accepted.append(False)
@@ -405,6 +562,28 @@ def _one_query(
         out.relative.append(np.full(3, np.nan))
         out.reason.append("empty database" if desc is not None else "no descriptor")
         return
+    if cascade:
+        _cascade_rows(out, k, desc, db, detector, mapper, keys, sel, mask, near, poses,
+                      timing_every, kmax)
+    for r, m in alone.items():
+        sub = _take(stacks[r], sel)
+        t = time.perf_counter()
+        d = np.asarray(db.matchers[m].distances(desc[m], sub), float)
+        out.time(r, time.perf_counter() - t)
+        d = np.where(np.isfinite(d), d, np.inf)
+        j = int(np.argmin(d))
+        out.put(r, int(keys[sel[j]]), -float(d[j]))
+
+
+def _cascade_rows(
+    out: _Raw, k: int, desc: dict[str, Any], db: PlaceDatabase, detector: Any,
+    mapper: _RecordingMapper, keys: NDArray[np.intp], sel: NDArray[np.intp],
+    mask: NDArray[np.bool_], near: NDArray[np.bool_], poses: Array, timing_every: int,
+    kmax: int,
+) -> None:
+    """The prefilter, verifier, fused and final rows of one query with candidates."""
+    cfg = db.config
+    verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers
     t = time.perf_counter()
     combined, raw = db.prefilter_distances(desc, sel)
@@ -433,14 +612,6 @@ def _one_query(
             t = time.perf_counter()
             matcher.distances(desc[v], stacked)
             out.time(r, t_pre + time.perf_counter() - t)
-    for r, m in alone.items():
-        sub = _take(stacks[r], sel)
-        t = time.perf_counter()
-        d = np.asarray(db.matchers[m].distances(desc[m], sub), float)
-        out.time(r, time.perf_counter() - t)
-        d = np.where(np.isfinite(d), d, np.inf)
-        j = int(np.argmin(d))
-        out.put(r, int(keys[sel[j]]), -float(d[j]))
     t = time.perf_counter()
     checked = detector.verify_places(k, distinct_places(matches, detector.config.global_verify),
                                      poses, mapper.query_submaps.get(k))
@@ -453,16 +624,14 @@ def _one_query(
     out.reason.append(str(cand.reason))
 
 
-def _evaluate(
-    name: str, raw: _Raw, ref: Array, covered: NDArray[np.bool_], rows: Sequence[str],
-    tol: Tolerances, result: MappingResult, config: PipelineConfig,
-) -> LoopBench:
-    """Truth of every proposal, the curves and recall@K (`evaluation.loop_bench_truth`)."""
+def _stage_results(
+    raw: _Raw, ref: Array, rows: Sequence[str], tol: Tolerances
+) -> dict[str, StageResult]:
+    """The top-1 proposals of every row of `rows`, judged against `ref`."""
     q = np.asarray(raw.keys, np.intp)
-    has = np.asarray(raw.revisit, bool)
-    revisits = int(has.sum())
+    revisits = int(np.asarray(raw.revisit, bool).sum())
     stages: dict[str, StageResult] = {}
-    for r in [*rows]:
+    for r in rows:
         match = np.asarray(raw.match.get(r, []), np.intp)
         score = np.asarray(raw.score.get(r, []), float)
         ok = match >= 0
@@ -473,6 +642,18 @@ def _evaluate(
         secs = raw.seconds.get(r, [])
         stages[r] = StageResult(r, match, score, correct, pr_curve(score, correct, revisits),
                                 1e3 * float(np.mean(secs)) if secs else float("nan"))
+    return stages
+
+
+def _evaluate(
+    name: str, raw: _Raw, ref: Array, covered: NDArray[np.bool_], rows: Sequence[str],
+    tol: Tolerances, result: MappingResult, config: PipelineConfig,
+) -> LoopBench:
+    """Truth of every proposal, the curves and recall@K (`evaluation.loop_bench_truth`)."""
+    q = np.asarray(raw.keys, np.intp)
+    has = np.asarray(raw.revisit, bool)
+    revisits = int(has.sum())
+    stages = _stage_results(raw, ref, rows, tol)
     match = np.asarray(raw.final_match, np.intp)
     accepted = np.asarray(raw.accepted, bool)
     relative = np.asarray(raw.relative, float).reshape(-1, 3)

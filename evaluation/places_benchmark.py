@@ -18,6 +18,10 @@ Protocol, per method (a matcher name of `loopclosure.matchers`, or ``cascade``):
    (As with any non-fork start method, a script that calls this with
    ``workers > 1`` must guard its entry point with ``if __name__ == "__main__"``;
    the ``loopclosure`` console script does.)
+   Otherwise the matrix is computed as independent tasks, one block of rows of
+   one matcher on one data set each (`evaluation.places_matrix.matrix_by_blocks`),
+   in this process or, with ``cluster``, on a Dask cluster whose workers load the
+   data set themselves: the same matrix, bit for bit.
 3. **Measures** (`evaluation.retrieval`), as the paper defines them: Bull's eye
    [%] (2n nearest, n = class size, the query itself counted as in the MPEG-7
    convention), area under the ROC curve of the pair decision "same place" by
@@ -52,7 +56,6 @@ for each data-set column, then the times), ``roc_<set>.png`` and ``pr_<set>.png`
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -62,10 +65,16 @@ from numpy.typing import NDArray
 
 from data.errors import UserError, warn
 from evaluation.place_datasets import PlaceSet
-from evaluation.places_matrix import all_pairs_matrix, single_compare_ms
+from evaluation.places_matrix import (
+    BlockFailed,
+    PlaceSource,
+    all_pairs_matrix,
+    describe_all,
+    matrix_by_blocks,
+    single_compare_ms,
+)
 from evaluation.places_methods import build_matcher, method_overrides
 from evaluation.retrieval import best_fscore, bullseye, roc_auc
-from loopclosure.matchers import Matcher
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -150,10 +159,19 @@ def run_places(
     workers: int = 1,
     seed: int = 0,
     progress: Progress | None = None,
+    source: PlaceSource | None = None,
+    cluster: str | None = None,
 ) -> PlacesResult:
-    """Every method of `methods` on one data set; unavailable/failed ones are recorded."""
+    """Every method of `methods` on one data set; unavailable/failed ones are recorded.
+
+    `cluster` (an `evaluation.cluster` address; not with ``workers > 1``): the blocks
+    of rows of every matrix run on Dask, the workers loading `source` (the data set
+    `places` was loaded from).
+    """
     if workers < 1:
         raise UserError(f"--workers must be at least 1, got {workers}")
+    if cluster is not None and workers > 1:
+        raise UserError("give either --workers N (a local process pool) or --cluster, not both")
     polygons, labels, description = places
     scale_invariant = bool(description.get("scale_invariant", False))
     results: dict[str, MethodResult] = {}
@@ -170,7 +188,10 @@ def run_places(
             notes.append(note)
         try:
             results[name] = run_method(name, polygons, labels, overrides=overrides,
-                                       workers=workers, seed=seed, progress=progress)
+                                       workers=workers, seed=seed, progress=progress,
+                                       source=source, cluster=cluster)
+        except BlockFailed as exc:  # its message is the error line already
+            failed[name] = str(exc)
         except Exception as exc:  # a matcher's bug must not lose the other methods
             failed[name] = f"{type(exc).__name__}: {exc}"
     _warn_missing(unavailable, failed)
@@ -199,38 +220,36 @@ def run_method(
     workers: int = 1,
     seed: int = 0,
     progress: Progress | None = None,
+    source: PlaceSource | None = None,
+    cluster: str | None = None,
 ) -> MethodResult:
     """Describe, all-pairs matrix, measures and CPU times of one method (module docstring).
 
-    Raises whatever the matcher raises; `ValueError` when a distance is not finite.
+    With ``workers > 1`` the shapes are described here and the rows computed by a
+    local process pool; otherwise the matrix is one task per block of rows
+    (`evaluation.places_matrix.matrix_by_blocks`), here or on `cluster`.
+
+    Raises whatever the matcher raises (`BlockFailed` with its error line from a
+    block); `ValueError` when a distance is not finite.
     """
     progress = progress or _noop
     overrides = dict(overrides or {})
-    matcher = build_matcher(name, overrides)
-    descriptors, describe_s = _describe_all(name, matcher, polygons, progress)
-    d, compare_s = all_pairs_matrix(name, matcher, overrides, descriptors, workers, progress,
-                                    f"{name}: all pairs")
+    if workers > 1:
+        matcher = build_matcher(name, overrides)
+        descriptors, describe_s = describe_all(name, matcher, polygons, progress)
+        d, compare_s = all_pairs_matrix(name, matcher, overrides, descriptors, workers,
+                                        progress, f"{name}: all pairs")
+        single = None
+    else:
+        d, describe_s, compare_s, single = matrix_by_blocks(
+            name, overrides, polygons, seed=seed, progress=progress, source=source,
+            cluster=cluster)
     bad = int((~np.isfinite(d)).sum())
     if bad:  # a matcher's bug, reported as the method's failure
         raise ValueError(f"{bad} of {d.size} distances are not finite")
-    single = single_compare_ms(matcher, descriptors, seed)
+    if single is None:
+        single = single_compare_ms(matcher, descriptors, seed)
     return _measures(name, d, labels, describe_s, compare_s, single, overrides)
-
-
-def _describe_all(
-    name: str, matcher: Matcher, polygons: Sequence[Polygon], progress: Progress
-) -> tuple[list[Any], float]:
-    """Every polygon's descriptor and the CPU seconds of describing them all."""
-    m = len(polygons)
-    descriptors: list[Any] = []
-    describe_s = 0.0
-    step = max(1, m // 20)
-    for start in range(0, m, step):  # timed in slices so the progress bar moves
-        t0 = time.process_time()
-        descriptors += [matcher.describe(p) for p in polygons[start:start + step]]
-        describe_s += time.process_time() - t0
-        progress(f"{name}: describe", len(descriptors), m)
-    return descriptors, describe_s
 
 
 def _measures(

@@ -13,6 +13,18 @@ with ``if __name__ == "__main__"``; the ``loopclosure`` console script does.)
 
 `single_compare_ms` times one unbatched ``distance(a, b)`` call, as the paper
 compared one pair at a time.
+
+Unit of work
+------------
+Without a process pool, the matrix is computed as independent tasks, one matcher x
+data set block of rows each (`RowBlock`, run by `block_task`): the process that runs
+a block describes every shape and stacks the descriptors once per matcher and data
+set (the blocks run here share that), computes its rows, and returns them with their
+CPU seconds (`BlockRows`); the block of row 0 also times the unbatched compares.
+`matrix_by_blocks` runs the blocks here in order, or on a Dask cluster
+(`evaluation.cluster`), where each worker loads the data set itself from a
+`PlaceSource`, and assembles the matrix: the same rows bit for bit, since every row
+is the same call on the same descriptors.
 """
 
 from __future__ import annotations
@@ -20,15 +32,20 @@ from __future__ import annotations
 import math
 import multiprocessing
 import time
-from collections.abc import Callable
+import uuid
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from data.errors import UserError
 from evaluation.places_methods import build_matcher
 from loopclosure.matchers import Matcher
+from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -143,3 +160,165 @@ def single_compare_ms(
     for a, b in zip(i, j, strict=True):  # deliberately unbatched: one pair at a time
         matcher.distance(descriptors[a], descriptors[b])
     return 1e3 * (time.process_time() - t0) / pairs
+
+
+def describe_all(
+    name: str, matcher: Matcher, polygons: Sequence[Polygon], progress: Progress
+) -> tuple[list[Any], float]:
+    """Every polygon's descriptor and the CPU seconds of describing them all."""
+    m = len(polygons)
+    descriptors: list[Any] = []
+    describe_s = 0.0
+    step = max(1, m // 20)
+    for start in range(0, m, step):  # timed in slices so the progress bar moves
+        t0 = time.process_time()
+        descriptors += [matcher.describe(p) for p in polygons[start:start + step]]
+        describe_s += time.process_time() - t0
+        progress(f"{name}: describe", len(descriptors), m)
+    return descriptors, describe_s
+
+
+BLOCKS_PER_MATRIX = 16
+"""Row blocks (tasks) the matrix of one matcher on one data set is split into."""
+
+
+@dataclass(frozen=True, slots=True)
+class PlaceSource:
+    """A data set as a worker loads it: `evaluation.place_datasets.load_dataset` of
+    `spec` with `seed`; a relative folder in `spec` is taken from `folder` (the
+    caller's working folder)."""
+
+    spec: str
+    seed: int = 0
+    folder: str = "."
+
+    def polygons(self) -> list[Polygon]:
+        from evaluation.place_datasets import load_dataset
+
+        kind, _, arg = self.spec.partition(":")
+        spec = f"{kind}:{Path(self.folder) / arg.strip()}" if arg.strip() else self.spec
+        return list(load_dataset(spec, seed=self.seed).polygons)
+
+
+@dataclass(frozen=True, slots=True)
+class RowBlock:
+    """One task: rows ``start:stop`` of the matrix of matcher `method` (built with
+    `overrides`) on the data set `source` names (a `PlaceSource`, or the key of a
+    set held in this process's memory); row 0's block also times single compares
+    (`single_compare_ms` with `seed`)."""
+
+    source: PlaceSource | str
+    method: str
+    overrides: dict[str, Any]
+    start: int
+    stop: int
+    size: int
+    seed: int = 0
+
+
+@dataclass(slots=True)
+class BlockRows:
+    """What one `RowBlock` returns: its rows ``(stop - start, M)``, their CPU seconds,
+    the CPU seconds of describing and stacking (once per process), and the single-
+    compare time [ms] (row 0's block only, else None)."""
+
+    start: int
+    rows: Array
+    cpu_s: float
+    describe_s: float
+    stack_s: float
+    single_ms: float | None
+
+
+class BlockFailed(Exception):
+    """A block of rows failed; the message is its error line."""
+
+
+_SETS: dict[PlaceSource | str, tuple[list[Polygon], Progress]] = {}
+"""The data sets this process holds, by the `RowBlock.source` that names them."""
+_DESCRIBED: dict[tuple[Any, str, str], tuple[Matcher, list[Any], float, Any, float]] = {}
+"""(matcher, descriptors, describe CPU s, stack, stack CPU s) per set and matcher."""
+
+
+def _no_progress(stage: str, done: int, total: int) -> None:
+    return None
+
+
+def _described(block: RowBlock) -> tuple[Matcher, list[Any], float, Any, float]:
+    """The matcher, descriptors and stack of `block`'s set, made once per process."""
+    key = (block.source, block.method, repr(sorted(block.overrides.items())))
+    if key not in _DESCRIBED:
+        if block.source not in _SETS:
+            if not isinstance(block.source, PlaceSource):
+                raise UserError("bench places: this worker does not hold the shapes in memory; "
+                                "give the data set as a PlaceSource")
+            _SETS.clear()  # a worker holds one data set at a time
+            _SETS[block.source] = (block.source.polygons(), _no_progress)
+        polygons, progress = _SETS[block.source]
+        matcher = build_matcher(block.method, dict(block.overrides))
+        descriptors, describe_s = describe_all(block.method, matcher, polygons, progress)
+        t0 = time.process_time()
+        stacked = matcher.stack(descriptors)
+        stack_s = time.process_time() - t0
+        _DESCRIBED.clear()  # one matcher at a time
+        _DESCRIBED[key] = (matcher, descriptors, describe_s, stacked, stack_s)
+    return _DESCRIBED[key]
+
+
+def block_task(block: RowBlock) -> BlockRows:
+    """One block of rows of the all-pairs matrix (`RowBlock`)."""
+    matcher, descriptors, describe_s, stacked, stack_s = _described(block)
+    m = len(descriptors)
+    rows = np.empty((block.stop - block.start, m))
+    t0 = time.process_time()
+    for n, i in enumerate(range(block.start, block.stop)):  # one batched query per row
+        rows[n] = matcher.distances(descriptors[i], stacked)
+    cpu = time.process_time() - t0
+    single = single_compare_ms(matcher, descriptors, block.seed) if block.start == 0 else None
+    if block.source in _SETS:
+        _SETS[block.source][1](f"{block.method}: all pairs", block.stop, m)
+    return BlockRows(block.start, rows, cpu, describe_s, stack_s, single)
+
+
+def matrix_by_blocks(
+    name: str, overrides: dict[str, Any], polygons: Sequence[Polygon], *, seed: int = 0,
+    progress: Progress = _no_progress, source: PlaceSource | None = None,
+    cluster: str | None = None,
+) -> tuple[Array, float, float, float]:
+    """The ``(M, M)`` matrix of matcher `name` on `polygons`, one `RowBlock` task per
+    block of rows, here or on `cluster` (whose workers load `source`: required).
+
+    Returns the matrix, the describe CPU seconds, the compare CPU seconds (stack once
+    plus every row) and the single-compare time [ms].  Raises `BlockFailed` when a
+    block fails (its error line).
+    """
+    from evaluation.cluster import map_tasks
+
+    if cluster is not None and source is None:
+        raise UserError("a cluster run needs the data set as a PlaceSource, not shapes in "
+                        "memory")
+    m = len(polygons)
+    key: PlaceSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
+    size = max(1, math.ceil(m / BLOCKS_PER_MATRIX))
+    blocks = [RowBlock(key, name, dict(overrides), a, min(a + size, m), m, seed)
+              for a in range(0, m, size)]
+    out = np.empty((m, m))
+    cpu = describe_s = stack_s = single = 0.0
+    _SETS[key] = (list(polygons), progress)
+    try:
+        for o in map_tasks(block_task, blocks, cluster=cluster, retries=0,
+                           description=f"{name}: all pairs", progress=cluster is not None):
+            if o.status == "interrupted":
+                raise KeyboardInterrupt
+            if o.status != "done":
+                raise BlockFailed(o.error)
+            rows: BlockRows = o.value
+            out[rows.start:rows.start + len(rows.rows)] = rows.rows
+            cpu += rows.cpu_s
+            if rows.single_ms is not None:  # row 0's block: its process's describe, stack
+                describe_s, stack_s, single = rows.describe_s, rows.stack_s, rows.single_ms
+    finally:
+        _SETS.pop(key, None)
+        for k in [k for k in _DESCRIBED if k[0] == key]:
+            del _DESCRIBED[k]
+    return out, describe_s, stack_s + cpu, single

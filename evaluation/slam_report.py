@@ -2,15 +2,17 @@
 
 `table_rows` gives the side-by-side table (one column per method), `summary_lines`
 the lines about the inputs and references printed under it, `json_document` the
-``--json`` document, and `write_outputs` the output folder: ``report.md``,
-``results.json``, ``trajectories.png``, ``<method>.tum`` and the pipeline's usual
-outputs in ``pipeline/`` with its per-loop verdicts.  Every file is written
-atomically (`data.atomic_write`).
+``--json`` document, and `write_outputs` the rest of the output folder: ``report.md``,
+``results.json`` and ``trajectories.png`` beside the files each method's task wrote
+(``<method>.tum``, the pipeline's usual outputs in ``pipeline/`` with its per-loop
+verdicts).  Everything here is built from the methods' summaries
+(`evaluation.slam_benchmark.MethodSummary`) and the files they name, never from a
+mapping result, so a cluster run and a serial run give the same report.  Every file
+is written atomically (`data.atomic_write`).
 """
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,10 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from data.errors import DataWarning
-from evaluation.loop_verdicts import loop_verdicts, write_loop_verdicts
+from data.errors import UserError
 from evaluation.slam_benchmark import SlamBenchmark
-from evaluation.slam_reference import keyframe_reference, trajectory_at_stamps
 from evaluation.trajectory_error import associate, umeyama
 
 Array = NDArray[np.float64]
@@ -150,97 +150,53 @@ def summary_lines(bench: SlamBenchmark) -> list[str]:
 
 
 def _plot(bench: SlamBenchmark, out: Path) -> Path:
-    """Every method's trajectory (first-scan odometry frame) and the references, aligned."""
+    """Every method's trajectory (first-scan odometry frame, from its ``<method>.tum``)
+    and the references, aligned."""
+    from data.trajectory_io import read_tum
     from evaluation.plots import plot_trajectories
 
-    done = [r for r in bench.runs if r.poses is not None]
-    curves: dict[str, Array] = {r.method: r.poses[:, :2] for r in done}
-    base = done[0] if done else None
+    written = {r.method: read_tum(r.files["tum"]) for r in bench.runs if "tum" in r.files}
+    curves: dict[str, Array] = {m: t.poses[:, :2, 3] for m, t in written.items()}
+    base = next(iter(written.values()), None)
     if bench.reference is not None and base is not None:
-        est = trajectory_at_stamps(bench.eval_stamps, base.poses)
-        i_est, i_ref = associate(est.stamps, bench.reference.stamps)
+        i_est, i_ref = associate(base.stamps, bench.reference.stamps)
         ref_xy = bench.reference.poses[:, :3, 3]
-        rot, t, _ = umeyama(ref_xy[i_ref], est.poses[i_est, :3, 3])
+        rot, t, _ = umeyama(ref_xy[i_ref], base.poses[i_est, :3, 3])
         curves["reference"] = (ref_xy @ rot.T + t)[:, :2]
     if bench.relations_ref is not None and bench.relations_ref.nodes:
         curves["reference (relations)"] = bench.relations_ref.node_poses[:, :2]
-    loops = []
     pipeline = bench.run_of("pipeline")
-    if pipeline is not None and pipeline.result is not None:
-        res = pipeline.result
-        for e in res.accepted_loops:
-            a = res.keyframes[e.candidate.match].scan_index
-            b = res.keyframes[e.candidate.query].scan_index
-            loops.append((pipeline.poses[a, :2], pipeline.poses[b, :2]))
+    loops = [(np.array(a), np.array(b)) for a, b in pipeline.loops] if pipeline else []
     return plot_trajectories(out / "trajectories.png", curves,
                              f"{Path(bench.input.name).name}: {len(bench.input.scans)} scans",
                              loops=loops)
 
 
-def write_outputs(bench: SlamBenchmark, out: Path, *, write_map: bool = True) -> dict[str, Path]:
-    """``report.md``, ``results.json``, ``trajectories.png``, ``<method>.tum`` and the
-    pipeline's usual outputs in ``pipeline/`` (`slam.results.write_results`).
+def write_outputs(bench: SlamBenchmark) -> dict[str, Path]:
+    """``report.md``, ``results.json``, ``trajectories.png`` (and ``reference_logged.tum``)
+    in ``bench.out``, beside the files the methods wrote there; every path, by name.
 
     Raises:
-        DataError: `out` cannot be made or a file cannot be written.
+        UserError: the benchmark ran without an output folder.
+        DataError: a file cannot be written.
     """
-    from data.atomic_write import output_dir
     from data.trajectory_io import write_tum
     from slam.json_io import write_json
 
-    output_dir(out)
-    paths = _write_method_trajectories(bench, out)
-    paths.update(_write_pipeline_folder(bench, out / "pipeline", write_map))
+    if bench.out is None:
+        raise UserError("write_outputs: the benchmark ran without an output folder (out=)")
+    out = bench.out
+    paths: dict[str, Path] = {}
+    for run in bench.runs:
+        for name, path in run.files.items():
+            key = f"{run.method}_tum" if name == "tum" else name
+            paths[key] = Path(path)
     if bench.reference is not None and bench.reference_name == "logged poses":
         paths["reference_tum"] = out / "reference_logged.tum"
         write_tum(paths["reference_tum"], bench.reference)
     paths["plot"] = _plot(bench, out)
     paths["results"] = write_json(out / "results.json", json_document(bench))
     paths["report"] = _write_report(bench, out, paths["plot"])
-    return paths
-
-
-def _write_method_trajectories(bench: SlamBenchmark, out: Path) -> dict[str, Path]:
-    """``<method>.tum`` of every method that did not fail (evaluation stamps)."""
-    from data.trajectory_io import write_tum
-
-    paths: dict[str, Path] = {}
-    for run in bench.runs:
-        if run.poses is None:
-            continue
-        path = out / f"{run.method}.tum"
-        write_tum(path, trajectory_at_stamps(bench.eval_stamps, run.poses))
-        paths[f"{run.method}_tum"] = path
-    return paths
-
-
-def _write_pipeline_folder(bench: SlamBenchmark, folder: Path, write_map: bool) -> dict[str, Path]:
-    """The pipeline's config and results (as `loopclosure run` writes them) and its loop
-    verdicts against each reference; nothing when the pipeline did not run."""
-    from data.atomic_write import output_dir
-    from slam.config_io import dump_config
-    from slam.results import write_results
-
-    pipeline = bench.run_of("pipeline")
-    if pipeline is None or pipeline.result is None:
-        return {}
-    paths: dict[str, Path] = {}
-    output_dir(folder)
-    dump_config(bench.config, folder / "config.yaml")
-    with warnings.catch_warnings():  # the stamp rule is reported once, by us
-        warnings.simplefilter("ignore", DataWarning)
-        write_results(folder, pipeline.result, bench.input.name, wall_s=pipeline.wall_s,
-                      write_map=write_map, map_config=bench.config.map)
-    paths["pipeline"] = folder
-    kf_index = [k.scan_index for k in pipeline.result.keyframes]
-    if bench.reference is not None:
-        ref = keyframe_reference(bench.reference, bench.eval_stamps, kf_index)
-        paths["loops_vs_reference"] = write_loop_verdicts(
-            folder / "loops_vs_reference.csv", loop_verdicts(pipeline.result, ref))
-    if bench.relations_ref is not None:
-        paths["loops_vs_relations"] = write_loop_verdicts(
-            folder / "loops_vs_relations.csv",
-            loop_verdicts(pipeline.result, bench.relations_ref.trajectory()))
     return paths
 
 

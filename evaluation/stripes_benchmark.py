@@ -37,13 +37,26 @@ Timing (`seconds`): representation + matching of the whole set (descriptors of e
 object and the full distance matrix), wall clock in this process, against the paper's
 0.0375 h (Matlab, stripes) and 1.6223 h (shape context).  Scanning is the simulator's
 cost and is reported apart (`scan_seconds`).
+
+Unit of work
+------------
+One matcher on the scanned set is one task (`MatcherTask`, run by `matcher_task`):
+``stripes``, ``profile`` and every silhouette baseline or verifier, each returning
+its distance matrix, wall seconds and options (`MatcherRows`); the retrieval figures
+and the fused row are computed from the matrices afterwards.  The process running a
+task scans the objects (and makes the silhouettes) once; without a cluster the tasks
+run here on the scans already made, with ``cluster`` (`evaluation.cluster`) each
+worker rebuilds the object set from a `StripesSource` and scans it with the same
+seed, so the matrices are the same; only the seconds differ.
 """
 
 from __future__ import annotations
 
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -276,28 +289,154 @@ class StripesBenchmarkResult:
         }
 
 
+@dataclass(frozen=True, slots=True)
+class StripesSource:
+    """The object set as a worker rebuilds it: the Daily-like set (`daily`: seed,
+    `per_class`, `classes`) or a folder of meshes (`meshes`, `labels`, `units`, `up`);
+    relative paths are taken from `folder` (the caller's working folder)."""
+
+    daily: bool = True
+    seed: int = 0
+    per_class: int = 10
+    classes: tuple[str, ...] | None = None
+    meshes: str | None = None
+    labels: str | None = None
+    units: str = "auto"
+    up: str = "z"
+    folder: str = "."
+
+    def objects(self) -> ObjectSet:
+        from data.stripe_scanner import DAILY_CLASSES
+        from evaluation.stripes_objects import daily_objects, mesh_folder_objects
+
+        if self.daily:
+            return daily_objects(self.seed, self.per_class, self.classes or DAILY_CLASSES)
+        here = Path(self.folder)
+        labels = here / self.labels if self.labels is not None else None
+        return mesh_folder_objects(here / str(self.meshes), labels, units=self.units,
+                                   up=self.up)
+
+
+@dataclass(frozen=True, slots=True)
+class MatcherTask:
+    """One task: the distance matrix of `method` (``stripes``, ``profile`` or a
+    silhouette matcher) on the scans of the object set `source` names (a
+    `StripesSource`, or the key of a scanned set held in this process's memory)."""
+
+    source: StripesSource | str
+    config: StripesBenchmarkConfig
+    method: str
+
+
+@dataclass(slots=True)
+class MatcherRows:
+    """What one `MatcherTask` returns: the ``(n, n)`` matrix, its wall seconds, the
+    matcher's options (silhouette matchers), and the seconds of the silhouettes in
+    the process that made them (silhouette matchers only, else 0)."""
+
+    method: str
+    distances: Array
+    seconds: float
+    options: dict[str, Any] = field(default_factory=dict)
+    silhouette_seconds: float = 0.0
+
+
+_SCANNED: dict[Any, tuple[ScannedSet, Progress | None]] = {}
+"""The scanned sets this process holds, by (source, scanner config)."""
+_SILHOUETTES: dict[Any, tuple[list[Polygon], float]] = {}
+"""Their silhouettes and the seconds they took, by the same key."""
+
+
+def _scan_key(source: StripesSource | str, cfg: StripesBenchmarkConfig) -> tuple[Any, str]:
+    return (source, repr((cfg.scanner, cfg.seed, cfg.scans_per_object)))
+
+
+def _scanned_of(task: MatcherTask) -> tuple[ScannedSet, Progress | None]:
+    """The scans `task` needs: held here already, or made now (once per process)."""
+    key = _scan_key(task.source, task.config)
+    if key not in _SCANNED:
+        if not isinstance(task.source, StripesSource):
+            raise UserError("bench stripes: this worker does not hold the scans in memory; "
+                            "give the objects as a StripesSource")
+        cfg = task.config
+        scanned = scan_objects(task.source.objects(), cfg.scanner, cfg.seed,
+                               cfg.scans_per_object)
+        _SCANNED.clear()  # a worker holds one scanned set at a time
+        _SILHOUETTES.clear()
+        _SCANNED[key] = (scanned, None)
+    return _SCANNED[key]
+
+
+def matcher_task(task: MatcherTask) -> MatcherRows:
+    """One matcher's distance matrix on the scans (`MatcherTask`)."""
+    scanned, progress = _scanned_of(task)
+    cfg = task.config
+    if task.method == "stripes":
+        return MatcherRows("stripes", *stripes_distances(scanned.scans, cfg.descriptor))
+    if task.method == "profile":
+        return MatcherRows("profile", *profile_distances(scanned.scans, cfg.profile))
+    key = _scan_key(task.source, cfg)
+    if key not in _SILHOUETTES:
+        t0 = time.perf_counter()
+        polygons = [silhouette_polygon(s, cfg.scanner, cfg.silhouette_smooth)
+                    for s in scanned.scans]
+        _SILHOUETTES[key] = (polygons, time.perf_counter() - t0)
+    polygons, silhouette_seconds = _SILHOUETTES[key]
+    d, secs, options = baseline_distances(task.method, polygons, progress)
+    return MatcherRows(task.method, d, secs, options, silhouette_seconds)
+
+
 def run_stripes_benchmark(
     objects: ObjectSet,
     config: StripesBenchmarkConfig | None = None,
     progress: Progress | None = None,
+    *,
+    source: StripesSource | None = None,
+    cluster: str | None = None,
 ) -> StripesBenchmarkResult:
     """Scan `objects`, rank them with stripes and with every available baseline.
 
+    One `MatcherTask` per matcher, here in order or, with `cluster` (an
+    `evaluation.cluster` address), on Dask, the workers rebuilding the objects from
+    `source` (the source `objects` came from: required).
+
     Raises:
-        UserError: bad parameters, unknown baseline name, nothing scanned.
+        UserError: bad parameters, unknown baseline name, nothing scanned, a matcher's
+            task that failed.
     """
+    from evaluation.cluster import map_tasks
+
     cfg = config or StripesBenchmarkConfig()
     if cfg.k < 2:
         raise UserError(f"k must be at least 2, got {cfg.k}")
+    if cluster is not None and source is None:
+        raise UserError("a cluster run needs the objects as a StripesSource, not meshes in "
+                        "memory")
     available, skipped = _available_baselines(cfg.baselines)
     scanned = scan_objects(objects, cfg.scanner, cfg.seed, cfg.scans_per_object, progress)
-    stripes = _rank_with_stripes(scanned, cfg)
-    profile = _rank_with_profile(scanned, cfg)
     verifiers = [n for n in cfg.fused if n not in available]
     for name in verifiers:
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
-    ranked, silhouette_seconds = _rank_with_baselines(scanned, [*available, *verifiers],
-                                                      cfg, progress)
+    key: StripesSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
+    tasks = [MatcherTask(key, cfg, m) for m in ("stripes", "profile", *available, *verifiers)]
+    _SCANNED[_scan_key(key, cfg)] = (scanned, progress)
+    try:
+        rows = {}
+        for o in map_tasks(matcher_task, tasks, cluster=cluster, retries=0,
+                           description="bench stripes", progress=cluster is not None):
+            if o.status == "interrupted":
+                raise KeyboardInterrupt
+            if o.status != "done":
+                raise UserError(f"bench stripes, {o.item.method}: {o.error}")
+            rows[o.item.method] = o.value
+    finally:
+        _SCANNED.pop(_scan_key(key, cfg), None)
+        _SILHOUETTES.pop(_scan_key(key, cfg), None)
+    stripes = _rank_with_stripes(scanned, cfg, rows.pop("stripes"))
+    profile = _rank_with_profile(scanned, cfg, rows.pop("profile"))
+    ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
+                          r.options) for n, r in rows.items()}
+    silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
     fused = _fused(scanned, profile, ranked, cfg) if cfg.fused else None
     baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
@@ -323,17 +462,21 @@ def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str
     return available, skipped
 
 
-def _rank_with_stripes(scanned: ScannedSet, cfg: StripesBenchmarkConfig) -> MethodResult:
-    """The stripes' distance matrix of the scans and its retrieval figures."""
-    d, secs = stripes_distances(scanned.scans, cfg.descriptor)
+def _rank_with_stripes(
+    scanned: ScannedSet, cfg: StripesBenchmarkConfig, rows: MatcherRows
+) -> MethodResult:
+    """The retrieval figures of the stripes' distance matrix of the scans."""
+    d, secs = rows.distances, rows.seconds
     return evaluate("stripes", d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"weights": [0.6, 0.3, 0.1], "stripe_count": cfg.descriptor.stripe_count,
                      "scale_free": cfg.descriptor.scale_free})
 
 
-def _rank_with_profile(scanned: ScannedSet, cfg: StripesBenchmarkConfig) -> MethodResult:
-    """The stripe profiles' distance matrix of the scans and its retrieval figures."""
-    d, secs = profile_distances(scanned.scans, cfg.profile)
+def _rank_with_profile(
+    scanned: ScannedSet, cfg: StripesBenchmarkConfig, rows: MatcherRows
+) -> MethodResult:
+    """The retrieval figures of the stripe profiles' distance matrix of the scans."""
+    d, secs = rows.distances, rows.seconds
     return evaluate("profile", d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"samples": cfg.profile.samples, "features": ["l", "d", "e"],
                      "normalisation": "per-query median per feature"})
@@ -351,23 +494,3 @@ def _fused(
     return evaluate("fused", d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"verifiers": list(cfg.fused), "normalisation": "per-query median",
                      "stripes": "profile", "samples": cfg.profile.samples})
-
-
-def _rank_with_baselines(
-    scanned: ScannedSet, names: Sequence[str], cfg: StripesBenchmarkConfig,
-    progress: Progress | None,
-) -> tuple[dict[str, MethodResult], float]:
-    """Every baseline's figures on the scans' silhouettes (made once for all of them),
-    and the seconds the silhouettes took (0 without baselines)."""
-    if not names:
-        return {}, 0.0
-    t0 = time.perf_counter()
-    polygons = [silhouette_polygon(s, cfg.scanner, cfg.silhouette_smooth)
-                for s in scanned.scans]
-    silhouette_seconds = time.perf_counter() - t0
-    baselines: dict[str, MethodResult] = {}
-    for name in names:
-        d, secs, options = baseline_distances(name, polygons, progress)
-        baselines[name] = evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
-                                   options)
-    return baselines, silhouette_seconds

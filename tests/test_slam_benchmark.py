@@ -63,13 +63,32 @@ def sim() -> SimulatedRun:
 
 
 @pytest.fixture(scope="module")
-def bench(sim: SimulatedRun) -> sb.SlamBenchmark:
-    """All three methods on 665 simulated scans, with relations and the true trajectory."""
-    return sb.run_slam_benchmark(
-        sim_input(sim), list(sm.METHODS), PipelineConfig(),
-        relations=ground_truth_relations(sim), relations_file="sim.relations",
-        reference=sim.ground_truth, reference_name="groundtruth.tum",
-    )
+def captured(sim: SimulatedRun, tmp_path_factory) -> tuple[sb.SlamBenchmark, dict]:
+    """All three methods on 665 simulated scans, with relations and the true trajectory,
+    writing into a folder (no map); and each method's full run, kept as it ran here."""
+    runs: dict[str, sm.MethodRun] = {}
+    real = sb.run_method
+
+    def keep(name, data, config, progress=si.no_progress):
+        runs[name] = real(name, data, config, progress)
+        return runs[name]
+
+    sb.run_method = keep
+    try:
+        bench = sb.run_slam_benchmark(
+            sim_input(sim), list(sm.METHODS), PipelineConfig(),
+            relations=ground_truth_relations(sim), relations_file="sim.relations",
+            reference=sim.ground_truth, reference_name="groundtruth.tum",
+            out=tmp_path_factory.mktemp("bench_out"), write_map=False,
+        )
+    finally:
+        sb.run_method = real
+    return bench, runs
+
+
+@pytest.fixture(scope="module")
+def bench(captured) -> sb.SlamBenchmark:
+    return captured[0]
 
 
 # ------------------------------------------------------------------------ small parts
@@ -236,9 +255,10 @@ def test_relations_reference_matches_ground_truth(bench: sb.SlamBenchmark,
     assert err.ate_rmse < 0.03  # the wheel odometry alone is off by metres (ATE above)
 
 
-def test_a_wrong_loop_transform_is_a_false_positive(bench: sb.SlamBenchmark) -> None:
+def test_a_wrong_loop_transform_is_a_false_positive(captured) -> None:
     """The precision can fail: one accepted loop moved by 0.5 m becomes a false positive."""
-    result = bench.run_of("pipeline").result
+    bench, runs = captured
+    result = runs["pipeline"].result
     event = result.accepted_loops[0]
     kept = event.candidate.relative.copy()
     try:
@@ -249,7 +269,7 @@ def test_a_wrong_loop_transform_is_a_false_positive(bench: sb.SlamBenchmark) -> 
     assert doc["false_positives"] == 1 and doc["precision"] < 1.0
 
 
-def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
+def test_table_and_outputs(bench: sb.SlamBenchmark) -> None:
     headers, rows = report.table_rows(bench)
     assert headers == ["measure", "pipeline", "wheel", "kiss-icp"]
     labels = [r[0] for r in rows]
@@ -257,7 +277,8 @@ def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
                   "loop precision (reference)", "loop recall (relations)"):
         assert label in labels
     assert all(len(r) == 4 for r in rows)
-    paths = report.write_outputs(bench, tmp_path, write_map=False)
+    tmp_path = bench.out
+    paths = report.write_outputs(bench)
     for name in ("report.md", "results.json", "trajectories.png", "pipeline.tum", "wheel.tum",
                  "kiss-icp.tum", "pipeline/trajectory.tum", "pipeline/loops.csv",
                  "pipeline/summary.json", "pipeline/config.yaml"):
@@ -266,9 +287,9 @@ def test_table_and_outputs(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
     assert json.loads((tmp_path / "results.json").read_text())["scans"] == len(bench.input.scans)
 
 
-def test_loop_verdicts_agree_with_the_counts(bench: sb.SlamBenchmark, tmp_path: Path) -> None:
+def test_loop_verdicts_agree_with_the_counts(bench: sb.SlamBenchmark) -> None:
     """The per-loop CSV says which loops were true, consistently with the JSON counts."""
-    report.write_outputs(bench, tmp_path, write_map=False)
+    tmp_path = bench.out
     loops = bench.reports[0]["loops"]
     for name in ("reference", "relations"):
         with (tmp_path / "pipeline" / f"loops_vs_{name}.csv").open() as f:
@@ -310,14 +331,14 @@ def test_a_failing_method_is_reported_and_the_others_still_run(sim: SimulatedRun
     run = simulate_run("box", seed=5, motion=MotionConfig(laps=0.3), **SIM)
     with pytest.warns(UserWarning, match="kiss-icp failed on sim: RuntimeError: Indeterminate"):
         bench = sb.run_slam_benchmark(sim_input(run), ["kiss-icp", "wheel"], PipelineConfig(),
-                                      reference=run.ground_truth)
+                                      reference=run.ground_truth, out=tmp_path)
     kiss, wheel = bench.reports
     assert kiss["error"] == "RuntimeError: Indeterminate linear system" and kiss["ate"] is None
     assert wheel["error"] is None and wheel["ate"]["ate_rmse"] > 0
     _, rows = report.table_rows(bench)
     assert rows[0] == ["status", "failed (RuntimeError)", "ok"]
     assert next(r for r in rows if r[0] == "ATE rmse [m]")[1] == "-"
-    report.write_outputs(bench, tmp_path)
+    report.write_outputs(bench)
     assert (tmp_path / "wheel.tum").is_file() and not (tmp_path / "kiss-icp.tum").exists()
 
 
