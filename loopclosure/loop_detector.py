@@ -186,7 +186,7 @@ class LoopClosureConfig:
     global_every: int = 1
     min_score: float = 0.5
     min_score_across: float = 0.0
-    global_verify: int = 2
+    global_verify: int = 5
     agree_distance: float = 1.0
     free_every: int = 10
     sequence_keyframes: int = 2
