@@ -205,6 +205,8 @@ class LoopClosureConfig:
             raise UserError(
                 f"loops.search must be one of {', '.join(SEARCHES)}, got {self.search!r}"
             )
+        if not self.agree_distance > 0:
+            raise UserError(f"loops.agree_distance must be > 0 m, got {self.agree_distance}")
 
 
 

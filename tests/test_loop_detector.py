@@ -226,3 +226,8 @@ def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
 
     got = distinct_places([match(k) for k in (10, 14, 16, 30, 12, 40)], 3)
     assert [m.key for m in got] == [10, 16, 30]
+
+
+def test_a_non_positive_agree_distance_is_a_user_error() -> None:
+    with pytest.raises(UserError, match="agree_distance"):
+        LoopClosureConfig(agree_distance=0.0)
