@@ -111,7 +111,7 @@ def summary_lines(bench: LoopBench) -> list[str]:
     for name, r in bench.recall_at_k.items():
         lines.append(f"{name} recall@K: " + ", ".join(f"@{k} {v:.3f}" for k, v in r.items()))
     lines.append(
-        f"check accepted {op['accepted']} top-1 proposals; at fused score >= "
+        f"check accepted a proposal for {op['accepted']} queries; at fused score >= "
         f"{bench.min_score:g}: precision {op['precision_at_min_score']:.3f}, recall "
         f"{op['recall_at_min_score']:.3f}"
     )
@@ -205,8 +205,10 @@ def write_outputs(bench: LoopBench, out: Path) -> dict[str, Path]:
     rk = [[n, *[f"{r[k]:.3f}" for k in RECALL_KS]] for n, r in bench.recall_at_k.items()]
     paths["report"] = write_report(out / "report.md", f"Loop detection: {bench.name}", [
         ("Protocol", "Appearance only, no pose prior: every keyframe's top-1 proposal from "
-         "the database of older keyframes, per stage and after the geometric check; see "
-         "`evaluation/loop_bench.py` and `evaluation/loop_bench_truth.py`."),
+         "the database of older keyframes, per stage; after the geometric check, the "
+         f"first of its {bench.config.loops.global_verify} best distinct places that the "
+         "check accepts (accepted places must agree); see `evaluation/loop_bench.py` and "
+         "`evaluation/loop_bench_truth.py`."),
         ("Stages", table(TABLE_HEADERS, table_rows(bench))),
         ("Prefilter recall@K", table(["stage", *[f"@{k}" for k in RECALL_KS]], rk)),
         ("Counts", "\n".join(f"- {line}" for line in summary_lines(bench))),
