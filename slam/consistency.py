@@ -77,7 +77,11 @@ do (riSAM, McGann, Rogers & Kaess, ICRA 2023; IPC, arXiv 2405.08503), here in
 batch form.
 
 Cost: a factorisation and ``dof`` sparse solves per candidate and round, and a
-prefix solve per admission round.
+prefix solve per admission round.  The prefix solves are batch (LM, dogleg-QR
+where LM fails) or, when the odometry needs QR factorisation (Intel), updates of
+one iSAM2 per pass, which re-eliminate only what the new factors touch
+(`admit_incrementally`'s ``prefix_solver``; ``benchmarks/tls_speed.py`` measures
+both against an earlier revision).
 
 Requirements: the smallest pose id is an anchor and every later pose is reached by
 odometry from an earlier one (the odometry spine of a mapper or a g2o file);
@@ -115,6 +119,7 @@ ODOMETRY_LADDER = (1.0, 10.0, 100.0)  # odometry information factors `incrementa
 BAR_TRIES = 5  # at most this many trials of `incremental_tls`'s `bar_search`
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySolver`)
+RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
 
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
@@ -356,7 +361,7 @@ class _IsamPrefix:
 
     def _new(self) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(1e-3)
+        params.setRelinearizeThreshold(RELINEARIZE)
         params.relinearizeSkip = 1
         params.setFactorization(self.factorization)
         return gtsam.ISAM2(params)
@@ -667,7 +672,14 @@ def incremental_tls(
         raise UserError("the odometry ladder needs at least one factor")
     best: Admission | None = None
     decided: PoseGraph | None = None
-    solver = StickySolver(lm_budget=LM_BUDGET)
+    # Dogleg-QR from the start where the odometry needs QR (Intel: LM runs out its
+    # iterations there without raising); elsewhere an LM that does not converge hands only
+    # that solve to dogleg (M3500: one bad start made every later solve dogleg, 2-4x
+    # slower).
+    solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
+    solver.dogleg = needs_qr(graph, values)
+    if prefix_solver == "auto":
+        prefix_solver = "isam2" if solver.dogleg else "batch"
     unit = [graph.between_factor(loop) for loop in graph.loops]  # the same on every rung
     for factor in ladder:
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
@@ -676,7 +688,6 @@ def incremental_tls(
                 decide, values, probability=probability, block=block, gate=gate, solver=solver,
                 prefix_solver=prefix_solver, unit=unit,
             )
-            prefix_solver = run.prefix  # what "auto" chose, for every later run
             refined, weights = refine_tls(
                 graph, run.values, run.weights, probability=probability, solver=solver,
                 solved=decide is graph,

@@ -85,17 +85,37 @@ def conditioning(factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> s
 
 
 class StickySolver:
-    """`solve` for a sequence of related graphs; dogleg for good once LM has failed."""
+    """`solve` for a sequence of related graphs; dogleg for good once LM has failed.
 
-    def __init__(self, max_iterations: int = 100, lm_budget: int | None = None) -> None:
+    With ``sticky=False`` only an LM that raises (sparse Cholesky breaks down: the graph
+    needs QR) switches to dogleg for good; an LM that merely runs out of `lm_budget`
+    iterations hands that one solve to dogleg.  Set `dogleg` to start with dogleg.
+    """
+
+    def __init__(
+        self, max_iterations: int = 100, lm_budget: int | None = None, sticky: bool = True
+    ) -> None:
         self.max_iterations = max_iterations
         self.lm_budget = lm_budget
+        self.sticky = sticky
         self.dogleg = False
 
     def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
         """The solution of `factors` from `values`."""
-        if not self.dogleg:
+        if self.dogleg:
+            return dogleg_qr(factors, values, self.max_iterations).optimize()
+        if self.sticky:
             result, _, used = solve(factors, values, self.max_iterations, self.lm_budget)
             self.dogleg = used == DOGLEG_QR
             return result
-        return dogleg_qr(factors, values, self.max_iterations).optimize()
+        budget = self.max_iterations if self.lm_budget is None else self.lm_budget
+        try:
+            lm = gtsam.LevenbergMarquardtOptimizer(factors, values, lm_params(budget))
+            result = lm.optimize()
+        except RuntimeError:  # gtsam IndeterminateLinearSystemException
+            self.dogleg = True
+            return dogleg_qr(factors, values, self.max_iterations).optimize()
+        if 0 < lm.iterations() < budget:
+            return result
+        start = result if factors.error(result) < factors.error(values) else values
+        return dogleg_qr(factors, start, self.max_iterations).optimize()
