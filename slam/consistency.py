@@ -102,7 +102,7 @@ from scipy.stats import chi2
 
 from data import se2
 from data.errors import UserError
-from slam.least_squares import StickySolver
+from slam.least_squares import StickySolver, dogleg_qr
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -702,14 +702,16 @@ def incremental_tls(
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
-    # with its weights.
+    # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
+    # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum
+    # with LM).
     base, loop_index = graph.factor_graph(RobustKernel("none"))
     factors = gtsam.NonlinearFactorGraph()
     for k in range(base.size() - len(loop_index)):
         factors.add(base.at(k))
     for k in np.flatnonzero(best.weights > 0.5):
         factors.add(base.at(loop_index[k]))
-    polished = solver(factors, best.values)
+    polished = dogleg_qr(factors, best.values, solver.max_iterations).optimize()
     return Admission(polished, best.weights, tls_cost(graph, polished, probability),
                      best.blocks, best.gate)
 
