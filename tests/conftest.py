@@ -28,3 +28,15 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data not found at {SHARED_DATA} (needs ../shared beside the checkout)")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """The scheduler address of a LocalCluster of 2 worker processes on the loopback, one
+    per test module (a module may kill its workers)."""
+    distributed = pytest.importorskip("distributed", reason="needs the `distributed` package")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+        scheduler_port=0, dashboard_address=None, silence_logs=50,
+    ) as local:
+        yield local.scheduler_address

@@ -20,16 +20,6 @@ MARKERS: Path | None = None
 
 
 @pytest.fixture(scope="module")
-def cluster():
-    """The scheduler address of a LocalCluster of 2 worker processes on the loopback."""
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-        scheduler_port=0, dashboard_address=None, silence_logs=50,
-    ) as local:
-        yield local.scheduler_address
-
-
-@pytest.fixture(scope="module")
 def logs(tmp_path_factory) -> dict[str, Path]:
     """Two tiny simulated CARMEN logs, a garbage file, a relations file for the first
     log and a reference trajectory for the second."""

@@ -16,16 +16,6 @@ distributed = pytest.importorskip("distributed", reason="needs the `distributed`
 TIMINGS = {"wall_s", "ms_per_scan", "ms_per_query", "read_s", "seconds", "outputs"}
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    """The scheduler address of a LocalCluster of 2 worker processes on the loopback."""
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-        scheduler_port=0, dashboard_address=None, silence_logs=50,
-    ) as local:
-        yield local.scheduler_address
-
-
 def _untimed(value):
     """`value` without its timings (they are all that may differ between two runs)."""
     if isinstance(value, dict):
