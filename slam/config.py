@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from data.errors import UserError
 from loopclosure.loop_detector import LoopClosureConfig
 from slam.keyframes import KeyframeConfig
 from slam.occupancy_map import MapConfig
@@ -20,6 +21,9 @@ from slam.odometry.kiss import KissConfig
 from slam.odometry.wheel import WheelConfig
 from slam.refine_scans import RefineConfig
 from slam.sessions import SessionsConfig
+
+FINAL_STARTS = ("given", "incremental")
+"""Values of `BackendConfig.final_start`."""
 
 
 @dataclass(slots=True)
@@ -50,6 +54,10 @@ class BackendConfig:
         final_gnc: after the last scan, re-solve the whole graph with GNC-TLS and drop
             the loops it classifies as outliers (reported, marked in loops.csv).
         gnc_probability: chi-square quantile of the GNC inlier threshold.
+        final_start: how that final GNC-TLS decides the loops: ``"given"`` (warm GNC
+            from the mapper's iSAM2 estimate) or ``"incremental"`` (time-ordered TLS
+            admission from the odometry chain, `slam.consistency.incremental_tls`, the
+            back end `eval robustness` measures as ``gnc``).
         odometry_floor: standard deviations added to each keyframe-to-keyframe odometry
             constraint (x [m], y [m], theta [deg]): scan-matching covariances ignore
             correlated errors, this keeps them honest.
@@ -60,8 +68,14 @@ class BackendConfig:
     kernel_scale: float | None = None
     final_gnc: bool = True
     gnc_probability: float = 0.99
+    final_start: str = "given"
     odometry_floor: tuple[float, float, float] = (0.002, 0.002, 0.05)
     relinearize_threshold: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.final_start not in FINAL_STARTS:
+            raise UserError(f"backend.final_start must be one of {', '.join(FINAL_STARTS)}, "
+                            f"got {self.final_start!r}")
 
 
 @dataclass(slots=True)

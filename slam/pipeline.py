@@ -440,6 +440,7 @@ class Mapper:
             result = optimize(
                 graph, method="gnc", initial=poses,
                 gnc_probability=self.config.backend.gnc_probability,
+                gnc_start=self.config.backend.final_start,
             )
             poses = result.poses
             rejected = set(result.loop_outliers)

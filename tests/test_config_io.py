@@ -62,3 +62,10 @@ def test_unknown_keys_in_a_file_list_the_valid_ones(tmp_path) -> None:
     with pytest.raises(UserError, match=r"unknown key.*topk.*valid: enabled, names, scale, top_k"):
         load_config(Outer, path)
     assert from_dict(Outer, {"inner": {"top_k": 3}}).inner.top_k == 3
+
+
+def test_an_unknown_final_start_is_refused_when_the_config_is_made() -> None:
+    from slam.config import PipelineConfig
+
+    with pytest.raises(UserError, match="backend.final_start must be one of given, incremental"):
+        apply_overrides(PipelineConfig(), ["backend.final_start=fast"])
