@@ -288,6 +288,17 @@ def tls_cost(graph: PoseGraph, values: gtsam.Values, probability: float = 0.99) 
     return float(fixed + loops)
 
 
+def has_odometry_spine(graph: PoseGraph) -> bool:
+    """The first pose is anchored and odometry reaches every other pose from an earlier
+    one: what the time-ordered admission needs (a graph of two sessions joined by
+    loops alone has no spine)."""
+    try:
+        _check_spine(graph)
+    except UserError:
+        return False
+    return True
+
+
 def _check_spine(graph: PoseGraph) -> list[int]:
     """Pose ids in order, after checking the anchor and the odometry spine."""
     keys = graph.keys

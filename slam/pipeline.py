@@ -43,9 +43,11 @@ from data.types import PointCloud, Scan
 from loopclosure.loop_detector import LoopCandidate, LoopClosureDetector
 from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
+from slam.consistency import has_odometry_spine
 from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.odometry import OdometryEstimate, make_odometry
 from slam.optimize import IncrementalSmoother, optimize
+from slam.pose_graph import PoseGraph
 from slam.refine_scans import refine_scan_poses
 from slam.session_file import SavedMap, SessionInfo
 from slam.session_result import complete_sessions
@@ -430,6 +432,12 @@ class Mapper:
 
     # -- the end ----------------------------------------------------------------------
 
+    def _final_start(self, graph: PoseGraph) -> str:
+        """`BackendConfig.final_start`, except that a graph without an odometry spine
+        (sessions joined by loops alone) is decided by the warm GNC."""
+        start = self.config.backend.final_start
+        return "given" if start == "incremental" and not has_odometry_spine(graph) else start
+
     def finish(self, interrupted: bool = False) -> MappingResult:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
@@ -440,7 +448,7 @@ class Mapper:
             result = optimize(
                 graph, method="gnc", initial=poses,
                 gnc_probability=self.config.backend.gnc_probability,
-                gnc_start=self.config.backend.final_start,
+                gnc_start=self._final_start(graph),
             )
             poses = result.poses
             rejected = set(result.loop_outliers)

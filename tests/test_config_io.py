@@ -67,5 +67,5 @@ def test_unknown_keys_in_a_file_list_the_valid_ones(tmp_path) -> None:
 def test_an_unknown_final_start_is_refused_when_the_config_is_made() -> None:
     from slam.config import PipelineConfig
 
-    with pytest.raises(UserError, match="backend.final_start must be one of given, incremental"):
+    with pytest.raises(UserError, match=r"backend\.final_start must be one of given, incremental"):
         apply_overrides(PipelineConfig(), ["backend.final_start=fast"])
