@@ -93,6 +93,16 @@ class Outcome:
     value: Any = None
     error: str | None = None
 
+    def result(self, label: str) -> Any:
+        """`value` of a ``done`` item; an interrupted one raises `KeyboardInterrupt`, a
+        failed one a `UserError` ``"<label>: <error>"`` (for sweeps that stop at the
+        first failure)."""
+        if self.status == "interrupted":
+            raise KeyboardInterrupt
+        if self.status != "done":
+            raise UserError(f"{label}: {self.error}")
+        return self.value
+
 
 @dataclass(frozen=True, slots=True)
 class ClusterSpec:

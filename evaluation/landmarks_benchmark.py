@@ -194,7 +194,6 @@ def run_landmarks_cells(
     Raises:
         UserError: a cell failed (its seed and error line).
     """
-    from data.errors import UserError
     from evaluation.cluster import map_tasks
 
     if progress is not None:
@@ -203,11 +202,7 @@ def run_landmarks_cells(
         docs = []
         for o in map_tasks(landmarks_task, cells, cluster=cluster, retries=0,
                            description="bench landmarks", progress=cluster is not None):
-            if o.status == "interrupted":
-                raise KeyboardInterrupt
-            if o.status != "done":
-                raise UserError(f"bench landmarks, seed {o.item.seed}: {o.error}")
-            docs.append(o.value)
+            docs.append(o.result(f"bench landmarks, seed {o.item.seed}"))
     finally:
         if progress is not None:
             _PROGRESS.pop()

@@ -385,12 +385,7 @@ def loop_benchmark(
 
 
 def _block(outcome: Any) -> LoopBlock:
-    if outcome.status == "interrupted":
-        raise KeyboardInterrupt
-    if outcome.status != "done":
-        raise UserError(f"bench loops, {', '.join(outcome.item.rows) or 'final'}: "
-                        f"{outcome.error}")
-    return outcome.value
+    return outcome.result(f"bench loops, {', '.join(outcome.item.rows) or 'final'}")
 
 
 def _input_of(source: LoopSource | str) -> tuple[LoopInput, Progress]:

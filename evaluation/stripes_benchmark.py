@@ -424,11 +424,7 @@ def run_stripes_benchmark(
         rows = {}
         for o in map_tasks(matcher_task, tasks, cluster=cluster, retries=0,
                            description="bench stripes", progress=cluster is not None):
-            if o.status == "interrupted":
-                raise KeyboardInterrupt
-            if o.status != "done":
-                raise UserError(f"bench stripes, {o.item.method}: {o.error}")
-            rows[o.item.method] = o.value
+            rows[o.item.method] = o.result(f"bench stripes, {o.item.method}")
     finally:
         _SCANNED.pop(_scan_key(key, cfg), None)
         _SILHOUETTES.pop(_scan_key(key, cfg), None)
