@@ -437,9 +437,9 @@ def admit_incrementally(
         prefix_solver: ``"batch"`` (`solver` on the whole accepted prefix after every
             admission round), ``"isam2"`` (`_IsamPrefix`) or ``"auto"``: iSAM2 when the
             odometry needs QR factorisation (`needs_qr`; the batch solves are then
-            dogleg with QR, and the iSAM2 pass is about 2x faster on Intel with the same
-            decisions), batch otherwise (on M3500, whose loops relinearise most of the
-            prefix, an iSAM2 pass took 1.25x the batch one: 47 s against 38 s of CPU).
+            dogleg with QR, which iSAM2's updates beat with the same decisions), batch
+            otherwise (where the loops relinearise most of the prefix, as on M3500, an
+            iSAM2 pass is slower than the batch one; `benchmarks/tls_speed.py`).
         unit: the Gaussian factor of every loop (computed when None).
     """
     solve = solver or StickySolver()

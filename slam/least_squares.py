@@ -10,8 +10,8 @@ on well-conditioned graphs.
 `StickySolver` solves a sequence of related graphs: once LM has failed on one of
 them, every later call goes straight to dogleg instead of first spending LM's
 iterations.  Its `lm_budget` caps LM's iterations (the rest go to dogleg): on
-Intel LM does not raise but runs out its 100 iterations (about 4x the dogleg
-solve), and a sequence of warm-started solves that converge in a few LM
+near-singular graphs LM does not raise but runs out all its iterations (far longer
+than the dogleg solve), and a sequence of warm-started solves that converge in a few LM
 iterations loses nothing by the cap.  Error units are gtsam's (``0.5 r^T I r``).
 """
 
