@@ -88,6 +88,11 @@ def stripes(
         typer.Option("--fused", help="Silhouette verifiers of the fused matcher ('none': "
                      "no fused row)."),
     ] = "fft,ring",
+    fused_sc: Annotated[
+        str,
+        typer.Option("--fused-sc", help="Silhouette verifiers of the fused-sc row, the "
+                     "profile verified by shape context ('none': no fused-sc row)."),
+    ] = "shape-context",
     stripe_count: Annotated[
         int | None,
         typer.Option("--stripe-count", help="Describe each object by at most N evenly "
@@ -150,7 +155,8 @@ def stripes(
         raise UserError(f"--stripe-count must be at least 2, got {stripe_count}")
     names = _names(baselines) or ()
     verifiers = _names(fused) or ()
-    for name in (*names, *verifiers):
+    sc_verifiers = _names(fused_sc) or ()
+    for name in (*names, *verifiers, *sc_verifiers):
         try:
             baseline_matcher(name)  # unknown names fail here, before any work
         except ImportError:
@@ -162,6 +168,7 @@ def stripes(
         scanner=replace(ScannerConfig(), step=step, yaw_range_deg=yaw_range),
         descriptor=DescriptorConfig(stripe_count=stripe_count, scale_free=scale_free),
         fused=verifiers,
+        fused_sc=sc_verifiers,
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)

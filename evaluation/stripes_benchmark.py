@@ -28,6 +28,16 @@ Methods on the same scans:
   ring projection) combined by `loopclosure.stripes.fuse` (each method's distances
   divided by their per-query median, equal weights); its time is the profile's plus
   the verifiers'.
+- ``fused-sc``: the same rule with shape context as the one verifier (the profile's
+  distance and shape context's, each divided by its per-query median, equal
+  weights).  The profile reads the object along the sweep (where along its length
+  it is tall, round or flat) and is blind to the footprint's outline once resampled
+  (a long box and a can are one profile); shape context reads the outline and is
+  blind to height: the two miss different objects, so their sum verifies each
+  other.  FFT and ring projection are global summaries of the outline and repeat
+  much of what the profile's ``l`` already says.  Its time is the profile's plus
+  shape context's (all pairs: quadratic in the set, shape context's point matching
+  dominates).
 
 With two or more scans per object every method also gets the different-pose figures
 (`evaluation.stripes_retrieval.cross_pose`): first scans as queries against a
@@ -69,6 +79,7 @@ from evaluation.stripes_retrieval import MethodResult, evaluate
 from loopclosure.polygon import Polygon
 from loopclosure.stripes import (
     DEFAULT_VERIFIERS,
+    SC_VERIFIERS,
     DescriptorConfig,
     ProfileConfig,
     ProfileDatabase,
@@ -175,6 +186,7 @@ class StripesBenchmarkConfig:
         silhouette_smooth: contour smoothing of the silhouettes [px].
         profile: stripe profile parameters (the ``profile`` row and the fused matcher).
         fused: silhouette verifiers of the fused matcher (empty: no fused row).
+        fused_sc: silhouette verifiers of the ``fused-sc`` row (empty: no such row).
     """
 
     seed: int = 0
@@ -186,6 +198,7 @@ class StripesBenchmarkConfig:
     silhouette_smooth: float = 1.0
     profile: ProfileConfig = field(default_factory=ProfileConfig)
     fused: tuple[str, ...] = DEFAULT_VERIFIERS
+    fused_sc: tuple[str, ...] = SC_VERIFIERS
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -201,6 +214,7 @@ class StripesBenchmarkConfig:
             "silhouette_smooth": self.silhouette_smooth,
             "profile": asdict(self.profile),
             "fused": list(self.fused),
+            "fused_sc": list(self.fused_sc),
         }
 
 
@@ -218,6 +232,7 @@ class StripesBenchmarkResult:
     fused: MethodResult | None
     skipped_baselines: dict[str, str]
     silhouette_seconds: float
+    fused_sc: MethodResult | None = None
 
     @property
     def classes(self) -> list[str]:
@@ -230,10 +245,13 @@ class StripesBenchmarkResult:
                 for c in self.classes}
 
     def methods(self) -> dict[str, MethodResult]:
-        """Every method's figures: stripes, profile, fused (when run), then the baselines."""
+        """Every method's figures: stripes, profile, fused and fused-sc (when run), then
+        the baselines."""
         out = {"stripes": self.stripes, "profile": self.profile}
         if self.fused is not None:
             out["fused"] = self.fused
+        if self.fused_sc is not None:
+            out["fused-sc"] = self.fused_sc
         return {**out, **self.baselines}
 
     def wins_and_losses(
@@ -264,6 +282,7 @@ class StripesBenchmarkResult:
             "baselines": {n: r.to_json() for n, r in self.baselines.items()},
             "profile": self.profile.to_json(),
             "fused": None if self.fused is None else self.fused.to_json(),
+            "fused_sc": None if self.fused_sc is None else self.fused_sc.to_json(),
             "different_pose": s.different_pose,
             "dataset": self.dataset,
             "scans": len(self.scanned.scans),
@@ -414,7 +433,8 @@ def run_stripes_benchmark(
                         "memory")
     available, skipped = _available_baselines(cfg.baselines)
     scanned = scan_objects(objects, cfg.scanner, cfg.seed, cfg.scans_per_object, progress)
-    verifiers = [n for n in cfg.fused if n not in available]
+    verifiers = list(dict.fromkeys(n for n in (*cfg.fused, *cfg.fused_sc)
+                                   if n not in available))
     for name in verifiers:
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
     key: StripesSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
@@ -433,10 +453,12 @@ def run_stripes_benchmark(
     ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
                           r.options) for n, r in rows.items()}
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
-    fused = _fused(scanned, profile, ranked, cfg) if cfg.fused else None
+    fused = _fused(scanned, profile, ranked, cfg, cfg.fused) if cfg.fused else None
+    fused_sc = (_fused(scanned, profile, ranked, cfg, cfg.fused_sc, "fused-sc")
+                if cfg.fused_sc else None)
     baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
-                                  baselines, fused, skipped, silhouette_seconds)
+                                  baselines, fused, skipped, silhouette_seconds, fused_sc)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -480,13 +502,13 @@ def _rank_with_profile(
 
 def _fused(
     scanned: ScannedSet, profile: MethodResult, ranked: dict[str, MethodResult],
-    cfg: StripesBenchmarkConfig,
+    cfg: StripesBenchmarkConfig, verifiers: Sequence[str], name: str = "fused",
 ) -> MethodResult:
-    """The fused matcher's figures from the profile's and the verifiers' matrices."""
+    """A fused matcher's figures from the profile's and the `verifiers`' matrices."""
     t0 = time.perf_counter()
-    d = fuse([profile.distances, *(ranked[n].distances for n in cfg.fused)])
-    secs = (profile.seconds + sum(ranked[n].seconds for n in cfg.fused)
+    d = fuse([profile.distances, *(ranked[n].distances for n in verifiers)])
+    secs = (profile.seconds + sum(ranked[n].seconds for n in verifiers)
             + time.perf_counter() - t0)
-    return evaluate("fused", d, scanned.labels, scanned.objects, secs, cfg.k,
-                    {"verifiers": list(cfg.fused), "normalisation": "per-query median",
+    return evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
+                    {"verifiers": list(verifiers), "normalisation": "per-query median",
                      "stripes": "profile", "samples": cfg.profile.samples})

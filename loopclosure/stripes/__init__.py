@@ -30,6 +30,7 @@ from loopclosure.stripes.extraction import (
 from loopclosure.stripes.fusion import (
     DEFAULT_VERIFIERS,
     FUSED_DESCRIPTOR,
+    SC_VERIFIERS,
     FusedObjectDatabase,
     fuse,
     normalised,
@@ -59,6 +60,7 @@ __all__ = [
     "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
     "PROFILE_SAMPLES",
+    "SC_VERIFIERS",
     "DescriptorConfig",
     "FusedObjectDatabase",
     "ProfileConfig",

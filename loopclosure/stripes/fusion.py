@@ -50,6 +50,9 @@ Array = NDArray[np.float64]
 
 #: Silhouette matchers fused with the stripes by default.
 DEFAULT_VERIFIERS: tuple[str, ...] = ("fft", "ring")
+#: The shape-context verifier: the profile's complement (the footprint's outline, which
+#: the resampled profile drops), at shape context's all-pairs point-matching cost.
+SC_VERIFIERS: tuple[str, ...] = ("shape-context",)
 #: Stripes per object when the fusion's stripe side is the paper's descriptor.
 FUSED_STRIPE_COUNT = 32
 #: Descriptor parameters for `StripeDescriptor`s in the fusion (module docstring).

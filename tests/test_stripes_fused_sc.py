@@ -1,0 +1,49 @@
+"""The ``fused-sc`` row: stripe profile verified by shape context (median-normalised sum)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from data.stripe_scanner import ScannerConfig
+from evaluation.stripes_benchmark import (
+    StripesBenchmarkConfig,
+    baseline_distances,
+    run_stripes_benchmark,
+)
+from evaluation.stripes_objects import daily_objects, silhouette_polygon
+from loopclosure.stripes import SC_VERIFIERS, fuse
+
+
+def test_fused_sc_rule_on_a_hand_checked_row():
+    # One query (object 0) against four objects.  Profile: median of [0, 1, 3, 2] is 1.5;
+    # shape context: median of [0, 4, 2, 2] is 2.  Normalised and averaged:
+    #   object 1: (1/1.5 + 4/2) / 2 = 4/3;  object 2: (3/1.5 + 2/2) / 2 = 3/2;
+    #   object 3: (2/1.5 + 2/2) / 2 = 7/6.
+    # The profile alone picks object 1, shape context alone objects 2 and 3 (a tie);
+    # the fused distance picks object 3, second in both.
+    profile = np.array([[0.0, 1.0, 3.0, 2.0]])
+    sc = np.array([[0.0, 4.0, 2.0, 2.0]])
+    d = fuse([profile, sc])
+    np.testing.assert_allclose(d, [[0.0, 4 / 3, 3 / 2, 7 / 6]])
+    assert int(np.argmin(d[0, 1:])) + 1 == 3
+
+
+def test_fused_sc_row_is_the_fusion_of_profile_and_shape_context():
+    objs = daily_objects(1, 2, ("apple", "pen"))
+    scanner = replace(ScannerConfig(), step=0.004)
+    cfg = StripesBenchmarkConfig(seed=1, baselines=("fft",), fused=(), scanner=scanner)
+    res = run_stripes_benchmark(objs, cfg)
+    assert SC_VERIFIERS == ("shape-context",)
+    assert res.fused is None and "fused-sc" in res.methods()
+    assert set(res.baselines) == {"fft"}  # the verifier is not reported as a baseline
+    polys = [silhouette_polygon(s, cfg.scanner, cfg.silhouette_smooth)
+             for s in res.scanned.scans]
+    sc, _, _ = baseline_distances("shape-context", polys)
+    np.testing.assert_allclose(res.fused_sc.distances, fuse([res.profile.distances, sc]))
+    assert res.fused_sc.options["verifiers"] == ["shape-context"]
+    assert res.to_json()["fused_sc"]["top10_counts"][0] == 4
+    none = run_stripes_benchmark(objs, StripesBenchmarkConfig(
+        seed=1, baselines=(), fused=(), fused_sc=(), scanner=scanner))
+    assert none.fused_sc is None and "fused-sc" not in none.methods()
