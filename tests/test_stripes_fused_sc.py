@@ -47,3 +47,16 @@ def test_fused_sc_row_is_the_fusion_of_profile_and_shape_context():
     none = run_stripes_benchmark(objs, StripesBenchmarkConfig(
         seed=1, baselines=(), fused=(), fused_sc=(), scanner=scanner))
     assert none.fused_sc is None and "fused-sc" not in none.methods()
+
+
+def test_elongation_of_a_rectangle_is_the_log_of_its_side_ratio():
+    # Second moments of area of an a x b rectangle: a^3 b / 12 and a b^3 / 12, so
+    # 0.5 log(l_max / l_min) = log(a / b), whatever the yaw and the vertex order.
+    from benchmarks.stripes_variants import elongation
+
+    a, b = 4.0, 1.0
+    rect = np.array([[0, 0], [a, 0], [a, b], [0, b]], float)
+    c, s = np.cos(0.7), np.sin(0.7)
+    turned = rect @ np.array([[c, -s], [s, c]]).T
+    for v in (rect, turned, rect[::-1]):
+        assert abs(elongation(v) - np.log(a / b)) < 1e-9

@@ -1,0 +1,164 @@
+"""Benchmark: variants of the fused object matcher on the two YCB labelled sets, one run.
+
+Run from the repository root::
+
+    python benchmarks/stripes_variants.py [--meshes DIR] [--seeds 0,1]
+
+Scans the YCB multi-instance classes and the second labelled set
+(``benchmarks/stripes_ycb_other_labels.csv``) at every seed, same pose (one scan per
+object, yaw within +-15 degrees) and different pose (two scans per object, any yaw),
+exactly as ``benchmarks/stripes_real.py``; then scores every variant on the same
+scans: one column per (set, seed, pose), figure = the nearest other object is of the
+query's class (same-pose / different-pose rule of ``stripes_real``), and the minimum
+and mean over the columns.  Variants (distances per query; "fuse" = each method's
+distances divided by their per-query median, then averaged, `loopclosure.stripes.fuse`):
+
+- ``prof+elong``: the profile with one more feature, the footprint's elongation
+  ``0.5 log(lambda_max / lambda_min)`` of the silhouette polygon's second moments of
+  area (unitless, yaw invariant), median-normalised like the profile's features;
+- ``fuse(...)``: the profile (or ``prof+elong``) fused with FFT, ring projection,
+  shape context (100 points, and 40 / 60 points: ``sc40``, ``sc60``) or MRM;
+- ``p>sc topK``: the profile's K nearest re-ranked by shape context;
+- ``rank(p+sc)``: the sum of the two methods' rank positions.
+
+Nothing is written; the meshes are read in place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from benchmarks.stripes_real import DEFAULT_MESHES, different_pose, same_pose  # noqa: E402
+from data.stripe_scanner import ScannerConfig  # noqa: E402
+from evaluation.stripes_benchmark import (  # noqa: E402
+    StripesBenchmarkConfig,
+    run_stripes_benchmark,
+)
+from evaluation.stripes_objects import mesh_folder_objects, silhouette_polygon  # noqa: E402
+from loopclosure.matchers import get_matcher  # noqa: E402
+from loopclosure.stripes import describe_profiles, fuse  # noqa: E402
+from loopclosure.stripes.profile import _median_scale  # noqa: E402
+
+OTHER_LABELS = ROOT / "benchmarks" / "stripes_ycb_other_labels.csv"
+
+
+def elongation(vertices: np.ndarray) -> float:
+    """``0.5 log(l_max / l_min)`` of the polygon's central second moments of area."""
+    v = np.asarray(vertices, float)
+    x, y = v[:, 0] - v[:, 0].mean(), v[:, 1] - v[:, 1].mean()
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    a = x * y1 - x1 * y
+    area = a.sum() / 2
+    cx, cy = ((x + x1) * a).sum() / (6 * area), ((y + y1) * a).sum() / (6 * area)
+    ixx = ((x * x + x * x1 + x1 * x1) * a).sum() / (12 * area) - cx * cx
+    iyy = ((y * y + y * y1 + y1 * y1) * a).sum() / (12 * area) - cy * cy
+    ixy = ((x * y1 + 2 * x * y + 2 * x1 * y1 + x1 * y) * a).sum() / (24 * area) - cx * cy
+    w = np.linalg.eigvalsh(np.array([[ixx, ixy], [ixy, iyy]]))
+    return float(0.5 * np.log(w[1] / max(w[0], 1e-12)))
+
+
+def profile_plus(stripes: list, extra: np.ndarray) -> np.ndarray:
+    """Profile distances with per-object scalar features `extra` ``(M, G)`` added."""
+    s = np.stack([p.profile for p in describe_profiles(stripes)])
+    fwd = np.abs(s[:, None] - s[None]).mean(axis=2)
+    rev = np.abs(s[:, None, ::-1] - s[None]).mean(axis=2)
+    gd = np.abs(extra[:, None] - extra[None])
+    fwd, rev = np.concatenate([fwd, gd], axis=2), np.concatenate([rev, gd], axis=2)
+    scale = _median_scale(np.minimum(fwd, rev))
+    return np.minimum((fwd / scale).mean(axis=2), (rev / scale).mean(axis=2))
+
+
+def rerank(base: np.ndarray, verifier: np.ndarray, k: int) -> np.ndarray:
+    """Rank positions: `base`'s k nearest others re-ordered by `verifier`."""
+    dd = np.where(np.isfinite(base), base, np.inf).copy()
+    np.fill_diagonal(dd, -1.0)
+    out = np.empty_like(dd)
+    for i in range(len(dd)):
+        o = np.argsort(dd[i], kind="stable")
+        top = o[1:k + 1]
+        order = np.concatenate([[o[0]], top[np.argsort(verifier[i, top], kind="stable")],
+                                o[k + 1:]])
+        out[i, order] = np.arange(len(order)) - 1.0
+    return out
+
+
+def ranks(d: np.ndarray) -> np.ndarray:
+    dd = np.where(np.isfinite(d), d, np.inf).copy()
+    np.fill_diagonal(dd, np.inf)
+    return np.argsort(np.argsort(dd, axis=1, kind="stable"), axis=1).astype(float)
+
+
+def shape_context(polys: list, n_points: int) -> np.ndarray:
+    m = get_matcher("shape-context", scale_invariant=True, n_points=n_points)
+    ds = [m.describe(p) for p in polys]
+    st = m.stack(ds)
+    return np.stack([np.asarray(m.distances(q, st), float) for q in ds])
+
+
+def variants(r, scanner: ScannerConfig) -> dict[str, np.ndarray]:
+    m = {n: x.distances for n, x in r.methods().items()}
+    polys = [silhouette_polygon(s, scanner, 1.0) for s in r.scanned.scans]
+    el = np.array([[elongation(p.vertices)] for p in polys])
+    p, sc = m["profile"], m["shape-context"]
+    v = dict(m)
+    v["prof+elong"] = pel = profile_plus([s.stripes for s in r.scanned.scans], el)
+    v["fuse(pel,fft,ring)"] = fuse([pel, m["fft"], m["ring"]])
+    v["fuse(p,sc)"] = fuse([p, sc])
+    v["fuse(pel,sc)"] = fuse([pel, sc])
+    v["fuse(p,sc,fft)"] = fuse([p, sc, m["fft"]])
+    v["fuse(p,sc,fft,ring)"] = fuse([p, sc, m["fft"], m["ring"]])
+    v["fuse(p,2sc)"] = fuse([p, sc], [1, 2])
+    v["fuse(2p,sc)"] = fuse([p, sc], [2, 1])
+    v["fuse(p,mrm)"] = fuse([p, m["mrm"]])
+    for n in (40, 60):
+        v[f"sc{n}"] = scn = shape_context(polys, n)
+        v[f"fuse(p,sc{n})"] = fuse([p, scn])
+    for k in (2, 3, 5):
+        v[f"p>sc top{k}"] = rerank(p, sc, k)
+    v["rank(p+sc)"] = ranks(p) + ranks(sc)
+    return v
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--seeds", default="0,1")
+    args = ap.parse_args(argv)
+    if not args.meshes.is_dir():
+        print(f"skipped: no mesh folder {args.meshes}")
+        return
+    res: dict[str, dict[str, float]] = {}
+    cols = []
+    for name, labels in (("ycb", None), ("other", OTHER_LABELS)):
+        objs = mesh_folder_objects(args.meshes, labels)
+        for seed in (int(s) for s in args.seeds.split(",")):
+            for pose in ("same", "diff"):
+                sc = (ScannerConfig() if pose == "same"
+                      else replace(ScannerConfig(), yaw_range_deg=180.0))
+                r = run_stripes_benchmark(objs, StripesBenchmarkConfig(
+                    seed=seed, scans_per_object=1 if pose == "same" else 2, scanner=sc,
+                    baselines=("shape-context", "mrm", "fft", "ring")))
+                lab = np.array(r.scanned.labels)
+                col = f"{name}{seed}{pose[0]}"
+                cols.append(col)
+                for n, d in variants(r, sc).items():
+                    res.setdefault(n, {})[col] = (
+                        same_pose(d, lab, np.ones(len(lab), bool)) if pose == "same"
+                        else different_pose(d, lab, r.scanned.objects, None))
+    print(f"{'variant':22s}" + " ".join(f"{c:>8s}" for c in cols) + "     min    mean")
+    for n, row in res.items():
+        vals = [row[c] for c in cols]
+        print(f"{n:22s}" + " ".join(f"{x:8.3f}" for x in vals)
+              + f"  {min(vals):6.3f}  {np.mean(vals):6.3f}")
+
+
+if __name__ == "__main__":
+    main()
