@@ -7,6 +7,8 @@ frame of ``a``); ``between(a, b)`` is ``a⁻¹ ⊕ b``, the pose of ``b`` seen f
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -19,10 +21,20 @@ def wrap_angle(theta: ArrayLike) -> Array:
     return (theta + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _wrap(theta: float) -> float:
+    return (theta + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def compose(a: ArrayLike, b: ArrayLike) -> Array:
     """``a ⊕ b``: pose ``b``, given in the frame of ``a``, expressed in ``a``'s parent frame."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
+    if a.shape == (3,) and b.shape == (3,):
+        # One pose each (the pipeline's bookkeeping): scalar arithmetic, no array ops.
+        ax, ay, at = a.tolist()
+        bx, by, bt = b.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap(at + bt)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -32,6 +44,10 @@ def compose(a: ArrayLike, b: ArrayLike) -> Array:
 def inverse(a: ArrayLike) -> Array:
     """``a⁻¹`` such that ``compose(a, inverse(a))`` is the identity."""
     a = np.asarray(a, dtype=float)
+    if a.shape == (3,):
+        ax, ay, at = a.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap(-at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = -c * a[..., 0] - s * a[..., 1]
     y = s * a[..., 0] - c * a[..., 1]

@@ -94,3 +94,26 @@ def test_distance_to_a_moved_copy_is_near_zero(
     p = random_star(np.random.default_rng(seed))
     q = _moved(p, angle, np.array([dx, dy]))
     assert m.distance(m.describe(p), m.describe(q)) < 2e-3
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.integers(0, 400))
+def test_compiled_kernel_gives_the_numpy_histogram(seed: int, n: int) -> None:
+    from loopclosure.matchers.pair_kernel import pair_histogram_compiled
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-8, 8, (n, 2))
+    pts[: n // 4] = np.round(pts[: n // 4])  # repeated points: pairs at distance 0
+    ang = rng.uniform(-np.pi, np.pi, n)
+    nrm = np.column_stack([np.cos(ang), np.sin(ang)])
+    w = rng.uniform(0.05, 0.3, n)
+    args = dict(max_distance=10.0, n_distance=40, n_angle=8)
+    np.testing.assert_allclose(pair_histogram_compiled(pts, nrm, w, **args),
+                               pair_histogram(pts, nrm, w, **args), rtol=1e-12, atol=1e-12)
+
+
+def test_compiled_and_numpy_descriptors_agree_on_a_room() -> None:
+    poly = random_star(np.random.default_rng(3), 180)
+    fast = PairHistogramMatcher().describe(poly)
+    slow = PairHistogramMatcher(compiled=False).describe(poly)
+    np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=1e-7)

@@ -65,6 +65,9 @@ Parameters (`PairHistogramConfig`)
   pairs are the ones occlusion and the sensor's field of view change most).
 - ``n_distance`` = 40 (0.25 m bins), ``n_angle`` = 8 (11.25 degree bins).
 - ``max_samples`` = 500.
+- ``compiled`` = True: the histogram comes from the numba kernel of
+  `loopclosure.matchers.pair_kernel` (the same bins and weights in one pass, no
+  temporary pair arrays); False keeps the numpy version, `pair_histogram`.
 - ``scale_invariant`` = False: True (pixel-unit shape sets such as MPEG-7, whose
   contours are closed outlines without open space or depth jumps) ignores the
   lengths above and uses the polygon's extent E (largest vertex distance from the
@@ -101,6 +104,7 @@ class PairHistogramConfig:
         n_angle: angle bins over [0, pi/2].
         max_samples: more samples than this are thinned by a stride.
         scale_invariant: lengths relative to the polygon's extent (MPEG-7).
+        compiled: histogram from the numba kernel (False: numpy).
     """
 
     step: float = 0.25
@@ -111,6 +115,7 @@ class PairHistogramConfig:
     n_angle: int = 8
     max_samples: int = 500
     scale_invariant: bool = False
+    compiled: bool = True
 
     def __post_init__(self) -> None:
         for name in ("step", "max_edge", "max_range", "max_distance"):
@@ -223,8 +228,13 @@ class PairHistogramMatcher(Matcher):
         if len(pts) > cfg.max_samples:
             stride = -(-len(pts) // cfg.max_samples)
             pts, nrm, w = pts[::stride], nrm[::stride], w[::stride] * stride
-        hist = pair_histogram(pts, nrm, w, max_distance=max_distance,
-                              n_distance=cfg.n_distance, n_angle=cfg.n_angle).ravel()
+        if cfg.compiled:
+            # numba loads on first use: importing the matchers stays light.
+            from loopclosure.matchers.pair_kernel import pair_histogram_compiled as build
+        else:
+            build = pair_histogram
+        hist = build(pts, nrm, w, max_distance=max_distance,
+                     n_distance=cfg.n_distance, n_angle=cfg.n_angle).ravel()
         total = hist.sum()
         if not total > 0:
             return np.zeros(cfg.dim, np.float32)
