@@ -9,8 +9,8 @@ equations): ``d = |x_b - x_a|`` [m], ``alpha = arcsin |n . u|`` at both ends, bi
 ``(floor(d / max_distance * n_distance), floor(alpha / (pi/2) * n_angle))``, weight
 ``w_a w_b`` [m^2].  The angle bin is found without the arcsine: alpha lies in bin
 k when ``sin(k pi / (2 n_angle)) <= |n . u| < sin((k + 1) pi / (2 n_angle))``
-(arcsin is increasing on [0, 1]).  Only the order of the floating-point sums differs from numpy's,
-so the histograms agree to rounding.
+(arcsin is increasing on [0, 1]).  Only the order of the floating-point sums
+differs from numpy's, so the histograms agree to rounding.
 
 numba is imported with this module, which `pair_histogram` loads on first use;
 kernels are cached on disk (``cache=True``).
