@@ -140,6 +140,53 @@ def test_deterministic_and_seeded() -> None:
     np.testing.assert_array_equal(m.match(da, db).inliers, m.match(da, db).inliers)
 
 
+def test_compiled_kernel_equals_numpy_on_random_shapes() -> None:
+    """Property: the numba kernel and the numpy arrays give the same matches."""
+    rng = np.random.default_rng(11)
+    shapes = [lobed_star(int(rng.integers(3, 7)), 0.3, seed=int(s), noise=0.003, n=300)
+              for s in rng.integers(0, 1000, 8)]
+    shapes.append(SQUARE)
+    fast, slow = FlirtMatcher(), FlirtMatcher(compiled=False)
+    descs = [slow.describe(p) for p in shapes]
+    for query in descs:
+        stacked = slow.stack(descs)
+        d_fast, p_fast, pairs_fast, r_fast = fast._run(query, stacked, want_pairs=True)
+        d_slow, p_slow, pairs_slow, r_slow = slow._run(query, stacked, want_pairs=True)
+        np.testing.assert_allclose(d_fast, d_slow, atol=1e-12)
+        np.testing.assert_allclose(p_fast, p_slow, atol=1e-9)
+        np.testing.assert_allclose(r_fast, r_slow, atol=1e-12)
+        for a, b in zip(pairs_fast, pairs_slow, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_refit_keeps_the_rotation_when_inliers_share_one_point(compiled: bool) -> None:
+    """Two inliers on one stacked point fix no rotation: the hypothesis's stays."""
+    from loopclosure.matchers import flirt, flirt_kernel
+
+    qp = np.array([[0.0, 0.0], [1.0, 0.0]])
+    pts = np.array([[[2.0, 3.0], [5.0, 5.0]]])
+    match = np.array([[0, 0]])
+    inl = np.array([[True, True]])
+    weight = np.ones((1, 2))
+    if compiled:
+        th, tx, ty = flirt_kernel._procrustes(qp, pts[0], match[0], inl[0], weight[0],
+                                              0.7, 0.1, 0.2)
+        assert (th, tx, ty) == (0.7, 0.1, 0.2)
+        # Two distinct points on both sides: a quarter turn, hand-checked.
+        th, tx, ty = flirt_kernel._procrustes(qp, np.array([[0.0, 0.0], [0.0, -1.0]]),
+                                              np.array([0, 1]), inl[0], weight[0], 0.7, 0, 0)
+    else:
+        th, tt = flirt._procrustes(qp, pts, match, inl, weight, np.array([0.7]),
+                                   np.array([[0.1, 0.2]]))
+        assert th[0] == 0.7 and tuple(tt[0]) == (0.1, 0.2)
+        th, tt = flirt._procrustes(qp, np.array([[[0.0, 0.0], [0.0, -1.0]]]),
+                                   np.array([[0, 1]]), inl, weight, np.array([0.7]),
+                                   np.zeros((1, 2)))
+        th, (tx, ty) = th[0], tt[0]
+    assert th == pytest.approx(np.pi / 2) and (tx, ty) == pytest.approx((0.0, 0.0))
+
+
 # ---------------------------------------------------------------- extreme scales
 
 

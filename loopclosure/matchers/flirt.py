@@ -84,7 +84,9 @@ Parameters (`FlirtConfig`; the detection ones are forwarded to
 `FlirtFeatureConfig`): descriptor_distance ["euclidean" | "chi2"],
 candidates [3], scale_ratio [2.0], orientation_tolerance [0.6 rad],
 inlier_factor [0.5, tau per unit scale], max_hypotheses [400], min_inliers [4,
-the paper's n_min], seed [0].
+the paper's n_min], seed [0], compiled [True: steps 1-5 run in the numba kernel
+of `loopclosure.matchers.flirt_kernel`, which gives the same results to rounding;
+False: the numpy arrays below].
 """
 
 from __future__ import annotations
@@ -141,6 +143,8 @@ class FlirtConfig:
     max_hypotheses: int = 400
     min_inliers: int = 4
     seed: int = 0
+    # Matching steps 1-5 by the numba kernel of `flirt_kernel` (False: numpy).
+    compiled: bool = True
 
     def __post_init__(self) -> None:
         if self.descriptor_distance not in ("chi2", "euclidean"):
@@ -225,6 +229,7 @@ class FlirtMatcher(Matcher):
             cfg = FlirtConfig(**{**{n: getattr(cfg, n) for n in known}, **overrides})
         self.config = cfg
         self._features = cfg.features()
+        self._hypotheses: dict[int, tuple[IntArray, IntArray, IntArray, IntArray]] = {}
         bins = self._features.rings * self._features.sectors
         # Largest beta-grid distance (occupancies in (0, 1)): per-bin chi2 <= 1, so
         # chi2 <= bins; Euclidean <= sqrt(bins).
@@ -277,7 +282,14 @@ class FlirtMatcher(Matcher):
 
     # ------------------------------------------------------------------ internals
     def _hypothesis_indices(self, n_query: int) -> tuple[IntArray, IntArray, IntArray, IntArray]:
-        """Fixed (seeded) correspondence pairs ``(i, a), (j, b)`` tried by RANSAC."""
+        """Fixed (seeded) correspondence pairs ``(i, a), (j, b)`` tried by RANSAC.
+
+        They depend only on the query's feature count, so each count's set is drawn
+        once per matcher and reused.
+        """
+        cached = self._hypotheses.get(n_query)
+        if cached is not None:
+            return cached
         k = self.config.candidates
         iu, ju = np.triu_indices(n_query, 1)
         total = len(iu) * k * k
@@ -288,7 +300,9 @@ class FlirtMatcher(Matcher):
             flat = np.sort(rng.choice(total, size=self.config.max_hypotheses, replace=False))
         pair, rest = np.divmod(flat, k * k)
         ca, cb = np.divmod(rest, k)
-        return iu[pair], ca, ju[pair], cb
+        hyp = (iu[pair], ca, ju[pair], cb)
+        self._hypotheses[n_query] = hyp
+        return hyp
 
     def _descriptor_distances(self, query: FlirtFeatures, occ: Array) -> Array:
         """``(M, Q, F)`` beta-grid distances of query features to stacked features."""
@@ -333,6 +347,8 @@ class FlirtMatcher(Matcher):
         want_pairs: bool,
     ) -> tuple[Array, Array, list[IntArray], Array]:
         cfg = self.config
+        if cfg.compiled:
+            return self._run_chunk_compiled(query, st, sl, hyp, want_pairs)
         k = cfg.candidates
         pts, scl, ori = st.points[sl], st.scales[sl], st.orientations[sl]
         valid, counts = st.valid[sl], st.counts[sl]
@@ -453,15 +469,42 @@ class FlirtMatcher(Matcher):
         dist = np.where(n_in >= np.maximum(n_min, 1), 1.0 - score, unmatched)
         dist = np.clip(dist, 0.0, 2.0)
         pose = np.column_stack([tt, th])
-        pairs: list[IntArray] = []
-        if want_pairs:
-            for row in range(m):
-                qs_in = np.nonzero(inl[row])[0]
-                js = match[row, qs_in]
-                first = e[row, qs_in] == best_e[row, js]
-                qs_in, js = qs_in[first], js[first]
-                _, uniq = np.unique(js, return_index=True)
-                pairs.append(np.column_stack([qs_in[uniq], js[uniq]]).astype(np.intp))
+        pairs = _inlier_pairs(e, match, inl, best_e) if want_pairs else []
+        return dist, pose, pairs, mean_e
+
+    def _run_chunk_compiled(
+        self,
+        query: FlirtFeatures,
+        st: FlirtStack,
+        sl: slice,
+        hyp: tuple[IntArray, IntArray, IntArray, IntArray],
+        want_pairs: bool,
+    ) -> tuple[Array, Array, list[IntArray], Array]:
+        """`_run_chunk` by the numba kernel of `flirt_kernel` (same steps, same results)."""
+        from loopclosure.matchers.flirt_kernel import flirt_entries
+
+        cfg = self.config
+        dd = self._descriptor_distances(query, st.occupancy[sl])
+        hi, ha, hj, hb = (np.ascontiguousarray(h, dtype=np.intp) for h in hyp)
+        dist, pose, mean_e, e, match, inl, best_e = flirt_entries(
+            np.ascontiguousarray(query.points, dtype=float).reshape(-1, 2),
+            np.ascontiguousarray(query.scales, dtype=float),
+            np.ascontiguousarray(query.orientations, dtype=float),
+            np.ascontiguousarray(dd, dtype=float),
+            np.ascontiguousarray(st.points[sl]),
+            np.ascontiguousarray(st.scales[sl]),
+            np.ascontiguousarray(st.orientations[sl]),
+            np.ascontiguousarray(st.valid[sl]),
+            np.ascontiguousarray(st.counts[sl], dtype=np.intp),
+            hi, ha, hj, hb,
+            cfg.candidates,
+            float(np.log(cfg.scale_ratio)),
+            float(np.cos(cfg.orientation_tolerance)),
+            float(cfg.inlier_factor),
+            self._d_max,
+            cfg.min_inliers,
+        )  # fmt: skip
+        pairs = _inlier_pairs(e, match, inl, best_e) if want_pairs else []
         return dist, pose, pairs, mean_e
 
     def _guided(
@@ -496,6 +539,25 @@ class FlirtMatcher(Matcher):
         return np.take_along_axis(e, match[..., None], axis=2)[..., 0], match
 
 
+def _inlier_pairs(
+    e: Array, match: IntArray, inl: NDArray[np.bool_], best_e: Array
+) -> list[IntArray]:
+    """Per entry, the one-to-one ``(K, 2)`` inlier pairs (query feature, stacked feature).
+
+    Each stacked feature keeps the query feature of its best residual (the lower
+    query index on ties).
+    """
+    pairs: list[IntArray] = []
+    for row in range(len(inl)):
+        qs_in = np.nonzero(inl[row])[0]
+        js = match[row, qs_in]
+        first = e[row, qs_in] == best_e[row, js]
+        qs_in, js = qs_in[first], js[first]
+        _, uniq = np.unique(js, return_index=True)
+        pairs.append(np.column_stack([qs_in[uniq], js[uniq]]).astype(np.intp))
+    return pairs
+
+
 def _procrustes(
     qp: Array,
     pts: Array,
@@ -508,13 +570,20 @@ def _procrustes(
     """Weighted least-squares rigid fit ``q ~ R p + t`` on each entry's inliers (>= 2).
 
     `weight` ``(m, Q)`` is 1 / tau^2 of each pair (position uncertainty grows with
-    scale).  Entries with fewer than 2 inliers keep their transform.
+    scale).  An entry keeps its transform unless its inliers hold at least two
+    distinct points on both sides (one point fixes no rotation: the fit's
+    ``atan2`` would return rounding noise).
     Returns (theta, t).
     """
     w = np.where(inl, weight, 0.0)  # (m, Q)
-    refit = inl.sum(axis=1) >= 2
-    nn = np.maximum(w.sum(axis=1), np.finfo(float).tiny)[:, None]
     p = np.take_along_axis(pts, match[..., None], axis=1)  # (m, Q, 2)
+    first = np.argmax(inl, axis=1)
+    p_first = np.take_along_axis(p, first[:, None, None], axis=1)  # (m, 1, 2)
+    q_first = qp[first][:, None]
+    refit = ((p != p_first).any(axis=2) & inl).any(axis=1) & (
+        (qp[None] != q_first).any(axis=2) & inl
+    ).any(axis=1)
+    nn = np.maximum(w.sum(axis=1), np.finfo(float).tiny)[:, None]
     mq = (w[..., None] * qp[None]).sum(axis=1) / nn
     mp = (w[..., None] * p).sum(axis=1) / nn
     dq = qp[None] - mq[:, None]
