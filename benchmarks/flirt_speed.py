@@ -26,9 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from data.carmen import CarmenLog
+from benchmarks.pair_histogram_speed import intel_polygons
 from loopclosure.matchers.flirt import FlirtMatcher
-from loopclosure.polygon import Polygon
 
 
 def main() -> None:
@@ -38,15 +37,7 @@ def main() -> None:
     parser.add_argument("--scans", type=int, default=600)
     parser.add_argument("--entries", type=int, default=10)
     args = parser.parse_args()
-    polygons = []
-    for scan in CarmenLog(args.data / "carmen" / "intel.clf.bz2"):
-        ok = scan.valid
-        pts = np.column_stack([scan.ranges[ok] * np.cos(scan.angles[ok]),
-                               scan.ranges[ok] * np.sin(scan.angles[ok])])
-        if len(pts) >= 3:
-            polygons.append(Polygon(np.vstack([[0.0, 0.0], pts])))
-        if len(polygons) >= args.scans:
-            break
+    polygons = intel_polygons(args.data, args.scans)
     variants = {"compiled": FlirtMatcher(), "numpy": FlirtMatcher(compiled=False)}
     descs = [variants["numpy"].describe(p) for p in polygons[::3]]
     n = len(descs)

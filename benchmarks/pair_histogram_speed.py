@@ -28,21 +28,28 @@ from loopclosure.matchers.pair_histogram import PairHistogramMatcher
 from loopclosure.polygon import Polygon
 
 
+def intel_polygons(data: Path, count: int) -> list[Polygon]:
+    """The first `count` Intel scans with >= 3 valid beams, each as the polygon of the
+    sensor origin and its valid end points (sensor frame [m])."""
+    polygons = []
+    for scan in CarmenLog(data / "carmen" / "intel.clf.bz2"):
+        ok = scan.valid
+        pts = np.column_stack([scan.ranges[ok] * np.cos(scan.angles[ok]),
+                               scan.ranges[ok] * np.sin(scan.angles[ok])])
+        if len(pts) >= 3:
+            polygons.append(Polygon(np.vstack([[0.0, 0.0], pts])))
+        if len(polygons) >= count:
+            break
+    return polygons
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path,
                         default=Path(__file__).resolve().parents[2] / "shared" / "data")
     parser.add_argument("--scans", type=int, default=400)
     args = parser.parse_args()
-    polygons = []
-    for scan in CarmenLog(args.data / "carmen" / "intel.clf.bz2"):
-        ok = scan.valid
-        pts = np.column_stack([scan.ranges[ok] * np.cos(scan.angles[ok]),
-                               scan.ranges[ok] * np.sin(scan.angles[ok])])
-        if len(pts) >= 3:
-            polygons.append(Polygon(np.vstack([[0.0, 0.0], pts])))
-        if len(polygons) >= args.scans:
-            break
+    polygons = intel_polygons(args.data, args.scans)
     variants = {"compiled": PairHistogramMatcher(), "numpy": PairHistogramMatcher(compiled=False)}
     cpu = dict.fromkeys(variants, 0.0)
     out: dict[str, list] = {name: [] for name in variants}
