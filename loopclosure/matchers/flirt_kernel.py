@@ -149,15 +149,13 @@ def flirt_entries(
         look_sum = 0.0
         for q in range(n_q):
             for kk in range(k):
-                cand[q, kk] = -1
-                cand_d[q, kk] = np.inf
+                cand_d[q, kk] = np.inf  # stays inf where fewer than k features
             filled = 0
             for f in range(width):
                 ok = valid[r, f] and abs(math.log(qs[q] / scl[r, f])) <= gate
                 v = dd[r, q, f] if ok else np.inf
                 tau_all[q, f] = inlier_factor * math.sqrt(qs[q] * scl[r, f])
-                allowed[q, f] = ok
-                tie[q, f] = v
+                tie[q, f] = v  # the masked distance, until the gate is known
                 # Insert after every kept value <= v (stable order).
                 if filled < k:
                     pos = filled
@@ -180,13 +178,13 @@ def flirt_entries(
                     kth = cand_d[q, kk]
             for f in range(width):
                 v = tie[q, f]
-                allowed[q, f] = allowed[q, f] and v <= kth
+                allowed[q, f] = v <= kth  # false where incompatible: v = inf, kth finite
                 tie[q, f] = v * (1e-6 / d_max) if allowed[q, f] else 0.0
             for kk in range(k):
                 f = cand[q, kk]
                 cpx[q, kk] = pts[r, f, 0]
                 cpy[q, kk] = pts[r, f, 1]
-                tau[q, kk] = inlier_factor * math.sqrt(qs[q] * scl[r, f])
+                tau[q, kk] = tau_all[q, f]
                 inv_tau2[q, kk] = 1.0 / (tau[q, kk] * tau[q, kk])
                 rel_c[q, kk] = math.cos(qo[q] - ori[r, f])
                 rel_s[q, kk] = math.sin(qo[q] - ori[r, f])
