@@ -77,11 +77,12 @@ do (riSAM, McGann, Rogers & Kaess, ICRA 2023; IPC, arXiv 2405.08503), here in
 batch form.
 
 Cost: a factorisation and ``dof`` sparse solves per candidate and round, and a
-prefix solve per admission round.  The prefix solves are batch (LM, dogleg-QR
-where LM fails) or, when the odometry needs QR factorisation (Intel), updates of
-one iSAM2 per pass, which re-eliminate only what the new factors touch
+prefix solve per admission round.  The prefix solves are updates of one iSAM2 per
+pass, which re-eliminate only what the new factors touch, until iSAM2's undamped
+updates stop converging (admitted false loops folded the prefix); the pass then
+goes on with batch solves (LM, dogleg-QR where LM fails), whose damping copes
 (`admit_incrementally`'s ``prefix_solver``; ``benchmarks/tls_speed.py`` measures
-both against an earlier revision).
+the passes against an earlier revision).
 
 Requirements: the smallest pose id is an anchor and every later pose is reached by
 odometry from an earlier one (the odometry spine of a mapper or a g2o file);
@@ -266,8 +267,9 @@ class Admission:
         tls_cost: `tls_cost` of the solution under the graph's stated covariances.
         blocks: prefix solves of the incremental pass.
         gate: ``"stated"`` or ``"calibrated"`` (see the module docstring).
-        prefix: how the prefix was solved, ``"batch"`` or ``"isam2"``
-            (`admit_incrementally`'s `prefix_solver` after ``"auto"`` chose).
+        prefix: how the prefix was solved, ``"batch"``, ``"isam2"`` or
+            ``"isam2-then-batch"`` (iSAM2 until its updates stopped converging; see
+            `_IsamPrefix`).
     """
 
     values: gtsam.Values
@@ -278,9 +280,20 @@ class Admission:
     prefix: str = "batch"
 
 
-def tls_cost(graph: PoseGraph, values: gtsam.Values, probability: float = 0.99) -> float:
-    """TLS objective at `values`: odometry and prior error plus ``min(e_k, c)`` per loop."""
-    base, loop_index = graph.factor_graph(RobustKernel("none"))
+StatedFactors = tuple[gtsam.NonlinearFactorGraph, list[int]]  # `PoseGraph.factor_graph`'s result
+
+
+def tls_cost(
+    graph: PoseGraph, values: gtsam.Values, probability: float = 0.99,
+    factors: StatedFactors | None = None,
+) -> float:
+    """TLS objective at `values`: odometry and prior error plus ``min(e_k, c)`` per loop.
+
+    `factors`: ``graph.factor_graph(RobustKernel("none"))`` when the caller already built
+    it (a few milliseconds per thousand constraints, which a search over many runs of the
+    same graph would otherwise repeat).
+    """
+    base, loop_index = factors or graph.factor_graph(RobustKernel("none"))
     c = tls_threshold(graph.dim, probability)
     n_fixed = base.size() - len(loop_index)
     fixed = sum(base.at(k).error(values) for k in range(n_fixed))
@@ -359,6 +372,12 @@ class _IsamPrefix:
     prefix.  Cholesky factorisation; when it finds the system indeterminate (Intel's
     near-singular information matrices), iSAM2 is rebuilt once with QR from every factor
     it was given and its latest estimate.
+
+    iSAM2's updates are undamped Gauss-Newton steps.  When admitted false loops fold the
+    prefix, they stop converging: every update relinearises every pose and the estimate
+    oscillates (M3500 at half false loops: all `max_updates` updates of each later solve
+    relinearise the whole prefix).  `converged` is then False, and `admit_incrementally`
+    finishes that pass with damped batch solves (`_isam_or_batch`).
     """
 
     def __init__(self, max_updates: int = 20) -> None:
@@ -369,6 +388,7 @@ class _IsamPrefix:
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
         self.max_updates = max_updates
+        self.converged = True  # the last `solve` stopped relinearising within max_updates
 
     def _new(self) -> gtsam.ISAM2:
         params = gtsam.ISAM2Params()
@@ -405,8 +425,24 @@ class _IsamPrefix:
         result = self._isam.update(factors, values)
         for _ in range(self.max_updates):
             if result.getVariablesRelinearized() == 0:
-                break
+                self.converged = True
+                return
             result = self._isam.update()
+        self.converged = result.getVariablesRelinearized() == 0
+
+
+def _isam_or_batch(
+    isam: _IsamPrefix, solve: StickySolver, factors: gtsam.NonlinearFactorGraph,
+    current: gtsam.Values,
+) -> tuple[gtsam.Values, _IsamPrefix | None]:
+    """The prefix solved by `isam`, or, when its updates did not converge, by `solve` on
+    the accepted graph `factors` from the better of iSAM2's estimate and `current`; the
+    second value is the iSAM2 to use next (None: batch solves for the rest of the pass)."""
+    estimate = isam.solve()
+    if isam.converged:
+        return estimate, isam
+    start = estimate if factors.error(estimate) < factors.error(current) else current
+    return solve(factors, start), None
 
 
 def admit_incrementally(
@@ -435,11 +471,10 @@ def admit_incrementally(
         solver: least-squares solver (shared by the calls of `incremental_tls`).
         barred: loops never admitted (weight 0).
         prefix_solver: ``"batch"`` (`solver` on the whole accepted prefix after every
-            admission round), ``"isam2"`` (`_IsamPrefix`) or ``"auto"``: iSAM2 when the
-            odometry needs QR factorisation (`needs_qr`; the batch solves are then
-            dogleg with QR, which iSAM2's updates beat with the same decisions), batch
-            otherwise (where the loops relinearise most of the prefix, as on M3500, an
-            iSAM2 pass is slower than the batch one; `benchmarks/tls_speed.py`).
+            admission round) or ``"isam2"`` (`_IsamPrefix`, handing over to batch solves
+            for the rest of the pass once its updates stop converging); ``"auto"`` is
+            ``"isam2"``: on a prefix that stays consistent its updates cost a fraction
+            of the batch solves, and a folded prefix costs about what batch does.
         unit: the Gaussian factor of every loop (computed when None).
     """
     solve = solver or StickySolver()
@@ -447,7 +482,7 @@ def admit_incrementally(
         raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
                         f"{', '.join(PREFIX_SOLVERS)}")
     if prefix_solver == "auto":
-        prefix_solver = "isam2" if needs_qr(graph, values) else "batch"
+        prefix_solver = "isam2"
     isam = _IsamPrefix() if prefix_solver == "isam2" else None
     if gate not in GATES:
         raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
@@ -501,7 +536,7 @@ def admit_incrementally(
                 else:
                     for q in np.flatnonzero(newly):
                         isam.add(unit[pending[q]])
-                    current = isam.solve()
+                    current, isam = _isam_or_batch(isam, solve, factors, current)
                 continue
             rest = np.flatnonzero(~accepted)
             if len(rest) == 0:
@@ -525,12 +560,15 @@ def admit_incrementally(
             else:
                 for q in rest[admitted]:
                     isam.add(unit[pending[q]])
-                current = isam.solve()
+                current, isam = _isam_or_batch(isam, solve, factors, current)
         weights[pending] = accepted
         for q in np.flatnonzero(accepted):
             fixed.add(unit[pending[q]])
-    return Admission(current, weights, tls_cost(graph, current, probability), blocks, gate,
-                     prefix_solver)
+    errors = np.array([f.error(current) for f in unit])
+    cost = fixed.error(current) - errors[weights > 0.5].sum() + np.minimum(errors, c).sum()
+    if prefix_solver == "isam2" and isam is None:
+        prefix_solver = "isam2-then-batch"
+    return Admission(current, weights, float(cost), blocks, gate, prefix_solver)
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -566,6 +604,7 @@ def refine_tls(
     solver: StickySolver | None = None,
     barred: Sequence[int] = (),
     solved: bool = False,
+    factors: StatedFactors | None = None,
 ) -> tuple[gtsam.Values, Array]:
     """Re-decide every loop by the TLS residual rule on the whole graph until stable.
 
@@ -573,9 +612,10 @@ def refine_tls(
     re-weighted least squares of the TLS loss from a start inside its basin).  Loops
     in `barred` keep weight 0.  `solved`: `values` already solve the graph with
     `weights` (an `admit_incrementally` result), so the first solve is skipped.
+    `factors`: as in `tls_cost`.
     """
     solve = solver or StickySolver()
-    base, loop_index = graph.factor_graph(RobustKernel("none"))
+    base, loop_index = factors or graph.factor_graph(RobustKernel("none"))
     c = tls_threshold(graph.dim, probability)
     n_fixed = base.size() - len(loop_index)
     w = np.asarray(weights, dtype=float).copy()
@@ -583,12 +623,12 @@ def refine_tls(
     result = values
     for n in range(max_rounds):
         if not (solved and n == 0):
-            factors = gtsam.NonlinearFactorGraph()
+            kept = gtsam.NonlinearFactorGraph()
             for k in range(n_fixed):
-                factors.add(base.at(k))
+                kept.add(base.at(k))
             for k in np.flatnonzero(w > 0.5):
-                factors.add(base.at(loop_index[k]))
-            result = solve(factors, result)
+                kept.add(base.at(loop_index[k]))
+            result = solve(kept, result)
         new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
         new[list(barred)] = 0.0
         if np.array_equal(new, w):
@@ -609,6 +649,7 @@ def bar_search(
     solver: StickySolver | None = None,
     prefix_solver: str = "auto",
     unit: list[gtsam.NonlinearFactor] | None = None,
+    factors: StatedFactors | None = None,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -622,10 +663,12 @@ def bar_search(
     lowers `tls_cost` (stated covariances) is kept, its loop stays barred and the
     ranking is redone at the new solution; the search ends at the first trial that
     does not, or after `tries` (one extra admission run when there is nothing to fix).
+    `factors`: as in `tls_cost`.
     """
     solve = solver or StickySolver()
+    factors = factors or graph.factor_graph(RobustKernel("none"))
     if unit is None:
-        unit = [graph.between_factor(loop) for loop in graph.loops]
+        unit = [factors[0].at(k) for k in factors[1]]
     barred: list[int] = []
     done: set[int] = set()
     while len(done) < tries:
@@ -641,8 +684,9 @@ def bar_search(
                                   gate="stated", solver=solve, barred=trial,
                                   prefix_solver=prefix_solver, unit=unit)
         refined, weights = refine_tls(graph, run.values, run.weights, probability=probability,
-                                      solver=solve, barred=trial, solved=decide is graph)
-        cost = tls_cost(graph, refined, probability)
+                                      solver=solve, barred=trial, solved=decide is graph,
+                                      factors=factors)
+        cost = tls_cost(graph, refined, probability, factors)
         if not cost < best.tls_cost * (1.0 - 1e-9):
             break
         barred = trial
@@ -689,9 +733,9 @@ def incremental_tls(
     # slower).
     solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
     solver.dogleg = needs_qr(graph, values)
-    if prefix_solver == "auto":
-        prefix_solver = "isam2" if solver.dogleg else "batch"
-    unit = [graph.between_factor(loop) for loop in graph.loops]  # the same on every rung
+    stated = graph.factor_graph(RobustKernel("none"))  # built once for every run below
+    base, loop_index = stated
+    unit = [base.at(k) for k in loop_index]  # the loops' factors, the same on every rung
     for factor in ladder:
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
         for gate in GATES if factor == 1.0 else GATES[:1]:
@@ -701,9 +745,9 @@ def incremental_tls(
             )
             refined, weights = refine_tls(
                 graph, run.values, run.weights, probability=probability, solver=solver,
-                solved=decide is graph,
+                solved=decide is graph, factors=stated,
             )
-            cost = tls_cost(graph, refined, probability)
+            cost = tls_cost(graph, refined, probability, stated)
             if best is None or cost < best.tls_cost * (1.0 - 1e-9):
                 label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
                 best = Admission(refined, weights, cost, run.blocks, label)
@@ -711,19 +755,19 @@ def incremental_tls(
     assert best is not None and decided is not None
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
-                          tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit)
+                          tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
+                          factors=stated)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum
     # with LM).
-    base, loop_index = graph.factor_graph(RobustKernel("none"))
-    factors = gtsam.NonlinearFactorGraph()
+    kept = gtsam.NonlinearFactorGraph()
     for k in range(base.size() - len(loop_index)):
-        factors.add(base.at(k))
+        kept.add(base.at(k))
     for k in np.flatnonzero(best.weights > 0.5):
-        factors.add(base.at(loop_index[k]))
-    polished = dogleg_qr(factors, best.values, solver.max_iterations).optimize()
-    return Admission(polished, best.weights, tls_cost(graph, polished, probability),
+        kept.add(base.at(loop_index[k]))
+    polished = dogleg_qr(kept, best.values, solver.max_iterations).optimize()
+    return Admission(polished, best.weights, tls_cost(graph, polished, probability, stated),
                      best.blocks, best.gate)
 
 

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from evaluation.robustness import aligned_position_error, inject_false_loops
-from slam.consistency import admit_incrementally, incremental_tls
+from slam.consistency import _isam_or_batch, _IsamPrefix, admit_incrementally, incremental_tls
 from slam.least_squares import StickySolver
 from slam.optimize import initial_guess, optimize
-from slam.pose_graph import poses_from_values
+from slam.pose_graph import Constraint, poses_from_values
 from tests.test_backend import _square_graph
 
 
@@ -45,3 +46,47 @@ def test_lm_budget_hands_an_unconverged_solve_to_dogleg() -> None:
     assert capped.dogleg  # one LM iteration cannot converge from the odometry chain
     free = StickySolver()(factors, values)
     assert abs(factors.error(result) - factors.error(free)) < 1e-6 * max(1.0, factors.error(free))
+
+
+def _chain_with_loop(false_loop: bool):
+    """The square graph's anchor and odometry in an `_IsamPrefix`, one loop added after
+    the chain is solved: the given first loop, or the same loop moved 5 m off."""
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    isam = _IsamPrefix(max_updates=1)
+    factors = gtsam.NonlinearFactorGraph()
+    for key in graph.anchor_keys():
+        factors.add(graph.prior_factor(key))
+    for o in graph.odometry:
+        factors.add(graph.between_factor(o))
+    for k in range(factors.size()):
+        isam.add(factors.at(k))
+    for key in graph.keys:
+        isam.insert(key, values.atPose2(key))
+    current = isam.solve()
+    loop = graph.loops[0]
+    if false_loop:
+        loop = Constraint(loop.i, loop.j, loop.measurement + np.array([5.0, 0.0, 1.0]),
+                          loop.information)
+    factor = graph.between_factor(loop)
+    factors.add(factor)
+    isam.add(factor)
+    return isam, factors, current
+
+
+def test_isam2_prefix_hands_over_to_batch_when_its_updates_do_not_converge() -> None:
+    isam, factors, current = _chain_with_loop(false_loop=True)
+    solved, nxt = _isam_or_batch(isam, StickySolver(), factors, current)
+    assert not isam.converged  # one update cannot absorb a loop 5 m off
+    assert nxt is None
+    batch = StickySolver()(factors, current)
+    assert abs(factors.error(solved) - factors.error(batch)) < 1e-6 * factors.error(batch)
+
+
+def test_isam2_prefix_keeps_isam2_while_its_updates_converge() -> None:
+    isam, factors, current = _chain_with_loop(false_loop=False)
+    isam.max_updates = 20
+    solved, nxt = _isam_or_batch(isam, StickySolver(), factors, current)
+    assert isam.converged and nxt is isam
+    batch = StickySolver()(factors, current)
+    assert abs(factors.error(solved) - factors.error(batch)) < 1e-6 * max(1.0, factors.error(batch))
