@@ -115,3 +115,69 @@ def test_vectorised_describe_equals_straightforward_formulation(scale_invariant:
         m = ShapeContextMatcher(scale_invariant=scale_invariant, **cfg)
         for p in shapes:
             np.testing.assert_array_equal(m.describe(p), _reference_counts(m, p))
+
+
+def test_harmonic_table_by_hand() -> None:
+    from loopclosure.matchers.shape_context_kernel import harmonic_table
+
+    f = harmonic_table(5)
+    # F(a, b) = a b / (a + b): F(2, 3) = 6/5, F(4, 4) = 2, F(0, b) = F(0, 0) = 0.
+    assert f.shape == (6, 6)
+    assert f[2, 3] == pytest.approx(1.2) and f[3, 2] == f[2, 3]
+    assert f[4, 4] == pytest.approx(2.0)
+    assert f[0, 5] == 0.0 and f[0, 0] == 0.0
+
+
+def test_compiled_assignment_by_hand_and_against_scipy() -> None:
+    from loopclosure.matchers.shape_context_kernel import assignment_cost
+
+    # Rows 0 -> 1, 1 -> 0, 2 -> 2: 1 + 2 + 2 = 5, the cheapest of the six permutations
+    # (6, 7, 9, 11, 6 for the others).
+    c = np.array([[4.0, 1.0, 3.0], [2.0, 0.0, 5.0], [3.0, 2.0, 2.0]])
+    assert assignment_cost(c) == pytest.approx(5.0)
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n = int(rng.integers(1, 30))
+        c = rng.random((n, n))
+        if trial % 2:  # many ties
+            c = np.round(c * 3) / 3
+        r, k = linear_sum_assignment(c)
+        assert assignment_cost(c) == pytest.approx(c[r, k].sum(), abs=1e-12)
+
+
+def test_numba_chi2_costs_are_the_exact_formula() -> None:
+    m = ShapeContextMatcher(kernel="numba", n_points=50)
+    a, b = m.describe(blob(1)), m.describe(blob(2))
+    got = m.chi2_costs(a, m.stack([b]))[0]
+    h, g = a[:, None, :] / 49.0, b[None, :, :] / 49.0
+    s = h + g
+    want = 0.5 * np.divide((h - g) ** 2, s, out=np.zeros_like(s), where=s > 0).sum(axis=2)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("options", [{}, {"n_points": 40, "scale_invariant": True},
+                                     {"dummy_fraction": 0.2, "dummy_cost": 0.1}])
+def test_numba_kernel_equals_the_blas_path(options: dict) -> None:
+    # Property: the compiled path gives the default path's distances (the float32 factor
+    # product is the only difference, about 1e-7), and its symmetric pairwise matrix is
+    # the row-by-row one.
+    old = ShapeContextMatcher(**options)
+    new = ShapeContextMatcher(kernel="numba", **options)
+    shapes = [blob(s) for s in range(7)]
+    shapes.append(Polygon(np.array([[0, 0], [6, 0], [6, 2], [0, 2.0]])))
+    descs = [old.describe(p) for p in shapes]
+    np.testing.assert_array_equal(descs[3], new.describe(shapes[3]))
+    want = old.pairwise(descs)
+    rows = np.stack([new.distances(q, new.stack(descs)) for q in descs])
+    np.testing.assert_allclose(rows, want, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(new.pairwise(descs), rows, rtol=0, atol=1e-12)
+    assert new.symmetric_pairwise and not old.symmetric_pairwise
+    assert new.distance(descs[0], descs[1]) == pytest.approx(want[0, 1], abs=1e-6)
+    assert new.distances(descs[0], new.stack([])).shape == (0,)
+
+
+def test_unknown_kernel_is_refused() -> None:
+    from data.errors import UserError
+
+    with pytest.raises(UserError, match="kernel"):
+        ShapeContextMatcher(kernel="gpu")
