@@ -18,8 +18,18 @@ distances divided by their per-query median, then averaged, `loopclosure.stripes
   area (unitless, yaw invariant), median-normalised like the profile's features;
 - ``fuse(...)``: the profile (or ``prof+elong``) fused with FFT, ring projection,
   shape context (100 points, and 40 / 60 points: ``sc40``, ``sc60``) or MRM;
+- ``sc50``: the ``shape-context-50`` verifier preset (50 points, compiled kernel;
+  `loopclosure.stripes.fusion.VERIFIER_PRESETS`), the default ``fused-sc`` verifier;
+  ``fuse(p,sc)`` is the profile fused with the 100-point shape context;
 - ``p>sc topK``: the profile's K nearest re-ranked by shape context;
 - ``rank(p+sc)``: the sum of the two methods' rank positions.
+
+Time (column ``s/100``): seconds of representation + matching of 100 objects (every
+descriptor and the full distance matrix), one wall-clock measurement per method on
+the first 100 scans made (over the columns in order); a variant's time is the sum
+of its methods' times and of the fusion step.  ``x`` is ``fuse(p,sc)``'s time
+divided by the variant's, both measured in this run.  Time it with one BLAS thread
+(``OPENBLAS_NUM_THREADS=1``), as shape context's docstring says.
 
 Nothing is written; the meshes are read in place.
 """
@@ -28,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -40,14 +51,21 @@ from benchmarks.stripes_real import DEFAULT_MESHES, different_pose, same_pose  #
 from data.stripe_scanner import ScannerConfig  # noqa: E402
 from evaluation.stripes_benchmark import (  # noqa: E402
     StripesBenchmarkConfig,
+    baseline_distances,
+    profile_distances,
     run_stripes_benchmark,
+    stripes_distances,
 )
 from evaluation.stripes_objects import mesh_folder_objects, silhouette_polygon  # noqa: E402
 from loopclosure.matchers import get_matcher  # noqa: E402
-from loopclosure.stripes import describe_profiles, fuse  # noqa: E402
+from loopclosure.stripes import SC_VERIFIERS, describe_profiles, fuse  # noqa: E402
 from loopclosure.stripes.profile import _median_scale  # noqa: E402
 
 OTHER_LABELS = ROOT / "benchmarks" / "stripes_ycb_other_labels.csv"
+#: Silhouette matchers of `run_stripes_benchmark` here (each also a variant row).
+BASELINES: tuple[str, ...] = ("shape-context", "mrm", "fft", "ring")
+#: Objects of the timing set.
+TIMING_OBJECTS = 100
 
 
 def elongation(vertices: np.ndarray) -> float:
@@ -103,13 +121,58 @@ def shape_context(polys: list, n_points: int) -> np.ndarray:
     return np.stack([np.asarray(m.distances(q, st), float) for q in ds])
 
 
+def prof_elong(stripes: list, polys: list) -> np.ndarray:
+    """``prof+elong`` distances: the profile with the footprint's elongation."""
+    el = np.array([[elongation(p.vertices)] for p in polys])
+    return profile_plus(stripes, el)
+
+
+#: Methods of every variant (module docstring; "fuse" = the fusion step).
+P_SC = ("profile", "shape-context", "fuse")
+PARTS: dict[str, tuple[str, ...]] = {
+    "fused": ("profile", "fft", "ring", "fuse"),
+    "fused-sc": ("profile", *SC_VERIFIERS, "fuse"),
+    "fuse(pel,fft,ring)": ("prof+elong", "fft", "ring", "fuse"),
+    "fuse(p,sc)": P_SC, "fuse(pel,sc)": ("prof+elong", "shape-context", "fuse"),
+    "fuse(p,sc,fft)": ("profile", "shape-context", "fft", "fuse"),
+    "fuse(p,sc,fft,ring)": ("profile", "shape-context", "fft", "ring", "fuse"),
+    "fuse(p,2sc)": P_SC, "fuse(2p,sc)": P_SC, "fuse(p,mrm)": ("profile", "mrm", "fuse"),
+    "sc50": ("shape-context-50",), "fuse(p,sc50)": ("profile", "shape-context-50", "fuse"),
+    "fuse(p,sc40)": ("profile", "sc40", "fuse"), "fuse(p,sc60)": ("profile", "sc60", "fuse"),
+    "p>sc top2": P_SC, "p>sc top3": P_SC, "p>sc top5": P_SC, "rank(p+sc)": P_SC,
+}
+
+
+def method_seconds(scans: list, polys: list) -> dict[str, float]:
+    """Wall seconds of representation + matching of `scans` per method (and "fuse")."""
+    out = {"stripes": stripes_distances(scans)[1]}
+    p, out["profile"] = profile_distances(scans)
+    t0 = time.perf_counter()
+    prof_elong([s.stripes for s in scans], polys)
+    out["prof+elong"] = time.perf_counter() - t0
+    for name in dict.fromkeys((*BASELINES, *SC_VERIFIERS, "shape-context-50")):
+        d, out[name], _ = baseline_distances(name, polys)
+    for n in (40, 60):
+        t0 = time.perf_counter()
+        shape_context(polys, n)
+        out[f"sc{n}"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fuse([p, d])
+    out["fuse"] = time.perf_counter() - t0
+    return out
+
+
+def variant_seconds(name: str, seconds: dict[str, float]) -> float:
+    """A variant's seconds: the sum of its methods' (`PARTS`; else the method itself)."""
+    return sum(seconds[m] for m in PARTS.get(name, (name,)))
+
+
 def variants(r, scanner: ScannerConfig) -> dict[str, np.ndarray]:
     m = {n: x.distances for n, x in r.methods().items()}
     polys = [silhouette_polygon(s, scanner, 1.0) for s in r.scanned.scans]
-    el = np.array([[elongation(p.vertices)] for p in polys])
     p, sc = m["profile"], m["shape-context"]
     v = dict(m)
-    v["prof+elong"] = pel = profile_plus([s.stripes for s in r.scanned.scans], el)
+    v["prof+elong"] = pel = prof_elong([s.stripes for s in r.scanned.scans], polys)
     v["fuse(pel,fft,ring)"] = fuse([pel, m["fft"], m["ring"]])
     v["fuse(p,sc)"] = fuse([p, sc])
     v["fuse(pel,sc)"] = fuse([pel, sc])
@@ -118,6 +181,8 @@ def variants(r, scanner: ScannerConfig) -> dict[str, np.ndarray]:
     v["fuse(p,2sc)"] = fuse([p, sc], [1, 2])
     v["fuse(2p,sc)"] = fuse([p, sc], [2, 1])
     v["fuse(p,mrm)"] = fuse([p, m["mrm"]])
+    v["sc50"] = sc50 = baseline_distances("shape-context-50", polys)[0]
+    v["fuse(p,sc50)"] = fuse([p, sc50])
     for n in (40, 60):
         v[f"sc{n}"] = scn = shape_context(polys, n)
         v[f"fuse(p,sc{n})"] = fuse([p, scn])
@@ -137,6 +202,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     res: dict[str, dict[str, float]] = {}
     cols = []
+    timing: tuple[list, list] = ([], [])  # scans and silhouettes of the timing set
     for name, labels in (("ycb", None), ("other", OTHER_LABELS)):
         objs = mesh_folder_objects(args.meshes, labels)
         for seed in (int(s) for s in args.seeds.split(",")):
@@ -145,19 +211,29 @@ def main(argv: list[str] | None = None) -> None:
                       else replace(ScannerConfig(), yaw_range_deg=180.0))
                 r = run_stripes_benchmark(objs, StripesBenchmarkConfig(
                     seed=seed, scans_per_object=1 if pose == "same" else 2, scanner=sc,
-                    baselines=("shape-context", "mrm", "fft", "ring")))
+                    baselines=BASELINES))
                 lab = np.array(r.scanned.labels)
+                timing[0].extend(r.scanned.scans)
+                timing[1].extend(silhouette_polygon(s, sc, 1.0) for s in r.scanned.scans)
                 col = f"{name}{seed}{pose[0]}"
                 cols.append(col)
                 for n, d in variants(r, sc).items():
                     res.setdefault(n, {})[col] = (
                         same_pose(d, lab, np.ones(len(lab), bool)) if pose == "same"
                         else different_pose(d, lab, r.scanned.objects, None))
-    print(f"{'variant':22s}" + " ".join(f"{c:>8s}" for c in cols) + "     min    mean")
+    k = min(TIMING_OBJECTS, len(timing[0]))
+    secs = method_seconds(timing[0][:k], timing[1][:k])
+    scale = (TIMING_OBJECTS / k) ** 2  # all pairs: quadratic (only when fewer scans)
+    ref = variant_seconds("fuse(p,sc)", secs)
+    print(f"time: representation + matching of {k} scans"
+          + ("" if k == TIMING_OBJECTS else f", scaled by (100/{k})^2"))
+    print(f"{'variant':22s}" + " ".join(f"{c:>8s}" for c in cols)
+          + "     min    mean   s/100       x")
     for n, row in res.items():
         vals = [row[c] for c in cols]
+        t = variant_seconds(n, secs)
         print(f"{n:22s}" + " ".join(f"{x:8.3f}" for x in vals)
-              + f"  {min(vals):6.3f}  {np.mean(vals):6.3f}")
+              + f"  {min(vals):6.3f}  {np.mean(vals):6.3f}  {t * scale:6.2f}  {ref / t:6.1f}")
 
 
 if __name__ == "__main__":

@@ -91,8 +91,10 @@ def stripes(
     fused_sc: Annotated[
         str,
         typer.Option("--fused-sc", help="Silhouette verifiers of the fused-sc row, the "
-                     "profile verified by shape context ('none': no fused-sc row)."),
-    ] = "shape-context",
+                     "profile verified by shape context ('none': no fused-sc row; "
+                     "shape-context-50: 50 points, compiled kernel; shape-context: 100 "
+                     "points)."),
+    ] = "shape-context-50",
     stripe_count: Annotated[
         int | None,
         typer.Option("--stripe-count", help="Describe each object by at most N evenly "

@@ -30,14 +30,16 @@ Methods on the same scans:
   the verifiers'.
 - ``fused-sc``: the same rule with shape context as the one verifier (the profile's
   distance and shape context's, each divided by its per-query median, equal
-  weights).  The profile reads the object along the sweep (where along its length
-  it is tall, round or flat) and is blind to the footprint's outline once resampled
-  (a long box and a can are one profile); shape context reads the outline and is
-  blind to height: the two miss different objects, so their sum verifies each
-  other.  FFT and ring projection are global summaries of the outline and repeat
-  much of what the profile's ``l`` already says.  Its time is the profile's plus
-  shape context's (all pairs: quadratic in the set, shape context's point matching
-  dominates).
+  weights); by default the ``shape-context-50`` preset of
+  `loopclosure.stripes.fusion.VERIFIER_PRESETS` (50 boundary points, the compiled
+  kernel, each unordered pair solved once).  The profile reads the object along the
+  sweep (where along its length it is tall, round or flat) and is blind to the
+  footprint's outline once resampled (a long box and a can are one profile); shape
+  context reads the outline and is blind to height: the two miss different objects,
+  so their sum verifies each other.  FFT and ring projection are global summaries of
+  the outline and repeat much of what the profile's ``l`` already says.  Its time is
+  the profile's plus shape context's (all pairs: quadratic in the set, shape
+  context's point matching dominates).
 
 With two or more scans per object every method also gets the different-pose figures
 (`evaluation.stripes_retrieval.cross_pose`): first scans as queries against a
@@ -88,6 +90,7 @@ from loopclosure.stripes import (
     describe_profiles,
     fuse,
 )
+from loopclosure.stripes.fusion import VERIFIER_PRESETS, verifier_options
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -143,13 +146,15 @@ def baseline_matcher(name: str) -> tuple[Any, dict[str, Any]]:
     """
     from loopclosure.matcher_registry import MATCHER_NAMES, matcher_class
 
-    if name not in MATCHER_NAMES:
-        raise UserError(f"unknown baseline matcher {name!r}; known: {', '.join(MATCHER_NAMES)}")
-    cls = matcher_class(name)
+    base, preset = verifier_options(name)
+    if base not in MATCHER_NAMES:
+        raise UserError(f"unknown baseline matcher {name!r}; known: "
+                        f"{', '.join((*MATCHER_NAMES, *VERIFIER_PRESETS))}")
+    cls = matcher_class(base)
     try:
-        return cls(scale_invariant=True), {"scale_invariant": True}
+        return cls(scale_invariant=True, **preset), {"scale_invariant": True, **preset}
     except UserError:  # the matcher has no such option
-        return cls(), {"scale_invariant": False}
+        return cls(**preset), {"scale_invariant": False, **preset}
 
 
 def baseline_distances(
@@ -163,6 +168,11 @@ def baseline_distances(
     matcher, options = baseline_matcher(name)
     t0 = time.perf_counter()
     descs = [matcher.describe(p) for p in polygons]
+    if getattr(matcher, "symmetric_pairwise", False):  # each unordered pair once
+        d = np.asarray(matcher.pairwise(descs), dtype=float)
+        if progress is not None:
+            progress(name, len(descs), len(descs))
+        return d, time.perf_counter() - t0, options
     stacked = matcher.stack(descs)
     rows = []
     for i, q in enumerate(descs):

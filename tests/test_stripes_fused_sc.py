@@ -14,6 +14,7 @@ from evaluation.stripes_benchmark import (
 )
 from evaluation.stripes_objects import daily_objects, silhouette_polygon
 from loopclosure.stripes import SC_VERIFIERS, fuse
+from loopclosure.stripes.fusion import verifier, verifier_options
 
 
 def test_fused_sc_rule_on_a_hand_checked_row():
@@ -35,14 +36,21 @@ def test_fused_sc_row_is_the_fusion_of_profile_and_shape_context():
     scanner = replace(ScannerConfig(), step=0.004)
     cfg = StripesBenchmarkConfig(seed=1, baselines=("fft",), fused=(), scanner=scanner)
     res = run_stripes_benchmark(objs, cfg)
-    assert SC_VERIFIERS == ("shape-context",)
+    assert SC_VERIFIERS == ("shape-context-50",)
     assert res.fused is None and "fused-sc" in res.methods()
     assert set(res.baselines) == {"fft"}  # the verifier is not reported as a baseline
     polys = [silhouette_polygon(s, cfg.scanner, cfg.silhouette_smooth)
              for s in res.scanned.scans]
-    sc, _, _ = baseline_distances("shape-context", polys)
+    sc, _, options = baseline_distances("shape-context-50", polys)
+    assert options == {"scale_invariant": True, "n_points": 50, "kernel": "numba"}
     np.testing.assert_allclose(res.fused_sc.distances, fuse([res.profile.distances, sc]))
-    assert res.fused_sc.options["verifiers"] == ["shape-context"]
+    assert res.fused_sc.options["verifiers"] == ["shape-context-50"]
+    # The preset's matrix is shape context's on 50 points, row by row, to rounding.
+    m = verifier("shape-context-50")
+    assert m.config.n_points == 50 and m.config.scale_invariant
+    descs = [m.describe(p) for p in polys]
+    rows = np.stack([m.distances(q, m.stack(descs)) for q in descs])
+    np.testing.assert_allclose(sc, rows, rtol=0, atol=1e-12)
     assert res.to_json()["fused_sc"]["top10_counts"][0] == 4
     none = run_stripes_benchmark(objs, StripesBenchmarkConfig(
         seed=1, baselines=(), fused=(), fused_sc=(), scanner=scanner))
@@ -60,3 +68,10 @@ def test_elongation_of_a_rectangle_is_the_log_of_its_side_ratio():
     turned = rect @ np.array([[c, -s], [s, c]]).T
     for v in (rect, turned, rect[::-1]):
         assert abs(elongation(v) - np.log(a / b)) < 1e-9
+
+
+def test_verifier_presets_name_a_matcher_with_options():
+    assert verifier_options("shape-context-50") == (
+        "shape-context", {"n_points": 50, "kernel": "numba"})
+    assert verifier_options("fft") == ("fft", {})
+    assert verifier("shape-context").config.n_points == 100
