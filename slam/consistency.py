@@ -477,77 +477,121 @@ def admit_incrementally(
             of the batch solves, and a folded prefix costs about what batch does.
         unit: the Gaussian factor of every loop (computed when None).
     """
-    solve = solver or StickySolver()
-    if prefix_solver not in PREFIX_SOLVERS:
-        raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
-                        f"{', '.join(PREFIX_SOLVERS)}")
-    if prefix_solver == "auto":
-        prefix_solver = "isam2"
-    isam = _IsamPrefix() if prefix_solver == "isam2" else None
-    if gate not in GATES:
-        raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
-    keys = _check_spine(graph)
-    d, c = pose_dof(graph.dim), tls_threshold(graph.dim, probability)
-    position = {k: n for n, k in enumerate(keys)}
-    given = poses_from_values(values, graph.dim)
-    if unit is None:
-        unit = [graph.between_factor(loop) for loop in graph.loops]
-    odometry_end = np.array([max(position[o.i], position[o.j]) for o in graph.odometry])
-    loop_end = np.array([max(position[lp.i], position[lp.j]) for lp in graph.loops], dtype=int)
-    anchors = set(graph.anchor_keys())
-    weights = np.zeros(len(graph.loops))
-    fixed = gtsam.NonlinearFactorGraph()
-    current = gtsam.Values()  # the solved prefix, then the new block composed onto it
-    last, blocks = -1, 0
-    for end in [*range(block - 1, len(keys) - 1, block), len(keys) - 1]:
+    run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
+                        max_rounds=max_rounds, solver=solver, barred=barred,
+                        prefix_solver=prefix_solver, unit=unit)
+    run.advance()
+    return run.result()
+
+
+class AdmissionPass:
+    """The state of one `admit_incrementally` pass, which can stop after a fold.
+
+    `advance` adds blocks until the end of the graph, or, with ``until_fold``, until the
+    end of the block in which the iSAM2 prefix stopped converging (`_IsamPrefix`: the
+    admitted loops folded the prefix); `folded` then says so, and a later `advance`
+    goes on with the batch solves the pass would have used anyway, so a resumed pass
+    equals one that never stopped.  `incremental_tls` uses this to finish a folded pass
+    only when its decided prefix is still cheaper than the best finished pass's
+    (`prefix_cost`).  Arguments as `admit_incrementally`.
+    """
+
+    def __init__(
+        self, graph: PoseGraph, values: gtsam.Values, *, probability: float = 0.99,
+        block: int = 50, gate: str = "stated", max_rounds: int = 50,
+        solver: StickySolver | None = None, barred: Sequence[int] = (),
+        prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
+    ) -> None:
+        if prefix_solver not in PREFIX_SOLVERS:
+            raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
+                            f"{', '.join(PREFIX_SOLVERS)}")
+        if gate not in GATES:
+            raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
+        self.prefix_solver = "isam2" if prefix_solver == "auto" else prefix_solver
+        self._isam = _IsamPrefix() if self.prefix_solver == "isam2" else None
+        self._solve = solver or StickySolver()
+        self.graph, self.gate, self.barred = graph, gate, barred
+        self._max_rounds = max_rounds
+        self.keys = _check_spine(graph)
+        self._d, self._c = pose_dof(graph.dim), tls_threshold(graph.dim, probability)
+        self.position = {k: n for n, k in enumerate(self.keys)}
+        self._given = poses_from_values(values, graph.dim)
+        self.unit = unit if unit is not None else [graph.between_factor(lp) for lp in graph.loops]
+        self.odometry_end = np.array([max(self.position[o.i], self.position[o.j])
+                                      for o in graph.odometry], dtype=int)
+        self.loop_end = np.array([max(self.position[lp.i], self.position[lp.j])
+                                  for lp in graph.loops], dtype=int)
+        self._anchors = set(graph.anchor_keys())
+        self.weights = np.zeros(len(graph.loops))
+        self._fixed = gtsam.NonlinearFactorGraph()
+        self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
+        self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
+        self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
+        self._step = 0
+        self.folded = False  # the iSAM2 prefix stopped converging (batch solves from then on)
+
+    @property
+    def done(self) -> bool:
+        return self._step == len(self._ends)
+
+    def advance(self, until_fold: bool = False, blocks: int | None = None) -> None:
+        """Add blocks to the end, or until the block that folded (`until_fold`), or
+        `blocks` more blocks."""
+        n = 0
+        while not self.done and (blocks is None or n < blocks):
+            self._add_block(self._ends[self._step])
+            self._step += 1
+            n += 1
+            if until_fold and self.folded:
+                return
+
+    def _add_block(self, end: int) -> None:
+        graph, keys, unit, c = self.graph, self.keys, self.unit, self._c
+        last, current, fixed, isam = self.last, self.current, self._fixed, self._isam
         new = keys[last + 1 : end + 1]
         ref = keys[last] if last >= 0 else None
         solved = {} if ref is None else {ref: _pose_of(current, ref, graph.dim)}
-        _extend(solved, given, ref, new, graph.dim)
+        _extend(solved, self._given, ref, new, graph.dim)
         for k in new:
             pose = to_gtsam_pose(solved[k], graph.dim)
             current.insert(k, pose)
-            if k in anchors:
+            if k in self._anchors:
                 fixed.add(graph.prior_factor(k))
                 if isam is not None:
                     isam.add(graph.prior_factor(k))
             if isam is not None:
                 isam.insert(k, pose)
-        for n in np.flatnonzero((odometry_end > last) & (odometry_end <= end)):
+        for n in np.flatnonzero((self.odometry_end > last) & (self.odometry_end <= end)):
             fixed.add(graph.between_factor(graph.odometry[n]))
             if isam is not None:
                 isam.add(fixed.at(fixed.size() - 1))
-        pending = np.setdiff1d(np.flatnonzero((loop_end > last) & (loop_end <= end)), barred)
-        last = end
+        pending = np.setdiff1d(
+            np.flatnonzero((self.loop_end > last) & (self.loop_end <= end)), self.barred)
+        self.last = end
         if len(pending) == 0:
-            continue
-        blocks += 1
+            return
+        self.blocks += 1
         prefix = keys[: end + 1]
         accepted = np.zeros(len(pending), dtype=bool)
         factors = fixed  # the accepted graph, whose solution is `current`
-        for _ in range(max_rounds):
+        for _ in range(self._max_rounds):
             errors = np.array([unit[k].error(current) for k in pending])
             newly = ~accepted & (errors <= c)
             if newly.any():  # step 1
                 accepted |= newly
                 factors = _with(fixed, unit, pending[accepted])
-                if isam is None:
-                    current = solve(factors, current)
-                else:
-                    for q in np.flatnonzero(newly):
-                        isam.add(unit[pending[q]])
-                    current, isam = _isam_or_batch(isam, solve, factors, current)
+                current, isam = self._prefix_solve(factors, current, pending[newly])
                 continue
             rest = np.flatnonzero(~accepted)
             if len(rest) == 0:
                 break
             # Step 2, at the solution of the accepted graph.
             limit = c
-            if gate == "calibrated":
-                s0 = _variance_factor(factors, current, len(prefix), d)
+            if self.gate == "calibrated":
+                s0 = _variance_factor(factors, current, len(prefix), self._d)
                 limit = c * min(1.0, s0) if s0 is not None else c
             try:
-                test = InnovationTest(factors, current, prefix, d)
+                test = InnovationTest(factors, current, prefix, self._d)
             except RuntimeError:  # singular information: no innovation test possible
                 break
             admitted, _ = greedy_admission(test.gains([unit[pending[q]] for q in rest]), limit)
@@ -555,20 +599,54 @@ def admit_incrementally(
                 break
             accepted[rest[admitted]] = True
             factors = _with(fixed, unit, pending[accepted])
-            if isam is None:
-                current = solve(factors, current)
-            else:
-                for q in rest[admitted]:
-                    isam.add(unit[pending[q]])
-                current, isam = _isam_or_batch(isam, solve, factors, current)
-        weights[pending] = accepted
+            current, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
+        self.current = current
+        self.weights[pending] = accepted
         for q in np.flatnonzero(accepted):
             fixed.add(unit[pending[q]])
-    errors = np.array([f.error(current) for f in unit])
-    cost = fixed.error(current) - errors[weights > 0.5].sum() + np.minimum(errors, c).sum()
-    if prefix_solver == "isam2" and isam is None:
-        prefix_solver = "isam2-then-batch"
-    return Admission(current, weights, float(cost), blocks, gate, prefix_solver)
+
+    def _prefix_solve(
+        self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        added: NDArray[np.int64],
+    ) -> tuple[gtsam.Values, _IsamPrefix | None]:
+        """The accepted prefix `factors` solved from `current` after the loops `added`."""
+        if self._isam is None:
+            return self._solve(factors, current), None
+        for k in added:
+            self._isam.add(self.unit[k])
+        current, self._isam = _isam_or_batch(self._isam, self._solve, factors, current)
+        if self._isam is None:
+            self.folded = True
+        return current, self._isam
+
+    def prefix_cost(
+        self, values: gtsam.Values, factors: StatedFactors, probability: float = 0.99
+    ) -> float:
+        """`tls_cost` at `values` of the part of `factors` (the stated graph of the same
+        poses, odometry and loops) that this pass has decided: anchors and odometry
+        among the poses added so far, and the loops that end among them."""
+        base, loop_index = factors
+        c = tls_threshold(self.graph.dim, probability)
+        n_priors = base.size() - len(loop_index) - len(self.graph.odometry)
+        seen = set(self.keys[: self.last + 1])
+        cost = sum(base.at(k).error(values) for k in range(n_priors)
+                   if base.at(k).keys()[0] in seen)
+        n_odometry = np.flatnonzero(self.odometry_end <= self.last)
+        cost += sum(base.at(n_priors + int(n)).error(values) for n in n_odometry)
+        cost += sum(min(base.at(loop_index[k]).error(values), c)
+                    for k in np.flatnonzero(self.loop_end <= self.last))
+        return float(cost)
+
+    def result(self) -> Admission:
+        """The pass's `Admission` (after `advance` reached the end)."""
+        errors = np.array([f.error(self.current) for f in self.unit])
+        w = self.weights
+        cost = self._fixed.error(self.current) - errors[w > 0.5].sum() + np.minimum(
+            errors, self._c).sum()
+        prefix = self.prefix_solver
+        if prefix == "isam2" and self._isam is None:
+            prefix = "isam2-then-batch"
+        return Admission(self.current, w, float(cost), self.blocks, self.gate, prefix)
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -650,19 +728,22 @@ def bar_search(
     prefix_solver: str = "auto",
     unit: list[gtsam.NonlinearFactor] | None = None,
     factors: StatedFactors | None = None,
+    gate: str = "stated",
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
     A false loop admitted early can fold the map so far that the true loops it
     contradicts sit at errors of ``1e6 c``: neither `refine_tls` nor a solve without the
     false loop leaves that basin (the map stays folded).  A trial bars one accepted
-    loop and repeats the time-ordered admission on `decide` (the graph the winning run
-    decided on) from `values`, then `refine_tls` on `graph` with the loop still
-    barred.  Trials take the accepted loops in decreasing order of factor error at the
-    solution of `best` (the false loop of a fold is the most strained): a trial that
-    lowers `tls_cost` (stated covariances) is kept, its loop stays barred and the
-    ranking is redone at the new solution; the search ends at the first trial that
-    does not, or after `tries` (one extra admission run when there is nothing to fix).
+    loop and repeats the time-ordered admission of the winning run (on `decide`, the
+    graph it decided on, with its `gate`) from `values`, then `refine_tls` on `graph`
+    with the loop still barred.  Trials take the accepted loops in decreasing order of
+    factor error at the solution of `best` (the false loop of a fold is the most
+    strained): a trial that lowers `tls_cost` (stated covariances) is kept, its loop
+    stays barred and the ranking is redone at the new solution; the search ends at the
+    first trial that does not, or after `tries` (one extra admission run when there is
+    nothing to fix).  A trial whose prefix folds (`AdmissionPass`) and whose decided
+    part already costs more than `best` on the same part has failed, and stops there.
     `factors`: as in `tls_cost`.
     """
     solve = solver or StickySolver()
@@ -680,18 +761,47 @@ def bar_search(
         k = accepted[0]
         done.add(k)
         trial = [*barred, k]
-        run = admit_incrementally(decide, values, probability=probability, block=block,
-                                  gate="stated", solver=solve, barred=trial,
-                                  prefix_solver=prefix_solver, unit=unit)
-        refined, weights = refine_tls(graph, run.values, run.weights, probability=probability,
-                                      solver=solve, barred=trial, solved=decide is graph,
-                                      factors=factors)
+        run = AdmissionPass(decide, values, probability=probability, block=block, gate=gate,
+                            solver=solve, barred=trial, prefix_solver=prefix_solver,
+                            unit=unit)
+        if not _finish_unless_behind(run, best, factors, probability):
+            break
+        refined, weights = refine_tls(graph, run.current, run.weights,
+                                      probability=probability, solver=solve, barred=trial,
+                                      solved=decide is graph, factors=factors)
         cost = tls_cost(graph, refined, probability, factors)
         if not cost < best.tls_cost * (1.0 - 1e-9):
             break
         barred = trial
-        best = Admission(refined, weights, cost, run.blocks, f"{best.gate}-barred")
+        best = Admission(refined, weights, cost, run.blocks, f"{_gate_of(best)}-barred")
     return best
+
+
+def _gate_of(admission: Admission) -> str:
+    """The innovation gate of an `incremental_tls` run from its label (``"calibrated"``,
+    ``"stated-odometry-x10"``, ``"stated-barred"`` ...)."""
+    return admission.gate.split("-")[0]
+
+
+def _finish_unless_behind(
+    run: AdmissionPass, best: Admission | None, factors: StatedFactors, probability: float
+) -> bool:
+    """Advance `run` to its end, unless, once its prefix has folded, its decided part
+    costs more than `best` on the same part (`AdmissionPass.prefix_cost`, checked after
+    every block); True when it finished.
+
+    Why: a pass whose admitted loops folded its prefix goes on with damped batch solves
+    (several times the cost of the iSAM2 updates), and the time-ordered pass's decisions
+    are final, so a folded pass that trails the best finished run on the poses it has
+    decided is not worth finishing."""
+    if not run.folded:
+        run.advance(until_fold=True)
+    while not run.done:
+        if best is not None and (run.prefix_cost(run.current, factors, probability)
+                                 > run.prefix_cost(best.values, factors, probability)):
+            return False
+        run.advance(blocks=1)
+    return True
 
 
 def incremental_tls(
@@ -720,8 +830,11 @@ def incremental_tls(
     only as sharp as the prefix is stiff).  A rung ``m`` decides as if the odometry
     were ``m`` times more precise; the stated refinement re-admits every loop the
     stated model accepts at that solution (``e_k <= c``), so at 0% outliers every rung
-    ends at the plain optimum and ties keep the first.  The best run is then improved
-    by `bar_search` with `tries` trials (0: none).
+    ends at the plain optimum and ties keep the first.  A run whose iSAM2 prefix folds
+    (`AdmissionPass`) stops at the fold and is finished after the others only if the
+    part it has decided is still cheaper than the best finished run's on the same
+    part.  The best run is then improved by `bar_search` with `tries` trials (0: none),
+    which repeats the winning run's graph and gate.
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -736,27 +849,33 @@ def incremental_tls(
     stated = graph.factor_graph(RobustKernel("none"))  # built once for every run below
     base, loop_index = stated
     unit = [base.at(k) for k in loop_index]  # the loops' factors, the same on every rung
+    runs = []
     for factor in ladder:
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
         for gate in GATES if factor == 1.0 else GATES[:1]:
-            run = admit_incrementally(
-                decide, values, probability=probability, block=block, gate=gate, solver=solver,
-                prefix_solver=prefix_solver, unit=unit,
-            )
-            refined, weights = refine_tls(
-                graph, run.values, run.weights, probability=probability, solver=solver,
-                solved=decide is graph, factors=stated,
-            )
-            cost = tls_cost(graph, refined, probability, stated)
-            if best is None or cost < best.tls_cost * (1.0 - 1e-9):
-                label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
-                best = Admission(refined, weights, cost, run.blocks, label)
-                decided = decide
+            label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
+            run = AdmissionPass(decide, values, probability=probability, block=block,
+                                gate=gate, solver=solver, prefix_solver=prefix_solver,
+                                unit=unit)
+            run.advance(until_fold=True)
+            runs.append((label, decide, run))
+    # Finished runs first, then the folded ones in ladder order, each only if still ahead.
+    for label, decide, run in sorted(runs, key=lambda r: not r[2].done):
+        if not _finish_unless_behind(run, best, stated, probability):
+            continue
+        refined, weights = refine_tls(
+            graph, run.current, run.weights, probability=probability, solver=solver,
+            solved=decide is graph, factors=stated,
+        )
+        cost = tls_cost(graph, refined, probability, stated)
+        if best is None or cost < best.tls_cost * (1.0 - 1e-9):
+            best = Admission(refined, weights, cost, run.blocks, label)
+            decided = decide
     assert best is not None and decided is not None
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
-                          factors=stated)
+                          factors=stated, gate=_gate_of(best))
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

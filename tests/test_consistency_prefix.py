@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+import pytest
 
 from evaluation.robustness import aligned_position_error, inject_false_loops
 from slam.consistency import _isam_or_batch, _IsamPrefix, admit_incrementally, incremental_tls
@@ -90,3 +91,22 @@ def test_isam2_prefix_keeps_isam2_while_its_updates_converge() -> None:
     assert isam.converged and nxt is isam
     batch = StickySolver()(factors, current)
     assert abs(factors.error(solved) - factors.error(batch)) < 1e-6 * max(1.0, factors.error(batch))
+
+
+def test_a_pass_stopped_at_its_fold_resumes_to_the_same_decisions() -> None:
+    from slam.consistency import AdmissionPass, tls_cost
+
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    corrupted, _ = inject_false_loops(graph, 0.5, np.random.default_rng(2))
+    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    whole = admit_incrementally(corrupted, values, block=10, solver=StickySolver())
+    run = AdmissionPass(corrupted, values, block=10, solver=StickySolver())
+    run.advance(blocks=2)
+    assert not run.done and run.last == 19
+    run.advance(until_fold=True)
+    run.advance()
+    np.testing.assert_array_equal(run.result().weights, whole.weights)
+    assert abs(run.result().tls_cost - whole.tls_cost) < 1e-6
+    stated = corrupted.factor_graph()
+    assert run.prefix_cost(run.current, stated) == pytest.approx(
+        tls_cost(corrupted, run.current, factors=stated))
