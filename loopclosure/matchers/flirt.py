@@ -41,7 +41,10 @@ Matching one query scan A (features a_i) with a database scan B (features b_j):
         cost = sum_i min_k min(e_ik^2, 1),   e_ik = |a_i - (R b_k + t)| / tau_ik,
         tau_ik = inlier_factor * sqrt(sigma_i sigma_k)
 
-   over a_i's candidates b_k with consistent orientation.  The lowest cost wins.
+   over a_i's candidates b_k with consistent orientation.  The lowest cost wins,
+   compared on a grid of `COST_QUANTUM` so that costs equal up to the rounding of
+   their sums (a symmetric shape's mirrored hypotheses) tie, and the first
+   hypothesis among tied costs wins in every implementation.
 
 4. Refinement: guided matching (a_i may now pair with any b_j whose descriptor
    distance is no larger than its k-th candidate's, ties included, so symmetric
@@ -111,6 +114,7 @@ Array = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
 _WORK = 1_500_000  # elements per hypothesis-scoring array (bounds memory per chunk)
+COST_QUANTUM = 1e-9  # MSAC costs closer than this tie (step 3); costs are O(1..1000)
 
 
 @dataclass(slots=True)
@@ -430,7 +434,7 @@ class FlirtMatcher(Matcher):
             e2 = np.where(ok_g, np.minimum(e2, 1.0), 1.0)
             cost = e2.min(axis=2).sum(axis=1)  # (G,)
             if len(cost):
-                order = np.lexsort((cost, mg))
+                order = np.lexsort((np.rint(cost / COST_QUANTUM), mg))
                 rows_found, first = np.unique(mg[order], return_index=True)
                 pick = order[first]
                 found[rows_found] = True
@@ -503,6 +507,7 @@ class FlirtMatcher(Matcher):
             float(cfg.inlier_factor),
             self._d_max,
             cfg.min_inliers,
+            COST_QUANTUM,
         )  # fmt: skip
         pairs = _inlier_pairs(e, match, inl, best_e) if want_pairs else []
         return dist, pose, pairs, mean_e

@@ -13,8 +13,9 @@ milliseconds in all).  This kernel walks each entry once with the same arithmeti
 2. hypotheses from the fixed correspondence pairs, with the length, distinct-feature
    and orientation tests; ``theta``, ``t`` [polygon units, rad] mapping the entry's
    frame into the query's;
-3. the MSAC cost ``sum_i min_k min(e_ik^2, 1)``; the lowest cost wins, the first
-   hypothesis among equal costs;
+3. the MSAC cost ``sum_i min_k min(e_ik^2, 1)``; the lowest cost on the grid of
+   ``quantum`` wins, the first hypothesis among equal quantised costs (so the
+   order of the floating-point sums cannot flip a tie);
 4. guided matching, weighted Procrustes refit (weights ``1 / tau^2``), twice, and the
    guided matching again;
 5. the one-to-one inliers and the distance in [0, 2].
@@ -106,7 +107,7 @@ def _procrustes(qp, pts, match, inl, weight, th, tx, ty):
 @numba.njit(cache=True)
 def flirt_entries(
     qp, qs, qo, dd, pts, scl, ori, valid, counts, hi, ha, hj, hb,
-    k, log_scale_ratio, cos_tol, inlier_factor, d_max, min_inliers,
+    k, log_scale_ratio, cos_tol, inlier_factor, d_max, min_inliers, quantum,
 ):  # fmt: skip
     """Steps 1-5 for every stacked entry (module docstring).
 
@@ -114,7 +115,7 @@ def flirt_entries(
     [polygon units, rad]; descriptor distances ``dd`` (M, Q, F); the stack's points
     (M, F, 2), scales, orientations, validity (M, F) and feature counts (M,); the
     hypotheses' correspondence pairs ``(hi, ha), (hj, hb)`` (H,) each; the matcher's
-    parameters.
+    parameters; the cost grid ``quantum`` of step 3.
 
     Returns ``dist`` (M,), ``pose`` (M, 3) [x, y, theta], ``mean_e`` (M,), and for the
     inlier pairs the final residuals ``e`` (M, Q), matches (M, Q), inlier mask
@@ -192,7 +193,8 @@ def flirt_entries(
 
         # 2-3. Hypotheses and their MSAC cost; the lowest wins, the first on ties.
         found = False
-        best_cost = np.inf
+        best_q = np.inf  # the winner's quantised cost
+        stop = np.inf  # a partial cost above this cannot quantise below best_q
         th = tx = ty = 0.0
         for h in range(n_h):
             i, a, j, b = hi[h], ha[h], hj[h], hb[h]
@@ -230,10 +232,12 @@ def flirt_entries(
                     if e2 < low:
                         low = e2
                 cost += low
-                if cost >= best_cost:
+                if cost >= stop:
                     break  # cannot win: later terms are >= 0
-            if cost < best_cost:
-                found, best_cost = True, cost
+            cost_q = np.rint(cost / quantum)
+            if cost_q < best_q:
+                found, best_q = True, cost_q
+                stop = (best_q + 1.0) * quantum
                 th, tx, ty = theta, htx, hty
 
         # 4. Guided matching and refits.
