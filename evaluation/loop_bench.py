@@ -91,7 +91,6 @@ from evaluation.loop_bench_truth import (
     pr_curve,
     recall_at_k,
 )
-from loopclosure.loop_detector import distinct_places
 from loopclosure.place_database import PlaceDatabase
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper, MappingResult
@@ -608,8 +607,8 @@ def _cascade_rows(
             matcher.distances(desc[v], stacked)
             out.time(r, t_pre + time.perf_counter() - t)
     t = time.perf_counter()
-    checked = detector.verify_places(k, distinct_places(matches, detector.config.global_verify),
-                                     poses, mapper.query_submaps.get(k))
+    checked = detector.verify_places(k, detector.places(matches, poses), poses,
+                                     mapper.query_submaps.get(k))
     out.time("final", t_query + time.perf_counter() - t)
     cand = next((c for c in checked if c.accepted), checked[0])
     out.accepted.append(bool(cand.accepted))

@@ -34,7 +34,7 @@ and calls, for every keyframe:
    - **appearance** (every `global_every` keyframes): the place database's cascade
      (prefilter over every older keyframe, verifier on the top K, fused score):
      candidates with a fused score of at least `min_score`, the best `global_verify`
-     of them, one per place (keys more than 5 apart);
+     of them, one per place (more than `place_separation` apart in the map);
    - **pose** (pose-gated, not in ``appearance`` mode): older keyframes whose
      estimated position lies within the gate ``local_radius + local_sigmas * sigma``
      of the query (sigma: the largest standard deviation of the query's position
@@ -155,6 +155,10 @@ class LoopClosureConfig:
             guard each one).
         global_verify: appearance candidates checked per query (distinct places,
             best fused score first).
+        place_separation: two candidates closer than this in the map are one place,
+            checked once [m] (half of `max_distance`: the check of one searches the
+            query within `max_distance` of it, so a neighbour farther away may be
+            the revisit the first is not).
         agree_distance: two candidates checked with no prior that are both accepted
             for one query must put the query within this of each other in the map
             [m]; else the query is ambiguous (a look-alike of one of the places) and
@@ -187,6 +191,7 @@ class LoopClosureConfig:
     min_score: float = 0.5
     min_score_across: float = 0.0
     global_verify: int = 5
+    place_separation: float = 1.0
     agree_distance: float = 1.0
     free_every: int = 10
     sequence_keyframes: int = 2
@@ -205,6 +210,9 @@ class LoopClosureConfig:
             raise UserError(
                 f"loops.search must be one of {', '.join(SEARCHES)}, got {self.search!r}"
             )
+        if not self.place_separation >= 0:
+            raise UserError(
+                f"loops.place_separation must be >= 0 m, got {self.place_separation}")
         if not self.agree_distance > 0:
             raise UserError(f"loops.agree_distance must be > 0 m, got {self.agree_distance}")
 
@@ -436,7 +444,7 @@ class LoopClosureDetector:
             return []
         cov, sigma, gate = self._gate(covariance)
         query_points = self._submap_points(key)
-        appearance = self._appearance(key, eligible)
+        appearance = self._appearance(key, eligible, poses)
         frames = np.asarray(self._frames[: len(eligible)])
         same = frames == self._frames[key]  # pose estimates comparable with the query's
         pose = [] if cfg.search == "appearance" else self._local(
@@ -524,7 +532,18 @@ class LoopClosureDetector:
     def _distance(poses: Array, a: int, b: int) -> float:
         return float(np.hypot(*(poses[a, :2] - poses[b, :2])))
 
-    def _appearance(self, key: int, eligible: NDArray[np.bool_]) -> list[PlaceMatch]:
+    def places(self, matches: Sequence[PlaceMatch], poses: ArrayLike) -> list[PlaceMatch]:
+        """The places the global search checks among `matches` (best first): the first
+        `global_verify` distinct ones, a match within `place_separation` of one taken
+        in the map (`poses` ``(n, 3)``, keyframes ``0..n-1``) being the same place."""
+        cfg = self.config
+        xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
+        return distinct_places(matches, cfg.global_verify, xy, self._frames,
+                               cfg.place_separation)
+
+    def _appearance(
+        self, key: int, eligible: NDArray[np.bool_], poses: Array
+    ) -> list[PlaceMatch]:
         """The place database's proposals for `key` (empty when it is not asked)."""
         cfg = self.config
         if cfg.search == "pose" or cfg.global_every <= 0:
@@ -537,11 +556,11 @@ class LoopClosureDetector:
             self.database.descriptors(key), allowed=np.flatnonzero(eligible)
         )
         frame = self._frames[key]
-        chosen = distinct_places([
+        chosen = self.places([
             m for m in matches
             if m.score >= (cfg.min_score_across if self._frames[int(m.key)] != frame
                            else cfg.min_score)
-        ], cfg.global_verify)
+        ], poses)
         self._proposed[key] = np.array([int(m.key) for m in chosen], dtype=np.int64)
         return chosen
 
@@ -664,14 +683,34 @@ class LoopClosureDetector:
         )
 
 
-def distinct_places(matches: Sequence[PlaceMatch], limit: int) -> list[PlaceMatch]:
-    """The first `limit` of `matches` (best first) that are distinct places: a match
-    within 5 keys of one already taken is the same place and is skipped."""
+def distinct_places(
+    matches: Sequence[PlaceMatch], limit: int, positions: ArrayLike | None = None,
+    frames: Sequence[int] | None = None, separation: float = 1.0,
+) -> list[PlaceMatch]:
+    """The first `limit` of `matches` (best first) that are distinct places.
+
+    With `positions` (``(n, 2)`` map positions of keyframes ``0..n-1`` [m]) a match
+    within `separation` [m] of one already taken, in the same frame (`frames`, the
+    frame of every key; None: one frame), is the same place and is skipped.  Without
+    positions a match within 5 keys of one taken is.  Positions are the better rule:
+    on a log with one keyframe per metre, 5 keys span 5 m, and the keyframe next to
+    a candidate that is 2.5 m from the query (not a revisit) may be 0.5 m from it.
+    """
     chosen: list[PlaceMatch] = []
+    if positions is None:
+        for m in matches:
+            if len(chosen) == limit:
+                break
+            if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
+                chosen.append(m)
+        return chosen
+    xy = np.asarray(positions, dtype=float).reshape(-1, 2)
     for m in matches:
         if len(chosen) == limit:
             break
-        if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
+        k = int(m.key)
+        if all((frames is not None and frames[k] != frames[int(c.key)])
+               or np.hypot(*(xy[k] - xy[int(c.key)])) > separation for c in chosen):
             chosen.append(m)
     return chosen
 

@@ -228,6 +228,31 @@ def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
     assert [m.key for m in got] == [10, 16, 30]
 
 
+def test_distinct_places_by_map_position_keep_a_neighbour_key_far_enough() -> None:
+    """With map positions, keys 3 apart 1.5 m apart are two places; 0.5 m apart one;
+    another frame is always another place."""
+    from loopclosure.loop_detector import distinct_places
+    from loopclosure.place_database import PlaceMatch
+
+    def match(key: int) -> PlaceMatch:
+        return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
+                          score=1.0, headings=(), stamp=0.0, pose=None)
+
+    xy = np.zeros((8, 2))
+    xy[:, 0] = [0.0, 0.0, 0.0, 1.5, 0.5, 0.4, 9.0, 0.2]
+    got = distinct_places([match(k) for k in (0, 3, 4, 5, 7)], 5, xy, separation=1.0)
+    assert [m.key for m in got] == [0, 3]  # 4, 5 within 1 m of 0 (and of 3: 1.0, 1.1)
+    frames = [0, 0, 0, 0, 0, 0, 0, 1]
+    got = distinct_places([match(k) for k in (0, 7, 4)], 5, xy, frames, separation=1.0)
+    assert [m.key for m in got] == [0, 7]
+    assert [m.key for m in distinct_places([match(k) for k in (0, 3, 7)], 2, xy)] == [0, 3]
+
+
+def test_a_negative_place_separation_is_a_user_error() -> None:
+    with pytest.raises(UserError, match="place_separation"):
+        LoopClosureConfig(place_separation=-1.0)
+
+
 def test_a_non_positive_agree_distance_is_a_user_error() -> None:
     with pytest.raises(UserError, match="agree_distance"):
         LoopClosureConfig(agree_distance=0.0)
