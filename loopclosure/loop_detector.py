@@ -552,8 +552,10 @@ class LoopClosureDetector:
         if self._since_global < cfg.global_every:
             return []
         self._since_global = 0
+        # Heading hypotheses only for the candidates checked with no prior
+        # (`_verify_free`): one checked from the pose prior needs none.
         matches = self.database.query(
-            self.database.descriptors(key), allowed=np.flatnonzero(eligible)
+            self.database.descriptors(key), allowed=np.flatnonzero(eligible), headings=False
         )
         frame = self._frames[key]
         chosen = self.places([
@@ -644,6 +646,8 @@ class LoopClosureDetector:
         for m in matches:
             if sum(c.accepted for c in out) >= budget:
                 break
+            if not m.headings:  # a query made without them (`_appearance`)
+                m = self.database.with_headings(self.database.descriptors(key), [m])[0]
             out.append(self._check_global(key, m, query_points, poses))
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:

@@ -71,7 +71,7 @@ are in [0, 1]; headings in radians.
 
 from __future__ import annotations
 
-from collections.abc import Hashable, Iterable, Mapping
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -491,6 +491,7 @@ class PlaceDatabase:
         allowed: ArrayLike | None = None,
         exclude_keys: Iterable[Hashable] | None = None,
         top_k: int | None = None,
+        headings: bool = True,
     ) -> list[PlaceMatch]:
         """Verified candidates of a query polygon (sensor frame [m]) or its descriptors.
 
@@ -499,6 +500,9 @@ class PlaceDatabase:
             allowed: keys to search, or a boolean mask over insertion order (None: all).
             exclude_keys: keys never returned (e.g. the query's own recent keyframes).
             top_k: K (default `PlaceDatabaseConfig.top_k`).
+            headings: compute the heading hypotheses of every candidate; False leaves
+                them empty, for a caller that needs them for a few candidates only
+                (`with_headings`: a candidate checked from a pose prior needs none).
 
         Returns:
             Up to K `PlaceMatch`, by decreasing fused score (ties: prefilter order).
@@ -509,16 +513,11 @@ class PlaceDatabase:
         c = self.candidates(q, allowed=allowed, exclude_keys=exclude_keys, top_k=top_k)
         if len(c.indices) == 0:
             return []
-        angles, corr = self._headings(q, c.indices)
+        hyps = self._hypotheses(q, c.indices) if headings else [()] * len(c.indices)
         names = self.config.stages
         out = []
         for j in c.order().tolist():
             i = int(c.indices[j])
-            hyps = tuple(
-                (float(a), float(r))
-                for a, r in zip(angles[j], corr[j], strict=True)
-                if np.isfinite(r)
-            )
             out.append(
                 PlaceMatch(
                     key=self._keys.key(i),
@@ -526,12 +525,34 @@ class PlaceDatabase:
                     prefilter_rank=j,
                     distances={s: float(c.distances[t, j]) for t, s in enumerate(names)},
                     score=float(c.scores[j]),
-                    headings=hyps,
+                    headings=hyps[j],
                     stamp=self._stamps[i],
                     pose=self._poses[i],
                 )
             )
         return out
+
+    def with_headings(
+        self, polygon_or_descriptors: Polygon | Descriptors, matches: Sequence[PlaceMatch]
+    ) -> list[PlaceMatch]:
+        """`matches` of a query (`query` with ``headings=False``) with their heading
+        hypotheses, computed for these candidates only, as `query` computes them."""
+        if not matches:
+            return []
+        q = self._query_descriptors(polygon_or_descriptors)
+        hyps = self._hypotheses(q, self._keys.rows([m.key for m in matches]))
+        return [replace(m, headings=h) for m, h in zip(matches, hyps, strict=True)]
+
+    def _hypotheses(
+        self, q: Descriptors, cand: NDArray[np.intp]
+    ) -> list[tuple[tuple[float, float], ...]]:
+        """Per candidate row, its ``(heading, score)`` hypotheses, best first."""
+        angles, corr = self._headings(q, cand)
+        return [
+            tuple((float(a), float(r)) for a, r in zip(angles[j], corr[j], strict=True)
+                  if np.isfinite(r))
+            for j in range(len(cand))
+        ]
 
     def _stage_distances(
         self, q: Descriptors, cand: NDArray[np.intp], raw: dict[str, Array]
