@@ -5,7 +5,7 @@ by `evaluation.cli`).  Contract::
 
     loopclosure bench places --dataset box|surface|mpeg7:DIR|robot:DIR
         --methods fft,integral,ring,shape-context,tangent,scanline,mrm,flirt,cascade|all
-        [--workers N | --cluster ADDRESS] [--seed N] [--out DIR] [--json]
+        [--workers N | --cluster ADDRESS] [--seed N] [--range-cap M] [--out DIR] [--json]
 
 ``--dataset`` may be given several times (one column per data set in the report's
 tables).  ``--json`` prints one JSON object ``{"dataset", "shapes", "classes",
@@ -58,6 +58,12 @@ def places(
         Path | None,
         typer.Option("--out", help="Folder for report.md, results.json, ROC/P-R plots."),
     ] = None,
+    range_cap: Annotated[
+        float | None,
+        typer.Option("--range-cap", help="robot:DIR places: readings and open space "
+                     "farther than this [m] are placed at it (default: the whole "
+                     "30 m virtual scan)."),
+    ] = None,
     cluster: ClusterOption = None,
     json: Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")] = False,
 ) -> None:
@@ -67,7 +73,7 @@ def places(
     task (the same figures; only the seconds differ).
     """
     from evaluation.cluster import parse_cluster
-    from evaluation.place_datasets import dataset_kind, load_dataset
+    from evaluation.place_datasets import RobotPlacesConfig, dataset_kind, load_dataset
     from evaluation.places_benchmark import run_places
     from evaluation.places_matrix import PlaceSource
     from evaluation.places_methods import parse_methods
@@ -82,6 +88,7 @@ def places(
         raise UserError("give either --workers N (a local process pool) or --cluster, not both")
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
+    robot = RobotPlacesConfig(range_cap=range_cap)  # a bad --range-cap fails here
     if not dataset:
         raise UserError("--dataset is required: box, surface, mpeg7:DIR or robot:DIR")
     for spec in dataset:  # check every spec before the (slow) loading starts
@@ -94,9 +101,9 @@ def places(
     with bars as update:
         for spec in dataset:
             update(f"loading {spec}", 0, 1)
-            place_set = load_dataset(spec, seed=seed)
+            place_set = load_dataset(spec, seed=seed, robot=robot)
             update(f"loading {spec}", 1, 1)
-            source = PlaceSource(spec, seed, str(Path.cwd()))
+            source = PlaceSource(spec, seed, str(Path.cwd()), range_cap)
             results.append(run_places(place_set, names, workers=workers, seed=seed,
                                       progress=update, source=source, cluster=cluster))
     paths = write_places_report(out, results) if out is not None else {}

@@ -55,7 +55,9 @@ data-set spec of the CLI (`load_dataset`) is one of:
        ray-cast into its local map: the scans of the same log whose path position
        is within ``map_window`` = 10 m of ``s_i`` (behind and ahead on the
        robot's own path, as a SLAM front end's local map holds them).  Polygon by
-       `polygon_from_scan`, in the scan's sensor frame (so heading varies).
+       `polygon_from_scan`, in the scan's sensor frame (so heading varies); with
+       ``range_cap`` (``bench places --range-cap M``) readings and open space
+       farther than M are placed at M.
 
     Labels are ``<log>/place<k>`` (``<log>`` = file name without
     ``-corrected.log.gz``), places numbered in greedy order.  ``description["logs"]``
@@ -80,7 +82,12 @@ from numpy.typing import NDArray
 
 from data.errors import DataError, UserError, warn
 from data.types import Scan
-from loopclosure.polygon import DegeneratePolygonError, Polygon, polygon_from_scan
+from loopclosure.polygon import (
+    DegeneratePolygonError,
+    Polygon,
+    PolygonConfig,
+    polygon_from_scan,
+)
 
 Array = NDArray[np.float64]
 
@@ -202,6 +209,10 @@ class RobotPlacesConfig:
         beams: beams of a virtual scan over 360 degrees.
         max_range: no-return range of a virtual scan [m].
         link_dist: largest gap between neighbouring returns joined into a wall [m].
+        range_cap: the polygon rule's range cap (`loopclosure.polygon.PolygonConfig`)
+            [m]: every reading farther, and every beam without a return, is placed at
+            this range, so a place is what lies within it of the sensor (None: the
+            virtual scan's `max_range`, the whole local map).
     """
 
     radius: float = 0.5
@@ -215,8 +226,13 @@ class RobotPlacesConfig:
     beams: int = 360
     max_range: float = 30.0
     link_dist: float = 0.5
+    range_cap: float | None = None
 
     def __post_init__(self) -> None:
+        if self.range_cap is not None and not (math.isfinite(self.range_cap)
+                                               and self.range_cap > 0):
+            raise UserError(
+                f"robot places: range_cap must be a positive number, got {self.range_cap}")
         positive = ("radius", "pass_gap", "min_separation", "map_window", "max_range")
         for name in positive:
             value = getattr(self, name)
@@ -351,15 +367,16 @@ def _polygon_360(
     from loopclosure.virtual_scan import virtual_scan_from_scans
 
     scan = scans[i]
+    rule = PolygonConfig() if cfg.range_cap is None else PolygonConfig(range_cap=cfg.range_cap)
     if scan.fov >= 2.0 * np.pi - 1e-6:
-        return polygon_from_scan(scan), False
+        return polygon_from_scan(scan, rule), False
     window = np.flatnonzero((np.abs(s - s[i]) <= cfg.map_window)
                             & np.all(np.isfinite(poses), axis=1))
     virtual = virtual_scan_from_scans(
         [scans[j] for j in window], poses[window], poses[i], beams=cfg.beams,
         max_range=cfg.max_range, link_dist=cfg.link_dist, stamp=scan.stamp, index=scan.index,
     )
-    return polygon_from_scan(virtual), True
+    return polygon_from_scan(virtual, rule), True
 
 
 def _log_name(path: Path) -> str:

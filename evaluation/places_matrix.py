@@ -185,19 +185,21 @@ BLOCKS_PER_MATRIX = 16
 @dataclass(frozen=True, slots=True)
 class PlaceSource:
     """A data set as a worker loads it: `evaluation.place_datasets.load_dataset` of
-    `spec` with `seed`; a relative folder in `spec` is taken from `folder` (the
+    `spec` with `seed` (and a robot set's `range_cap`); a relative folder in `spec` is taken from `folder` (the
     caller's working folder)."""
 
     spec: str
     seed: int = 0
     folder: str = "."
+    range_cap: float | None = None
 
     def polygons(self) -> list[Polygon]:
-        from evaluation.place_datasets import load_dataset
+        from evaluation.place_datasets import RobotPlacesConfig, load_dataset
 
         kind, _, arg = self.spec.partition(":")
         spec = f"{kind}:{Path(self.folder) / arg.strip()}" if arg.strip() else self.spec
-        return list(load_dataset(spec, seed=self.seed).polygons)
+        robot = RobotPlacesConfig(range_cap=self.range_cap)
+        return list(load_dataset(spec, seed=self.seed, robot=robot).polygons)
 
 
 @dataclass(frozen=True, slots=True)

@@ -261,6 +261,26 @@ def test_robot_log_real_scan_when_360(tmp_path: Path) -> None:
     assert np.allclose(polys[0].vertices, first.vertices)
 
 
+def test_robot_range_cap_keeps_the_polygon_within_it(tmp_path: Path) -> None:
+    """With range_cap the places are the same scans, every vertex within the cap and
+    the nearer ones unchanged; a non-positive cap is a user error."""
+    _write_sim_log(tmp_path / "half-corrected.log.gz",
+                   LaserModel(fov_deg=180.0, beams=181, noise_sigma=0.0, dropout=0.0))
+    full, lab_full, _ = robot_places(tmp_path, RobotPlacesConfig(max_scans=5), seed=0)
+    capped, lab_cap, desc = robot_places(
+        tmp_path, RobotPlacesConfig(max_scans=5, range_cap=3.0), seed=0)
+    assert list(lab_cap) == list(lab_full) and desc["config"]["range_cap"] == 3.0
+    for a, b in zip(full, capped, strict=True):
+        rb = np.linalg.norm(b.vertices, axis=1)
+        assert rb.max() <= 3.0 + 1e-9 and np.isclose(rb, 3.0).any()
+        ra = np.linalg.norm(a.vertices, axis=1)
+        near = {tuple(np.round(v, 9)) for v in a.vertices[ra < 2.9]}
+        assert near <= {tuple(np.round(v, 9)) for v in b.vertices}
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(UserError, match="range_cap"):
+            RobotPlacesConfig(range_cap=bad)
+
+
 def test_robot_folder_errors(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="no corrected CARMEN logs"):
         robot_places(tmp_path)
