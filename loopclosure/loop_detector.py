@@ -49,7 +49,8 @@ and calls, for every keyframe:
    nearly always meets a look-alike place, so it runs only when no candidate inside
    the gate was accepted for this query (the two would contradict each other), and
    then for a candidate that each of the `sequence_keyframes` previous keyframes'
-   appearance searches also proposed (within `sequence_keys` keyframes per step back:
+   appearance searches also proposed as one of its `sequence_places` best places
+   (within `sequence_keys` keyframes per step back:
    a true revisit repeats along the path, a look-alike rarely does; the temporal
    consistency of appearance-based loop detectors such as FAB-MAP's), or for any
    candidate every `free_every` keyframes without an accepted loop.  Appearance
@@ -169,7 +170,10 @@ class LoopClosureConfig:
         sequence_keyframes: an appearance candidate outside the gate is supported when
             each of this many previous keyframes' appearance searches proposed ...
             (0: no candidate is supported)
-        sequence_keys: ... a keyframe at most this many keys per step back from it.
+        sequence_keys: ... a keyframe at most this many keys per step back from it,
+        sequence_places: ... among its this many best distinct places (each query
+            proposes up to `global_verify`; the more of them count, the more often a
+            look-alike is supported by chance and checked in vain).
         max_loops: accepted loops per query at most.
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
@@ -196,6 +200,7 @@ class LoopClosureConfig:
     free_every: int = 10
     sequence_keyframes: int = 2
     sequence_keys: int = 3
+    sequence_places: int = 1
     max_loops: int = 2
     virtual_beams: int = 360
     virtual_range: float = 20.0
@@ -213,6 +218,8 @@ class LoopClosureConfig:
         if not self.place_separation >= 0:
             raise UserError(
                 f"loops.place_separation must be >= 0 m, got {self.place_separation}")
+        if self.sequence_places < 1:
+            raise UserError(f"loops.sequence_places must be >= 1, got {self.sequence_places}")
         if not self.agree_distance > 0:
             raise UserError(f"loops.agree_distance must be > 0 m, got {self.agree_distance}")
 
@@ -563,7 +570,8 @@ class LoopClosureDetector:
             if m.score >= (cfg.min_score_across if self._frames[int(m.key)] != frame
                            else cfg.min_score)
         ], poses)
-        self._proposed[key] = np.array([int(m.key) for m in chosen], dtype=np.int64)
+        self._proposed[key] = np.array([int(m.key) for m in chosen[: cfg.sequence_places]],
+                                       dtype=np.int64)
         return chosen
 
     def _local(
