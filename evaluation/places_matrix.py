@@ -185,8 +185,8 @@ BLOCKS_PER_MATRIX = 16
 @dataclass(frozen=True, slots=True)
 class PlaceSource:
     """A data set as a worker loads it: `evaluation.place_datasets.load_dataset` of
-    `spec` with `seed` (and a robot set's `range_cap`); a relative folder in `spec` is taken from `folder` (the
-    caller's working folder)."""
+    `spec` with `seed` (and a robot set's `range_cap`); a relative folder in `spec` is
+    taken from `folder` (the caller's working folder)."""
 
     spec: str
     seed: int = 0
