@@ -325,6 +325,22 @@ def test_headings_without_an_fft_stage(polygons: list[Polygon]) -> None:
     assert no.query(polygons[0])[0].headings == ()
 
 
+def test_headings_on_demand_equal_the_query_s(polygons: list[Polygon]) -> None:
+    """query(headings=False) leaves them empty; with_headings gives what query gives."""
+    db = PlaceDatabase(top_k=5)
+    for i, p in enumerate(polygons[:12]):
+        db.add(i, p)
+    q = polygons[4].rotated(1.0)
+    full = db.query(q)
+    bare = db.query(q, headings=False)
+    assert [m.key for m in bare] == [m.key for m in full]
+    assert all(m.headings == () for m in bare)
+    assert any(m.headings for m in full)
+    late = db.with_headings(q, bare[::-1])
+    assert [m.headings for m in late] == [m.headings for m in full[::-1]]
+    assert db.with_headings(q, []) == []
+
+
 def test_stored_descriptors_query_like_the_polygon(polygons: list[Polygon]) -> None:
     db = PlaceDatabase(top_k=5)  # defaults: headings on, FLIRT + MRM verifiers
     for i, p in enumerate(polygons[:12]):
