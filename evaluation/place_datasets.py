@@ -229,11 +229,8 @@ class RobotPlacesConfig:
     range_cap: float | None = None
 
     def __post_init__(self) -> None:
-        if self.range_cap is not None and not (math.isfinite(self.range_cap)
-                                               and self.range_cap > 0):
-            raise UserError(
-                f"robot places: range_cap must be a positive number, got {self.range_cap}")
         positive = ("radius", "pass_gap", "min_separation", "map_window", "max_range")
+        positive += ("range_cap",) if self.range_cap is not None else ()
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):

@@ -651,11 +651,13 @@ class LoopClosureDetector:
         then accepted candidates in one frame that put the query more than
         `agree_distance` apart (``poses[match] * relative``) are all rejected."""
         out: list[LoopCandidate] = []
+        desc = None  # the query's descriptors, fetched for the first match without headings
         for m in matches:
             if sum(c.accepted for c in out) >= budget:
                 break
             if not m.headings:  # a query made without them (`_appearance`)
-                m = self.database.with_headings(self.database.descriptors(key), [m])[0]
+                desc = self.database.descriptors(key) if desc is None else desc
+                m = self.database.with_headings(desc, [m])[0]
             out.append(self._check_global(key, m, query_points, poses))
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
@@ -708,21 +710,20 @@ def distinct_places(
     on a log with one keyframe per metre, 5 keys span 5 m, and the keyframe next to
     a candidate that is 2.5 m from the query (not a revisit) may be 0.5 m from it.
     """
-    chosen: list[PlaceMatch] = []
     if positions is None:
-        for m in matches:
-            if len(chosen) == limit:
-                break
-            if all(abs(int(m.key) - int(c.key)) > 5 for c in chosen):
-                chosen.append(m)
-        return chosen
-    xy = np.asarray(positions, dtype=float).reshape(-1, 2)
+        def same(a: int, b: int) -> bool:
+            return abs(a - b) <= 5
+    else:
+        xy = np.asarray(positions, dtype=float).reshape(-1, 2)
+
+        def same(a: int, b: int) -> bool:
+            return ((frames is None or frames[a] == frames[b])
+                    and bool(np.hypot(*(xy[a] - xy[b])) <= separation))
+    chosen: list[PlaceMatch] = []
     for m in matches:
         if len(chosen) == limit:
             break
-        k = int(m.key)
-        if all((frames is not None and frames[k] != frames[int(c.key)])
-               or np.hypot(*(xy[k] - xy[int(c.key)])) > separation for c in chosen):
+        if not any(same(int(m.key), int(c.key)) for c in chosen):
             chosen.append(m)
     return chosen
 
