@@ -215,7 +215,7 @@ def _peak_rss_mb(reset: bool) -> float:
                     return int(line.split()[1]) / 1024.0
         except (OSError, ValueError, IndexError):
             pass
-    from slam.pipeline import peak_rss_mb
+    from slam.memory import peak_rss_mb
 
     return peak_rss_mb()
 

@@ -70,6 +70,7 @@ free cells do not stop a beam; a beam that leaves the grid or reaches
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -121,8 +122,18 @@ class VirtualScanConfig:
 
 
 def virtual_angles(beams: int) -> Array:
-    """``(beams,)`` bearings [rad] of a 360-degree scan: ``-pi + j * 2 pi / beams``."""
-    return -np.pi + (2.0 * np.pi / beams) * np.arange(beams)
+    """``(beams,)`` bearings [rad] of a 360-degree scan: ``-pi + j * 2 pi / beams``.
+
+    Read-only and shared: every virtual scan of a place database holds the same array.
+    """
+    return _shared_angles(int(beams))
+
+
+@functools.lru_cache(maxsize=8)
+def _shared_angles(beams: int) -> Array:
+    angles = -np.pi + (2.0 * np.pi / beams) * np.arange(beams)
+    angles.setflags(write=False)
+    return angles
 
 
 def _check(beams: int, max_range: float, min_range: float) -> None:

@@ -99,7 +99,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.linalg import splu
-from scipy.stats import chi2
 
 from data import se2
 from data.errors import UserError
@@ -108,6 +107,7 @@ from slam.pose_graph import (
     Constraint,
     PoseGraph,
     RobustKernel,
+    chi2_quantile,
     pose_dof,
     poses_from_values,
     to_gtsam_pose,
@@ -125,7 +125,7 @@ RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent uni
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
     """TLS cost ``c`` of a rejected loop: 0.5 * chi2 quantile of its dof (3 in 2D, 6 in 3D)."""
-    return 0.5 * float(chi2.ppf(probability, pose_dof(dim)))
+    return 0.5 * chi2_quantile(probability, pose_dof(dim))
 
 
 # -- the innovation test ---------------------------------------------------------------------

@@ -27,7 +27,7 @@ the cells ``start + floor(k * (end - start) / n + 1/2)`` for ``k = 0 .. n - 1`` 
 ``k = n`` when it has no hit), computed in fixed point.  Beams are sorted by length
 and traced in groups as ``(beams, steps)`` arrays by broadcasting (about
 `MapConfig.chunk_cells` entries per group); miss counts are accumulated with
-`np.bincount` on flat cell indices.  Scans are read in chunks of about 200,000
+`np.bincount` on flat cell indices.  Scans are read in chunks of about 50,000
 beams, twice (the extent first, then the counts), which bounds the memory.  There
 is no Python loop over beams or cells (only over scans, to gather their arrays,
 and over chunks and groups).
@@ -114,7 +114,7 @@ class MapConfig:
     no_return_range: float = 5.0
     margin_cells: int = 2
     max_cells: int = 16_000_000
-    chunk_cells: int = 1_000_000
+    chunk_cells: int = 250_000
 
     def __post_init__(self) -> None:
         def bad(msg: str) -> None:
@@ -307,10 +307,11 @@ def _trace(
     end: NDArray[np.intp],
     hit: NDArray[np.bool_],
     cols: int,
-    n_cells: int,
+    misses: NDArray[np.int64],
     budget: int,
-) -> NDArray[np.int64]:
-    """Miss counts ``(n_cells,)`` of the Bresenham lines ``start -> end`` (cells ``(col, row)``).
+) -> None:
+    """Add the miss counts of the Bresenham lines ``start -> end`` (cells ``(col, row)``)
+    to `misses` ``(n_cells,)``, in place.
 
     A beam with a hit visits ``n = max(|dc|, |dr|)`` cells (its end cell excluded),
     one without ``n + 1``; step ``k`` is at ``start + floor(k * (end - start) / n + 1/2)``,
@@ -325,7 +326,8 @@ def _trace(
     use = np.flatnonzero(count > 0)
     use = use[np.argsort(count[use], kind="stable")]
     if len(use) == 0:
-        return np.zeros(n_cells, dtype=np.int64)
+        return
+    n_cells = len(misses)
     count = count[use]
     k_max = int(count[-1])
     one = 1 << _FIX_BITS
@@ -336,7 +338,6 @@ def _trace(
     base = (start[use, 1] * cols + start[use, 0]).astype(itype)
     steps = np.arange(k_max, dtype=itype)
     half = itype(one // 2)
-    out = np.zeros(n_cells + 1, dtype=np.int64)
     i, n_beams = 0, len(use)
     while i < n_beams:
         # Group [i, j): its longest beam (sorted: the last) times its size fits the budget.
@@ -355,9 +356,8 @@ def _trace(
         flat += row
         flat += base[i:j, None]
         flat[k >= count[i:j, None]] = n_cells
-        out += np.bincount(flat.ravel(), minlength=n_cells + 1)
+        misses += np.bincount(flat.ravel(), minlength=n_cells + 1)[:n_cells]
         i = j
-    return out[:n_cells]
 
 
 def build_occupancy_grid(
@@ -416,7 +416,7 @@ def build_occupancy_grid(
         end = np.floor((beams.end - origin) / res).astype(np.intp)
         end_flat = end[beams.hit, 1] * cols + end[beams.hit, 0]
         hits += np.bincount(end_flat, minlength=n_cells)
-        misses += _trace(start, end, beams.hit, cols, n_cells, cfg.chunk_cells)
+        _trace(start, end, beams.hit, cols, misses, cfg.chunk_cells)
     shape = (rows, cols)
     return OccupancyGrid(
         hits=_to_int32(hits).reshape(shape),
@@ -427,7 +427,7 @@ def build_occupancy_grid(
     )
 
 
-_CHUNK_BEAMS = 200_000  # beams gathered at a time by `build_occupancy_grid`
+_CHUNK_BEAMS = 50_000  # beams gathered at a time by `build_occupancy_grid`
 
 
 def _chunks(scans: Sequence[Scan]) -> list[tuple[int, int]]:

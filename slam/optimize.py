@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from data.errors import UserError, warn
 from slam.consistency import ODOMETRY_LADDER, incremental_tls, tls_threshold
@@ -36,6 +35,7 @@ from slam.pose_graph import (
     Constraint,
     PoseGraph,
     RobustKernel,
+    chi2_quantile,
     pose_dof,
     poses_from_values,
     relative_compose,
@@ -52,7 +52,7 @@ GNC_STARTS = (*WARM_STARTS, "incremental")
 
 def default_outlier_residual(dim: int, probability: float = 0.99) -> float:
     """Whitened-residual threshold of a loop factor: sqrt(chi2 quantile) for its dof."""
-    return float(np.sqrt(chi2.ppf(probability, pose_dof(dim))))
+    return float(np.sqrt(chi2_quantile(probability, pose_dof(dim))))
 
 
 @dataclass(slots=True)

@@ -29,7 +29,6 @@ registration target is out of date.
 
 from __future__ import annotations
 
-import resource
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -45,6 +44,7 @@ from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
+from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
 from slam.optimize import IncrementalSmoother, optimize
 from slam.pose_graph import PoseGraph
@@ -113,11 +113,6 @@ class MappingResult:
     def accepted_loops(self) -> list[LoopEvent]:
         """Loops added to the graph and kept by the final optimisation."""
         return [e for e in self.loops if e.candidate.accepted and not e.rejected_by_gnc]
-
-
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process [MB] (Linux: ru_maxrss is in KiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 class Mapper:
@@ -452,6 +447,7 @@ class Mapper:
             )
             poses = result.poses
             rejected = set(result.loop_outliers)
+            release_free_memory()  # the optimisation's transients, before the outputs
             for event in self.loops:
                 if event.factor is not None and event.factor in rejected:
                     event.rejected_by_gnc = True

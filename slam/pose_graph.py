@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import chdtri
 
 from data import se2
 from data.errors import UserError
@@ -219,6 +220,13 @@ class PoseGraph:
 def pose_dof(dim: int) -> int:
     """Degrees of freedom of a pose: 3 in 2D (x, y, theta), 6 in 3D."""
     return 3 if dim == 2 else 6
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The `probability` quantile of the chi-square distribution with `dof` degrees of
+    freedom (``scipy.special.chdtri`` of the upper tail: the same number as
+    ``scipy.stats.chi2.ppf`` without importing the large ``scipy.stats``)."""
+    return float(chdtri(dof, 1.0 - probability))
 
 
 def _constraint(i: int, j: int, measurement: Array, information: Array) -> Constraint:

@@ -16,9 +16,10 @@ from data.types import Trajectory
 from slam.json_io import write_json
 from slam.map_io import render_png
 from slam.map_io import write_map as write_map_files
+from slam.memory import peak_rss_mb, release_free_memory
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
-from slam.pipeline import MappingResult, peak_rss_mb
+from slam.pipeline import MappingResult
 from slam.session_file import FILE_NAME as SESSION_FILE
 from slam.session_file import write_saved_map
 
@@ -88,6 +89,8 @@ def _write_maps(out: Path, result: MappingResult, map_config: MapConfig | None) 
             files.update({f"map_{k}": str(v) for k, v in paths.items()})
         else:
             files["map_before_png"] = str(render_png(grid, out / f"{stem}.png", **overlays))
+        del grid
+        release_free_memory()
     return files
 
 

@@ -46,7 +46,6 @@ with a `DataError` naming the file.
 
 from __future__ import annotations
 
-import io
 import json
 import zipfile
 from dataclasses import asdict, dataclass, field
@@ -56,7 +55,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from data.atomic_write import write_bytes_atomic
+from data.atomic_write import atomic_output
 from data.errors import DataError
 from data.types import Scan
 
@@ -175,9 +174,9 @@ def write_saved_map(path: str | Path, saved: SavedMap) -> Path:
     }
     members = {"meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)}
     members.update({k: np.asarray(saved.arrays[k]) for k in _ARRAYS})
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **members)
-    return write_bytes_atomic(path, buffer.getvalue())
+    with atomic_output(path, "wb") as f:  # streamed: no second copy of the file in memory
+        np.savez_compressed(f, **members)
+    return Path(path)
 
 
 def read_saved_map(path: str | Path) -> SavedMap:

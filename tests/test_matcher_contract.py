@@ -172,7 +172,7 @@ DESCRIPTORS: dict[str, Descriptors] = {
     "mrm": Descriptors(lambda d: (d.mcc, d.complexity), 1e-9, lambda m, d: d.complexity > 0),
     "tangent": Descriptors(lambda d: (d.periodic, d.turning, d.log_perimeter)),
     "flirt": Descriptors(
-        lambda d: (d.points, d.scales, d.orientations, d.occupancy, d.variance),
+        lambda d: (d.points, d.scales, d.orientations, d.occupancy, d.evidence),
         self_tol=1e-12,
         max_distance=2.0,
     ),

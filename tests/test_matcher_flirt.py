@@ -15,6 +15,7 @@ from data import se2
 from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.flirt_features import (
     FlirtFeatureConfig,
+    FlirtFeatures,
     beta_grids,
     describe_polygon,
     detect,
@@ -79,11 +80,14 @@ def test_beta_grid_hand_case() -> None:
     # A beam from (-5, 0.1) ends at (0.5, 0.1): it crosses sectors 2 and 1 and ends in 0.
     cfg = FlirtFeatureConfig(rings=1, sectors=4, support_factor=2.0, chord_samples=10)
     ends = np.array([[0.5, 0.1], [-5.0, 3.0]])  # the second beam misses the disc
-    occ, var = beta_grids(
+    occ, evidence = beta_grids(
         np.zeros((1, 2)), np.array([0.5]), np.zeros(1), ends, np.array([-5.0, 0.1]), cfg
     )
     # Beta(1, 1) prior: occ = (hits + 1) / (hits + misses + 2).
     np.testing.assert_allclose(occ[0], [2 / 3, 1 / 3, 1 / 3, 1 / 2])
+    np.testing.assert_array_equal(evidence[0], [3, 3, 3, 2])
+    var = FlirtFeatures(np.zeros((1, 2)), np.ones(1), np.zeros(1), np.zeros(1), occ, evidence,
+                        1.0).variance
     np.testing.assert_allclose(var[0], [1 / 18, 1 / 18, 1 / 18, 1 / 12])
 
 

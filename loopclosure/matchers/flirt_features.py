@@ -180,7 +180,10 @@ class FlirtFeatures:
         orientations: ``(F,)`` angle of the outward normal at the point [rad].
         responses: ``(F,)`` signed scale-normalised displacement delta (0 for fallback).
         occupancy: ``(F, rings * sectors)`` posterior mean occupancy per bin.
-        variance: ``(F, rings * sectors)`` posterior variance per bin.
+        evidence: ``(F, rings * sectors)`` float32: ``a + b`` of each bin's Beta
+            posterior (hits + misses + a0 + b0); with `occupancy` it gives the
+            posterior variance (`variance`).  Kept instead of the variance, which no
+            distance uses, at half its size: a place database holds one per keyframe.
         step: arc-length sampling step h of the polygon [length units].
         unit: factor that was divided out of the coordinates (1 unless scale invariant).
     """
@@ -190,12 +193,17 @@ class FlirtFeatures:
     orientations: Array
     responses: Array
     occupancy: Array
-    variance: Array
+    evidence: NDArray[np.float32]
     step: float
     unit: float = 1.0
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @property
+    def variance(self) -> Array:
+        """``(F, rings * sectors)`` posterior variance per bin (module docstring, step 4)."""
+        return self.occupancy * (1.0 - self.occupancy) / (self.evidence.astype(float) + 1.0)
 
 
 def scale_levels(config: FlirtFeatureConfig) -> Array:
@@ -308,8 +316,8 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     points = curve[idx]
     scales = sigmas[level] * step
     view = _viewpoint(polygon, cfg.viewpoint, unit)
-    occ, var = beta_grids(points, scales, orient, curve[:: cfg.beam_stride], view, cfg)
-    return FlirtFeatures(points, scales, orient, responses, occ, var, float(step), unit)
+    occ, evidence = beta_grids(points, scales, orient, curve[:: cfg.beam_stride], view, cfg)
+    return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
 
 
 def _bins(
@@ -341,8 +349,11 @@ def beta_grids(
     ends: Array,
     view: Array,
     config: FlirtFeatureConfig,
-) -> tuple[Array, Array]:
-    """Beta-grid occupancy mean and variance ``(F, rings * sectors)`` by ray tracing.
+) -> tuple[Array, NDArray[np.float32]]:
+    """Beta-grid occupancy mean and evidence ``(F, rings * sectors)`` by ray tracing.
+
+    The evidence is ``a + b`` of each bin's Beta posterior (float32): the variance is
+    ``occ (1 - occ) / (evidence + 1)`` (module docstring, step 4).
 
     Args:
         points: ``(F, 2)`` grid centres; scales ``(F,)`` sigma [length];
@@ -407,6 +418,4 @@ def beta_grids(
     misses = misses.reshape(n_feat, nb)
     alpha = hits + cfg.prior_hit
     total = alpha + misses + cfg.prior_miss
-    occ = alpha / total
-    var = occ * (1.0 - occ) / (total + 1.0)
-    return occ, var
+    return alpha / total, total.astype(np.float32)
