@@ -26,9 +26,11 @@ for all beams at once: a beam spanning ``n = max(|d_col|, |d_row|)`` cells visit
 the cells ``start + floor(k * (end - start) / n + 1/2)`` for ``k = 0 .. n - 1`` (and
 ``k = n`` when it has no hit), computed in fixed point.  Beams are sorted by length
 and traced in groups as ``(beams, steps)`` arrays by broadcasting (about
-`MapConfig.chunk_cells` entries per group); miss counts are accumulated with
-`np.bincount` on flat cell indices.  Scans are read in chunks of about 50,000
-beams, twice (the extent first, then the counts), which bounds the memory.  There
+`MapConfig.chunk_cells` entries per group, or a quarter of the grid's cells if
+more); hit and miss counts (int32: a cell gains at most one miss per beam) are
+accumulated with `np.bincount` on flat cell indices, in bands of about a million
+cells on large grids.  Scans are read in chunks of about 50,000 beams, twice (the
+extent first, then the counts), which bounds the memory.  There
 is no Python loop over beams or cells (only over scans, to gather their arrays,
 and over chunks and groups).
 
@@ -100,7 +102,9 @@ class MapConfig:
             by the scan's max range).
         margin_cells: cells added around the bounding box of the data.
         max_cells: largest grid (rows x cols) before the resolution is coarsened.
-        chunk_cells: ray-traced cells per vectorised group (bounds memory).
+        chunk_cells: ray-traced cells per vectorised group (bounds memory); at least
+            a quarter of the grid's cells, since each group's count costs one pass
+            over the grid.
     """
 
     resolution: float = 0.05
@@ -307,7 +311,7 @@ def _trace(
     end: NDArray[np.intp],
     hit: NDArray[np.bool_],
     cols: int,
-    misses: NDArray[np.int64],
+    misses: NDArray[np.int32],
     budget: int,
 ) -> None:
     """Add the miss counts of the Bresenham lines ``start -> end`` (cells ``(col, row)``)
@@ -356,8 +360,22 @@ def _trace(
         flat += row
         flat += base[i:j, None]
         flat[k >= count[i:j, None]] = n_cells
-        misses += np.bincount(flat.ravel(), minlength=n_cells + 1)[:n_cells]
+        _add_counts(misses, flat.ravel())
         i = j
+
+
+_BAND_CELLS = 1 << 20  # cells counted per `np.bincount` of `_add_counts` (8 MB of int64)
+
+
+def _add_counts(counts: NDArray[np.int32], flat: NDArray[np.integer]) -> None:
+    """``counts[c] += (number of c in flat)``, in place; indices outside ``counts`` (the
+    padding cell) are dropped.  Grids larger than `_BAND_CELLS` are counted in bands
+    of that many cells, so the count's transient never holds a whole large grid."""
+    n_cells = len(counts)
+    for lo in range(0, n_cells, _BAND_CELLS):
+        hi = min(lo + _BAND_CELLS, n_cells)
+        sel = flat if lo == 0 and hi == n_cells else flat[(flat >= lo) & (flat < hi)] - lo
+        counts[lo:hi] += np.bincount(sel, minlength=hi - lo + 1)[: hi - lo]
 
 
 def build_occupancy_grid(
@@ -408,19 +426,19 @@ def build_occupancy_grid(
     if res != cfg.resolution:
         cfg = MapConfig(**{**cfg.to_json(), "resolution": res})
     n_cells = rows * cols
-    hits = np.zeros(n_cells, dtype=np.int64)
-    misses = np.zeros(n_cells, dtype=np.int64)
+    hits = np.zeros(n_cells, dtype=np.int32)
+    misses = np.zeros(n_cells, dtype=np.int32)
     for a, b in chunks:
         beams = _gather_beams(scan_list[a:b], p[a:b], cfg)
         start = np.floor((beams.start - origin) / res).astype(np.intp)
         end = np.floor((beams.end - origin) / res).astype(np.intp)
         end_flat = end[beams.hit, 1] * cols + end[beams.hit, 0]
-        hits += np.bincount(end_flat, minlength=n_cells)
-        _trace(start, end, beams.hit, cols, misses, cfg.chunk_cells)
+        _add_counts(hits, end_flat)
+        _trace(start, end, beams.hit, cols, misses, max(cfg.chunk_cells, n_cells // 4))
     shape = (rows, cols)
     return OccupancyGrid(
-        hits=_to_int32(hits).reshape(shape),
-        misses=_to_int32(misses).reshape(shape),
+        hits=hits.reshape(shape),
+        misses=misses.reshape(shape),
         origin=origin,
         resolution=res,
         config=cfg,
@@ -437,7 +455,3 @@ def _chunks(scans: Sequence[Scan]) -> list[tuple[int, int]]:
     edges = np.unique(np.concatenate([[0], cuts + 1, [len(scans)]]).clip(0, len(scans)))
     return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
-
-def _to_int32(counts: NDArray[np.int64]) -> NDArray[np.int32]:
-    """Counts saturated to the int32 range."""
-    return np.minimum(counts, np.iinfo(np.int32).max).astype(np.int32)
