@@ -217,8 +217,12 @@ class OccupancyGrid:
 
     def probabilities(self) -> NDArray[np.float32]:
         """``(H, W)`` occupancy probability in ``[p_min, p_max]``; 0.5 where unobserved."""
-        lo = self.log_odds()
-        return (1.0 / (1.0 + np.exp(-lo))).astype(np.float32)
+        p = self.log_odds()  # the logistic, in place: one grid-sized array in memory
+        np.negative(p, out=p)
+        np.exp(p, out=p)
+        p += np.float32(1.0)
+        np.reciprocal(p, out=p)
+        return p
 
     def observed(self) -> NDArray[np.bool_]:
         """``(H, W)`` cells at least one beam reached."""
