@@ -210,8 +210,8 @@ class OccupancyGrid:
     def log_odds(self) -> NDArray[np.float32]:
         """``(H, W)`` clamped log-odds ``hits * l(p_hit) + misses * l(p_miss)``."""
         c = self.config
-        lo = self.hits.astype(np.float32) * np.float32(logit(c.p_hit))
-        lo += self.misses.astype(np.float32) * np.float32(logit(c.p_miss))
+        lo = np.multiply(self.hits, np.float32(logit(c.p_hit)), dtype=np.float32)
+        lo += np.multiply(self.misses, np.float32(logit(c.p_miss)), dtype=np.float32)
         np.clip(lo, logit(c.p_min), logit(c.p_max), out=lo)
         return lo
 

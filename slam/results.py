@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -79,6 +80,7 @@ def _write_maps(out: Path, result: MappingResult, map_config: MapConfig | None) 
         grid = build_occupancy_grid(
             scans, np.array([poses[k.id] for k in keyframes]), config=map_config
         )
+        release_free_memory()  # the ray tracing's transients
         overlays = {
             "trajectory_xy": trajectory[:, :2],
             "loops": _loop_segments(result, poses, "pose"),
@@ -105,6 +107,11 @@ def write_results(
 ) -> dict[str, Any]:
     """Write every output file of a run; returns the summary (also in summary.json)."""
     start = time.perf_counter()
+    # A finished Mapper's state (place database, registration targets, submaps) sits in
+    # reference cycles that only a full collection frees: free it before the maps are
+    # drawn on top of it.
+    gc.collect()
+    release_free_memory()
     out = output_dir(out)
     stamps, stamp_rule = output_stamps(result.scan_stamps, source)
     files: dict[str, str] = {}
