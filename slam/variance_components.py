@@ -37,9 +37,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
-from scipy.sparse.linalg import splu
 
-from slam.least_squares import StickySolver
+from slam.least_squares import StickySolver, factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
 
 Array = NDArray[np.float64]
@@ -94,7 +93,7 @@ def _redundancies(
     jac = coo_matrix(
         (triplets[2][keep], (rows[keep], cols[keep])), shape=(len(groups) * dof, n)
     ).tocsr()
-    lu = splu((jac.T @ jac).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    lu = factor_information(jac)
     loop_rows = np.flatnonzero(np.repeat(groups, dof) == 2)
     trace = 0.0
     for start in range(0, len(loop_rows), CHUNK):
