@@ -57,7 +57,7 @@ for each data-set column, then the times), ``roc_<set>.png`` and ``pr_<set>.png`
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from typing import Any
 
 import numpy as np
@@ -103,7 +103,9 @@ class MethodResult:
             "bullseye": self.bullseye, "auc": self.auc, "fscore": self.fscore,
             "ms_per_pair": self.ms_per_pair, "ms_describe": self.ms_describe,
             "ms_compare": self.ms_compare, "ms_compare_single": self.ms_compare_single,
-            "ms_per_pair_single": self.ms_per_pair_single, "config": self.overrides,
+            "ms_per_pair_single": self.ms_per_pair_single,
+            "config": {k: asdict(v) if is_dataclass(v) else v
+                       for k, v in self.overrides.items()},
         }
 
 

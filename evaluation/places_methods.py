@@ -60,10 +60,17 @@ def build_matcher(name: str, overrides: dict[str, Any]) -> Matcher:
 def method_overrides(name: str, scale_invariant: bool) -> tuple[dict[str, Any], str | None]:
     """Config overrides for `name` on a data set, and a note when one could not be applied.
 
+    ``cascade`` on places (not scale invariant) runs with the SLAM pipeline's place
+    database stages (`loopclosure.cascade.place_database_stages`).
+
     Raises ImportError/AttributeError when the method is unavailable.
     """
     cls = method_class(name)
     if not scale_invariant:
+        if name == "cascade":  # laser places: the pipeline's own cascade
+            from loopclosure.cascade import place_database_stages
+
+            return place_database_stages(), None
         return {}, None
     try:
         cls(scale_invariant=True)

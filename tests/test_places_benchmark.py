@@ -51,6 +51,27 @@ def test_an_unknown_method_class_is_a_user_error() -> None:
     assert places_methods.method_class("cascade").__name__ == "CascadeMatcher"
 
 
+def test_the_cascade_on_places_is_the_pipelines_place_database() -> None:
+    from loopclosure.cascade import CascadeConfig, CascadeMatcher
+    from loopclosure.place_config import PlaceDatabaseConfig
+
+    overrides, note = places_methods.method_overrides("cascade", scale_invariant=False)
+    cfg = CascadeMatcher(**overrides).config
+    base = PlaceDatabaseConfig()
+    assert note is None
+    assert (cfg.prefilter, cfg.verifiers, cfg.logistic) == (
+        base.prefilter, base.verifiers, base.logistic)
+    assert cfg.resolved_fusion == "logistic" and not cfg.anchored
+    row = pb.MethodResult("cascade", 1.0, 1.0, 1.0, 0, 0, 0, 0, 0, np.zeros((1, 1)), overrides)
+    assert json.loads(json.dumps(row.to_json()))["config"]["logistic"]["names"] == ["pairs",
+                                                                                  "flirt"]
+    # Shape sets keep the paper's stages, scale invariant.
+    overrides, _ = places_methods.method_overrides("cascade", scale_invariant=True)
+    assert overrides == {"scale_invariant": True}
+    assert CascadeMatcher(**overrides).config.prefilter == CascadeConfig().prefilter
+    assert places_methods.method_overrides("flirt", scale_invariant=False) == ({}, None)
+
+
 def test_paper_figures() -> None:
     """Spot checks of the copied Tables I-III (column order Box, Surface, MPEG-7, Robot)."""
     assert places_paper.paper_figure(places_paper.PAPER_BULLSEYE, "mrm", "mpeg7") == 77.95
