@@ -73,6 +73,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data.errors import UserError, warn
 from data.types import Scan
+from slam.memory import release_free_memory
 
 Array = NDArray[np.float64]
 PathArg = str | PathLike[str]
@@ -439,6 +440,7 @@ def build_occupancy_grid(
         end_flat = end[beams.hit, 1] * cols + end[beams.hit, 0]
         _add_counts(hits, end_flat)
         _trace(start, end, beams.hit, cols, misses, max(cfg.chunk_cells, n_cells // 4))
+        release_free_memory()  # the chunk's transients, not resident under the next chunk
     shape = (rows, cols)
     return OccupancyGrid(
         hits=hits.reshape(shape),
