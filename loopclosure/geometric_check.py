@@ -28,6 +28,15 @@ at translation 0 (the two sensor origins together: the centroids of real scans
 move by metres with the open space the sensor happens to see, the sensor of a
 revisit is within metres of the candidate's), each with a few translation offsets
 — and keeps the best run (`loopclosure.multi_start.register_multi`).
+
+A pose-gated check first asks whether the two submaps overlap at all near the
+prior: the coarse overlap score of `loopclosure.multi_start.overlap_scores` (the
+mean over the query's points of ``max(0, 1 - (d / 0.2 m)^2)``, ``d`` the distance
+to the candidate's nearest matchable point) at every initial guess.  When the best
+guess scores below `min_prior_overlap` no ICP runs: "no overlap at the prior".
+Such candidates (a wide pose gate outdoors, where the submaps of keyframes tens of
+metres apart share nothing) made most of the checks of a log and most of its loop
+detection time, and a true revisit overlaps several times more at its guesses.
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
@@ -69,7 +78,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
-from loopclosure.multi_start import initial_guesses, register_multi
+from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
 from loopclosure.prior_free import PriorFreeConfig, match_prior_free
 from loopclosure.registration import (
     FAILED_VARIANCE,
@@ -80,6 +89,9 @@ from loopclosure.registration import (
 )
 
 Array = NDArray[np.float64]
+
+
+PRIOR_OVERLAP_TOLERANCE = 0.2  # [m] of the coarse overlap screen of pose-gated checks
 
 
 @dataclass(slots=True)
@@ -106,6 +118,11 @@ class GeometricCheckConfig:
         source_voxel: voxel of the query submap before ICP [m] (the candidate's submap
             keeps its own resolution).
         keep: guesses refined by ICP after the coarse overlap prescreen.
+        min_prior_overlap: a pose-gated check whose best initial guess has a coarse
+            overlap score (`loopclosure.multi_start.overlap_scores`, tolerance
+            0.2 m) below this runs no ICP and is rejected (module docstring); well
+            below what the accepted loops of every real log measured score.  0 turns
+            the screen off.
         method: the check without a prior: ``"correlative"`` (lattice search, then
             ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
             heading hypotheses at the given translation and at 0).
@@ -138,6 +155,7 @@ class GeometricCheckConfig:
     origin_guesses: bool = True
     source_voxel: float = 0.1
     keep: int = 6
+    min_prior_overlap: float = 0.05
     method: str = "correlative"
     min_fitness_partial: float = 0.2
     min_consistency: float = 0.92
@@ -298,6 +316,17 @@ def verify(
         at_origin = initial_guesses(np.zeros(3), headings, _offset_grid(step))
         guesses = np.vstack([guesses, at_origin])
     source = voxel_downsample(np.asarray(query_points, dtype=float), cfg.source_voxel)
+    if prior is not None and cfg.min_prior_overlap > 0:
+        overlap = float(overlap_scores(source, candidate, guesses, PRIOR_OVERLAP_TOLERANCE)
+                        .max(initial=0.0))
+        if overlap < cfg.min_prior_overlap:
+            return LoopVerification(
+                accepted=False,
+                reason=f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})",
+                relative=base, covariance=_floored(FAILED_VARIANCE * np.eye(3),
+                                                   cfg.covariance_floor),
+                fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0,
+                hypotheses=0)
     multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep)
     best: IcpResult = multi.best
     others = [r.fitness for r in multi.results if r.ok and _different(r.pose, best.pose, cfg)]

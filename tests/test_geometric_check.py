@@ -66,6 +66,25 @@ def test_rejects_a_different_place() -> None:
     assert not result.accepted
 
 
+def test_a_prior_where_the_submaps_do_not_overlap_runs_no_icp() -> None:
+    a = np.array([1.0, 1.0, 0.0])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    query = _seen_from(ROOM, a) + np.array([30.0, 0.0])  # the same room, 30 m away
+    cov = np.diag([0.1, 0.1, 0.02]) ** 2
+    screened = verify(query, target, prior=np.zeros(3), prior_covariance=cov)
+    assert not screened.accepted and screened.hypotheses == 0
+    assert screened.reason.startswith("no overlap at the prior (0.000 <")
+    # Off, ICP runs from every guess (and fails: nothing within its gate).
+    off = verify(query, target, prior=np.zeros(3), prior_covariance=cov,
+                 config=GeometricCheckConfig(min_prior_overlap=0.0))
+    assert not off.accepted and off.hypotheses > 0
+    # A true revisit 0.3 m off the prior scores far above the screen and is accepted.
+    b = np.array([1.6, 0.8, 0.4])
+    prior = se2.compose(se2.between(a, b), np.array([0.3, -0.2, 0.05]))
+    kept = verify(_seen_from(ROOM, b), target, prior=prior, prior_covariance=cov * 4)
+    assert kept.accepted, kept.reason
+
+
 def test_rejects_a_corridor_as_degenerate() -> None:
     corridor = _walls([((-10, 0), (10, 0)), ((-10, 2), (10, 2))])
     a, b = np.array([0.0, 1.0, 0.0]), np.array([0.5, 1.0, 0.0])
