@@ -129,9 +129,9 @@ def factor_information(jacobian: spmatrix) -> SuperLU:
     ``H`` is symmetric positive definite (a graph whose gauge is fixed), so the LU
     needs no pivoting (Gaussian elimination is stable on such matrices) and keeps
     the symmetric minimum-degree ordering of ``H``: SuperLU's symmetric mode with
-    ``diag_pivot_thresh = 0``.  On the M3500 graph that has half the fill of the
-    default partial pivoting, factors about 2.5 times and solves about 4 times as
-    fast, and agrees with it to about 1e-10 (relative).
+    ``diag_pivot_thresh = 0``.  On pose graphs that leaves far less fill than the
+    default partial pivoting, so factorisations and solves are several times faster,
+    with the same solution to rounding.
     """
     h = (jacobian.T @ jacobian).tocsc()
     return splu(h, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,

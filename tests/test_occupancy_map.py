@@ -168,6 +168,29 @@ def test_map_does_not_depend_on_scan_order(items, rnd):
     np.testing.assert_array_equal(a.misses, b.misses)
 
 
+@settings(max_examples=25, deadline=None)
+@given(scan_sets, st.integers(1, 40), st.integers(1, 60))
+def test_counts_do_not_depend_on_bands_or_group_sizes(items, band, group):
+    # A large grid is counted in bands of cells and traced in groups of beams; any
+    # band and group size gives the counts of one band and one big group.
+    import slam.occupancy_map as om
+
+    whole = _build(items)
+    old = om._BAND_CELLS
+    try:
+        om._BAND_CELLS = band
+        angles = np.linspace(-np.pi / 2, np.pi / 2, 8)
+        scans = [beam_scan(angles, r, max_range=3.5) for *_, r in items]
+        poses = np.array([[x, y, t] for x, y, t, _ in items])
+        split = build_occupancy_grid(scans, poses, config=MapConfig(resolution=0.25,
+                                                                    chunk_cells=group))
+    finally:
+        om._BAND_CELLS = old
+    np.testing.assert_array_equal(whole.hits, split.hits)
+    np.testing.assert_array_equal(whole.misses, split.misses)
+    assert split.hits.dtype == split.misses.dtype == np.int32
+
+
 @settings(max_examples=40, deadline=None)
 @given(scan_sets, st.integers(-20, 20), st.integers(-20, 20))
 def test_shifting_the_world_by_whole_cells_shifts_only_the_origin(items, i, j):
