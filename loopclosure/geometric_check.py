@@ -29,14 +29,17 @@ move by metres with the open space the sensor happens to see, the sensor of a
 revisit is within metres of the candidate's), each with a few translation offsets
 — and keeps the best run (`loopclosure.multi_start.register_multi`).
 
-A pose-gated check first asks whether the two submaps overlap at all near the
+A pose-gated check first asks whether ICP would find anything to match near the
 prior: the coarse overlap score of `loopclosure.multi_start.overlap_scores` (the
-mean over the query's points of ``max(0, 1 - (d / 0.2 m)^2)``, ``d`` the distance
-to the candidate's nearest matchable point) at every initial guess.  When the best
-guess scores below `min_prior_overlap` no ICP runs: "no overlap at the prior".
-Such candidates (a wide pose gate outdoors, where the submaps of keyframes tens of
+mean over the query's points of ``max(0, 1 - (d / g)^2)``, ``d`` the distance to
+the candidate's nearest matchable point, ``g`` ICP's correspondence gate
+``icp.max_correspondence_distance``) at every initial guess.  When the best guess
+scores below `min_prior_overlap` no ICP runs: "no overlap at the prior".  Such
+candidates (a wide pose gate outdoors, where the submaps of keyframes tens of
 metres apart share nothing) made most of the checks of a log and most of its loop
-detection time, and a true revisit overlaps several times more at its guesses.
+detection time.  The score is measured at ICP's own gate, not at a tighter
+tolerance, because a prior from drifting wheel odometry can be off by more than
+the guesses' offsets, and ICP still converges from there.
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
@@ -91,9 +94,6 @@ from loopclosure.registration import (
 Array = NDArray[np.float64]
 
 
-PRIOR_OVERLAP_TOLERANCE = 0.2  # [m] of the coarse overlap screen of pose-gated checks
-
-
 @dataclass(slots=True)
 class GeometricCheckConfig:
     """Acceptance rule and search of the geometric check (module docstring).
@@ -119,10 +119,10 @@ class GeometricCheckConfig:
             keeps its own resolution).
         keep: guesses refined by ICP after the coarse overlap prescreen.
         min_prior_overlap: a pose-gated check whose best initial guess has a coarse
-            overlap score (`loopclosure.multi_start.overlap_scores`, tolerance
-            0.2 m) below this runs no ICP and is rejected (module docstring); well
-            below what the accepted loops of every real log measured score.  0 turns
-            the screen off.
+            overlap score (`loopclosure.multi_start.overlap_scores` at ICP's
+            correspondence gate) below this runs no ICP and is rejected (module
+            docstring); well below what the accepted loops of every log measured
+            score.  0 turns the screen off.
         method: the check without a prior: ``"correlative"`` (lattice search, then
             ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
             heading hypotheses at the given translation and at 0).
@@ -317,8 +317,8 @@ def verify(
         guesses = np.vstack([guesses, at_origin])
     source = voxel_downsample(np.asarray(query_points, dtype=float), cfg.source_voxel)
     if prior is not None and cfg.min_prior_overlap > 0:
-        overlap = float(overlap_scores(source, candidate, guesses, PRIOR_OVERLAP_TOLERANCE)
-                        .max(initial=0.0))
+        gate = cfg.icp.max_correspondence_distance
+        overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
         if overlap < cfg.min_prior_overlap:
             return LoopVerification(
                 accepted=False,

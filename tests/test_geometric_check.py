@@ -83,6 +83,11 @@ def test_a_prior_where_the_submaps_do_not_overlap_runs_no_icp() -> None:
     prior = se2.compose(se2.between(a, b), np.array([0.3, -0.2, 0.05]))
     kept = verify(_seen_from(ROOM, b), target, prior=prior, prior_covariance=cov * 4)
     assert kept.accepted, kept.reason
+    # A prior drifted beyond the guesses' offsets (wheel odometry) is still tried and
+    # recovered by ICP.
+    drifted = se2.compose(se2.between(a, b), np.array([0.0, 0.9, 0.25]))
+    wide = verify(_seen_from(ROOM, b), target, prior=drifted, prior_covariance=cov * 100)
+    assert wide.hypotheses > 0 and wide.accepted, wide.reason
 
 
 def test_rejects_a_corridor_as_degenerate() -> None:
