@@ -103,9 +103,9 @@ class MapConfig:
             by the scan's max range).
         margin_cells: cells added around the bounding box of the data.
         max_cells: largest grid (rows x cols) before the resolution is coarsened.
-        chunk_cells: ray-traced cells per vectorised group (bounds memory); at least
-            a quarter of the grid's cells, since each group's count costs one pass
-            over the grid.
+        chunk_cells: ray-traced cells per vectorised group (bounds memory); a group
+            also holds at least a quarter of the grid's cells, since counting it
+            costs one pass over the grid.
     """
 
     resolution: float = 0.05

@@ -80,7 +80,6 @@ def _write_maps(out: Path, result: MappingResult, map_config: MapConfig | None) 
         grid = build_occupancy_grid(
             scans, np.array([poses[k.id] for k in keyframes]), config=map_config
         )
-        release_free_memory()  # the ray tracing's transients
         overlays = {
             "trajectory_xy": trajectory[:, :2],
             "loops": _loop_segments(result, poses, "pose"),
