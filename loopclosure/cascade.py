@@ -60,12 +60,13 @@ must keep every same-class shape within K (recall@K = 1).
 Which stages the place benchmark runs.  The defaults above are the paper's stages.
 On laser places (every data set that is not scale invariant) the benchmark runs the
 cascade as the SLAM pipeline's place database is configured
-(`place_database_stages`): the surface-pair prefilter (`loopclosure.matchers.
-pair_histogram`, not one of the paper's eight), FLIRT, and their logistic fusion,
-verified over the whole (small) database.  The benchmark's cascade row is then the
-product's own cascade, and on real places it ranks far above the paper's stages and
-FLIRT alone, since the pair histogram, unlike the FFT and ring descriptors, does not
-depend on a reference point that moves with what the sensor happens to see.
+(`place_database_stages`): the surface-pair prefilter
+(`loopclosure.matchers.pair_histogram`, not one of the paper's eight), FLIRT, and
+their logistic fusion, verified over the whole (small) database.  The benchmark's
+cascade row is then the product's own cascade, and on real places it ranks far
+above the paper's stages and FLIRT alone, since the pair histogram, unlike the FFT
+and ring descriptors, does not depend on a reference point that moves with what the
+sensor happens to see.
 MPEG-7 and other scale-invariant shape sets keep the paper's stages with rank fusion.
 
 Fusion "auto" = logistic for places (not scale invariant), reciprocal rank fusion for
