@@ -33,6 +33,14 @@ Protocol
      candidates of the database's own query; top-1 = smallest;
    * ``fused``: the database's query (`PlaceDatabase.query`, K = ``top_k``), top-1 =
      highest fused score;
+   * with the detector's wide view (`LoopClosureDetector`, ``loops.wide_keyframes``;
+     a keyframe of a narrower sensor is also described from the map of its last
+     keyframes, or queries with a keyframe's a few keys older: `wide_key`): its
+     database is mirrored the same way; a prefilter row's distance
+     to a keyframe is the smaller of the two views' (each normalised by its
+     database's scales), ``fused`` is the union of both views' queries
+     (`loopclosure.loop_detector.merge_views`, as the detector's search), and the
+     verifier rows read their distances from that union;
    * ``<name>-alone`` (optional, any stage matcher, e.g. ``flirt-alone``): that matcher
      over the whole database (stacked once, rows selected per query), no prefilter;
    * **final**: the database's candidates through the geometric check exactly as the
@@ -41,8 +49,10 @@ Protocol
      with no prior until ``loops.max_loops`` are accepted, accepted ones that put the
      query in places farther apart than ``loops.agree_distance`` rejected (the
      map's poses of the database keyframes, the front end's here, say where each
-     place is; the query's own pose is never used).  The proposal is the first
-     accepted candidate, score = its fused score (none accepted: no proposal).
+     place is; the query's own pose is never used).  The proposal is the accepted
+     candidate whose checked relative pose is the shortest (of two verified places
+     of one query the nearer overlaps more: the place the query is in), score = its
+     fused score (none accepted: no proposal).
 
 4. **Truth and measures**: `evaluation.loop_bench_truth` (revisit within 2 m; a
    proposal is correct within 2 m, after the check also within 0.2 m / 2 degrees).
@@ -91,6 +101,7 @@ from evaluation.loop_bench_truth import (
     pr_curve,
     recall_at_k,
 )
+from loopclosure.loop_detector import merge_views
 from loopclosure.place_database import PlaceDatabase
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper, MappingResult
@@ -496,6 +507,9 @@ def _query_all(
     source = detector.database
     cfg = source.config
     db = PlaceDatabase(cfg, matchers=source.matchers)
+    wide_source = detector.wide_database
+    wide = None if wide_source is None else _View(
+        PlaceDatabase(cfg, matchers=source.matchers), np.zeros(0, np.intp))
     alone = {r: r[: -len(ALONE)] for r in rows if r.endswith(ALONE)}
     stacks = {
         r: source.matchers[m].stack([source.descriptors(k)[m] for k in source.keys])
@@ -512,6 +526,9 @@ def _query_all(
         if desc is not None:  # a keyframe without a polygon is never a candidate
             db.add_descriptors(k, desc)
             keys = np.append(keys, k)
+            if wide is not None and k in wide_source:
+                wide.db.add_descriptors(k, wide_source.descriptors(k))
+                wide.keys = np.append(wide.keys, k)
         if not (plan[k] and covered[k]):
             continue
         done += 1
@@ -522,15 +539,24 @@ def _query_all(
         mask = np.zeros(len(keys), bool)
         mask[older] = eligible[keys[older]] & covered[keys[older]]
         _one_query(out, k, desc, db, detector, mapper, keys, mask, ref, poses, alone, stacks,
-                   timing_every, radius, kmax, cascade)
+                   timing_every, radius, kmax, cascade, wide)
     return out
+
+
+@dataclass(slots=True)
+class _View:
+    """The wide view's database as the queries see it (`_query_all`): the loop
+    detector's wide descriptors re-added in key order, and the key of every row."""
+
+    db: PlaceDatabase
+    keys: NDArray[np.intp]
 
 
 def _one_query(
     out: _Raw, k: int, desc: dict[str, Any] | None, db: PlaceDatabase, detector: Any,
     mapper: _RecordingMapper, keys: NDArray[np.intp], mask: NDArray[np.bool_], ref: Array,
     poses: Array, alone: dict[str, str], stacks: dict[str, Any],
-    timing_every: int, radius: float, kmax: int, cascade: bool,
+    timing_every: int, radius: float, kmax: int, cascade: bool, wide: _View | None = None,
 ) -> None:
     """One query's proposals of every row (module docstring), appended to `out`; only
     the ``-alone`` rows unless `cascade`."""
@@ -558,7 +584,7 @@ def _one_query(
         return
     if cascade:
         _cascade_rows(out, k, desc, db, detector, mapper, keys, sel, mask, near, poses,
-                      timing_every, kmax)
+                      timing_every, kmax, wide)
     for r, m in alone.items():
         sub = _take(stacks[r], sel)
         t = time.perf_counter()
@@ -573,14 +599,34 @@ def _cascade_rows(
     out: _Raw, k: int, desc: dict[str, Any], db: PlaceDatabase, detector: Any,
     mapper: _RecordingMapper, keys: NDArray[np.intp], sel: NDArray[np.intp],
     mask: NDArray[np.bool_], near: NDArray[np.bool_], poses: Array, timing_every: int,
-    kmax: int,
+    kmax: int, wide: _View | None = None,
 ) -> None:
-    """The prefilter, verifier, fused and final rows of one query with candidates."""
+    """The prefilter, verifier, fused and final rows of one query with candidates.
+
+    With the detector's wide view (`wide`, when the query has a wide description):
+    a prefilter row's distance to a keyframe is the smaller of its two views' (both
+    normalised by their database's scales), and ``fused`` is the union of the two
+    views' queries (`loopclosure.loop_detector.merge_views`), as the detector asks."""
     cfg = db.config
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers
+    wide_desc, wide_mask = None, None
+    asked = detector.wide_key(k) if wide is not None else None
+    if asked is not None and asked in wide.db:
+        wide.db.scales  # noqa: B018 -- as above
+        wide_desc = wide.db.descriptors(asked)
+        wide_mask = np.isin(wide.keys, keys[sel])
     t = time.perf_counter()
     combined, raw = db.prefilter_distances(desc, sel)
+    if wide_desc is not None:
+        w_sel = np.flatnonzero(wide_mask)
+        w_combined, w_raw = wide.db.prefilter_distances(wide_desc, w_sel)
+        at = np.searchsorted(keys[sel], wide.keys[w_sel])  # both in key order
+        combined = combined.copy()
+        np.minimum.at(combined, at, w_combined)
+        for name, d in w_raw.items():
+            raw[name] = raw[name].copy()
+            np.minimum.at(raw[name], at, d)
     t_pre = time.perf_counter() - t
     for r, d in (*raw.items(), ("prefilter", combined)):
         top = np.argsort(d, kind="stable")[:kmax]
@@ -591,6 +637,8 @@ def _cascade_rows(
         out.time(r, t_pre)
     t = time.perf_counter()
     matches = db.query(desc, allowed=mask)
+    if wide_desc is not None:
+        matches = merge_views([matches, wide.db.query(wide_desc, allowed=wide_mask)])
     t_query = time.perf_counter() - t
     out.time("fused", t_query)
     best = matches[0]
@@ -610,7 +658,9 @@ def _cascade_rows(
     checked = detector.verify_places(k, detector.places(matches, poses), poses,
                                      mapper.query_submaps.get(k))
     out.time("final", t_query + time.perf_counter() - t)
-    cand = next((c for c in checked if c.accepted), checked[0])
+    accepted = [c for c in checked if c.accepted]
+    # Of several accepted places, the one the check measures nearest (protocol step 3).
+    cand = min(accepted, key=lambda c: float(np.hypot(*c.relative[:2])), default=checked[0])
     out.accepted.append(bool(cand.accepted))
     out.final_match.append(int(cand.match))
     out.final_score.append(float(cand.fused_score) if cand.accepted else -np.inf)

@@ -18,13 +18,30 @@ local maps through one callback and, if those maps change, their version:
   registration targets (KD-tree + normals) of recent candidates and rebuilds one
   only when its version changed.  Without it, submaps are taken to be fixed: each
   is built into a target once (until it drops out of the `target_cache`).
+- ``trailing_map(key, n) -> points`` (optional): the points of keyframes
+  ``key - n .. key`` (those that exist) in keyframe `key`'s sensor frame, ``(N, 2)``
+  [m]: the map the robot built on its way to `key`.  With it, a keyframe whose
+  sensor covers less than a full circle gets a second, *wide* description (see 1.).
 
 and calls, for every keyframe:
 
 1. ``add_keyframe(key, stamp, scan)`` (keys 0, 1, 2, ... in order): the keyframe is
    described once (a 360-degree polygon: its own scan when the sensor covers the
    full circle, else a virtual scan of ``submap(key)``, see
-   `loopclosure.virtual_scan`) and stored in the place database;
+   `loopclosure.virtual_scan`) and stored in the place database.  With a
+   ``trailing_map`` and `wide_keyframes` > 0, a narrower sensor's keyframe is also
+   described from a virtual scan of ``trailing_map(key, wide_keyframes)``, in a
+   second database of the same configuration (the *wide view*), every
+   `wide_every` keyframes (the keyframes between, a few decimetres apart, query with
+   the latest one's wide view: its heading hypotheses turned and its centroid moved
+   into the query's frame by the two keyframes' relative pose estimate; a third of
+   the description cost for nearly all of the gain).  Why two views: a
+   submap of a few metres of path holds little of what lies behind a 180-degree
+   laser, so a revisit from elsewhere in the place, or at another heading, shares
+   little of it; a longer stretch of path fills the view in, but with parts of the
+   path that another visit need not share (the way the robot came).  Which one
+   carries a revisit depends on the two paths, so both are asked and the better
+   match counts (`query_places`);
 2. ``detect(key, poses, covariance)`` with the host's current pose estimates of all
    keyframes so far (any added key may be queried, in any order; the pipeline asks
    right after adding it).  Two searches propose candidates (``search``: ``both``,
@@ -127,6 +144,9 @@ SubmapFn = Callable[[int], ArrayLike]
 """``submap(key) -> (N, 2)`` points of keyframe `key`'s local map, its sensor frame [m]."""
 SubmapVersionFn = Callable[[int], Hashable]
 """``submap_version(key) -> version`` of that local map (module docstring)."""
+TrailingMapFn = Callable[[int, int], ArrayLike]
+"""``trailing_map(key, n) -> (N, 2)`` points of keyframes ``key - n .. key``, `key`'s
+sensor frame [m] (module docstring)."""
 SEARCHES = ("both", "appearance", "pose")
 """Values of `LoopClosureConfig.search`."""
 
@@ -178,6 +198,11 @@ class LoopClosureConfig:
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
         full_circle_deg: a sensor covering at least this is described by its own scan.
+        wide_keyframes: keyframes of path behind a keyframe in its wide view (a second
+            description of a narrower sensor's keyframe, from the host's
+            ``trailing_map``; 0: none).
+        wide_every: a keyframe gets a wide view when the latest one of its session is
+            this many keyframes old (1: every keyframe); the others query with it.
         target_cache: registration targets (KD-tree + normals) kept in memory.
         database: the place database (prefilter, verifiers, fusion).
         check: the geometric check.
@@ -205,6 +230,8 @@ class LoopClosureConfig:
     virtual_beams: int = 360
     virtual_range: float = 20.0
     full_circle_deg: float = 359.0
+    wide_keyframes: int = 30
+    wide_every: int = 3
     target_cache: int = 256
     database: PlaceDatabaseConfig = field(default_factory=PlaceDatabaseConfig)
     check: GeometricCheckConfig = field(default_factory=GeometricCheckConfig)
@@ -222,6 +249,10 @@ class LoopClosureConfig:
             raise UserError(f"loops.sequence_places must be >= 1, got {self.sequence_places}")
         if not self.agree_distance > 0:
             raise UserError(f"loops.agree_distance must be > 0 m, got {self.agree_distance}")
+        if self.wide_keyframes < 0:
+            raise UserError(f"loops.wide_keyframes must be >= 0, got {self.wide_keyframes}")
+        if self.wide_every < 1:
+            raise UserError(f"loops.wide_every must be >= 1, got {self.wide_every}")
 
 
 
@@ -299,11 +330,20 @@ class LoopClosureDetector:
         config: LoopClosureConfig | None = None,
         submap: SubmapFn | None = None,
         submap_version: SubmapVersionFn | None = None,
+        trailing_map: TrailingMapFn | None = None,
     ):
         self.config = config or LoopClosureConfig()
         self.database = PlaceDatabase(self.config.database)
         self._submap = submap
         self._submap_version = submap_version
+        self._trailing_map = trailing_map
+        # The wide view (module docstring, 1.): its database and place centroids.
+        self.wide_database: PlaceDatabase | None = (
+            PlaceDatabase(self.config.database, matchers=self.database.matchers)
+            if trailing_map is not None and self.config.wide_keyframes > 0 else None)
+        self._wide_centroids: dict[int, Array] = {}
+        self._wide_keys: list[int] = []  # key -> the key whose wide view it queries with
+        self._wide_described = np.zeros(0, np.int64)  # keys with a wide view, in order
         self._stamps: list[float] = []
         self._clock = True  # stamps tell time (see `eligible`)
         self._centroids: list[Array] = []
@@ -356,6 +396,7 @@ class LoopClosureDetector:
                 pts = self._submap_points(key)
                 place_scan = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
         self._place_scans.append(place_scan)
+        self._wide_keys.append(-1)
         try:
             polygon = polygon_from_scan(place_scan, cfg.polygon)
         except DegeneratePolygonError:
@@ -365,7 +406,37 @@ class LoopClosureDetector:
         self._centroids.append(polygon.centroid())
         self._described.append(True)
         self.database.add_descriptors(key, self.database.describe(polygon), stamp=stamp)
+        if self.wide_database is not None and np.degrees(scan.fov) < cfg.full_circle_deg:
+            self._wide_keys[key] = self._add_wide(key, stamp)
         return True
+
+    def _add_wide(self, key: int, stamp: float) -> int:
+        """The key whose wide view `key` queries with (module docstring, 1.): the latest
+        one of its session while it is less than `wide_every` keyframes old, else `key`
+        itself, described now (-1 when that makes no polygon)."""
+        assert self._trailing_map is not None and self.wide_database is not None
+        cfg = self.config
+        latest = self._wide_keys[key - 1] if key > 0 else -1
+        if latest >= 0 and key - latest < cfg.wide_every and (
+                self._sessions[latest] == self._sessions[key]):
+            return latest
+        pts = np.asarray(self._trailing_map(key, cfg.wide_keyframes), float).reshape(-1, 2)
+        wide = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
+        try:
+            polygon = polygon_from_scan(wide, cfg.polygon)
+        except DegeneratePolygonError:
+            return -1
+        self._wide_centroids[key] = polygon.centroid()
+        self._wide_described = np.append(self._wide_described, key)
+        db = self.wide_database
+        db.add_descriptors(key, db.describe(polygon), stamp=stamp)
+        return key
+
+    def wide_key(self, key: int) -> int | None:
+        """The keyframe whose wide view `key` queries with (itself or a few keyframes
+        older), None without one."""
+        self._check_key(key)
+        return self._wide_keys[key] if self._wide_keys[key] >= 0 else None
 
     def place_scan(self, key: int) -> Scan | None:
         """The 360-degree scan keyframe `key`'s place was described from (its own scan
@@ -539,6 +610,34 @@ class LoopClosureDetector:
     def _distance(poses: Array, a: int, b: int) -> float:
         return float(np.hypot(*(poses[a, :2] - poses[b, :2])))
 
+    def views(self, key: int) -> list[tuple[PlaceDatabase, int]]:
+        """``(database, key it is asked with)`` of every description `key` queries with:
+        the database and `key`, then the wide view's with `wide_key(key)` when there
+        is one (a view's index is `PlaceMatch.view`)."""
+        out = [(self.database, key)] if key in self.database else []
+        wide = self.wide_key(key)
+        if self.wide_database is not None and wide is not None:
+            out.append((self.wide_database, wide))
+        return out
+
+    def query_places(
+        self, key: int, allowed: ArrayLike | None = None, *, headings: bool = False
+    ) -> list[PlaceMatch]:
+        """The place database's matches of keyframe `key` over the `allowed` keys
+        (None: all), every view asked with its description of `key` (`views`): the union
+        by decreasing fused score, one match per stored keyframe (its best view's).
+        Heading hypotheses only with `headings` (`_verify_free` adds them for the
+        candidates it checks)."""
+        if allowed is not None:
+            allowed = np.asarray(allowed, dtype=np.int64).ravel()
+        per_view = []
+        for db, asked in self.views(key):
+            keys = allowed
+            if db is self.wide_database and allowed is not None:  # holds some keys only
+                keys = allowed[np.isin(allowed, self._wide_described)]
+            per_view.append(db.query(db.descriptors(asked), allowed=keys, headings=headings))
+        return merge_views(per_view)
+
     def places(self, matches: Sequence[PlaceMatch], poses: ArrayLike) -> list[PlaceMatch]:
         """The places the global search checks among `matches` (best first): the first
         `global_verify` distinct ones, a match within `place_separation` of one taken
@@ -561,9 +660,7 @@ class LoopClosureDetector:
         self._since_global = 0
         # Heading hypotheses only for the candidates checked with no prior
         # (`_verify_free`): one checked from the pose prior needs none.
-        matches = self.database.query(
-            self.database.descriptors(key), allowed=np.flatnonzero(eligible), headings=False
-        )
+        matches = self.query_places(key, np.flatnonzero(eligible))
         frame = self._frames[key]
         chosen = self.places([
             m for m in matches
@@ -651,13 +748,12 @@ class LoopClosureDetector:
         then accepted candidates in one frame that put the query more than
         `agree_distance` apart (``poses[match] * relative``) are all rejected."""
         out: list[LoopCandidate] = []
-        desc = None  # the query's descriptors, fetched for the first match without headings
         for m in matches:
             if sum(c.accepted for c in out) >= budget:
                 break
             if not m.headings:  # a query made without them (`_appearance`)
-                desc = self.database.descriptors(key) if desc is None else desc
-                m = self.database.with_headings(desc, [m])[0]
+                db, asked = self.views(key)[m.view]
+                m = db.with_headings(db.descriptors(asked), [m])[0]
             out.append(self._check_global(key, m, query_points, poses))
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
@@ -683,9 +779,19 @@ class LoopClosureDetector:
         # Headings of the query in the candidate's frame (`loopclosure.headings`); align
         # the two places' centroids under the best one.
         headings = [h for h, _ in m.headings] or [0.0]
+        if m.view:  # the wide view, maybe an older keyframe's: into the query's frame
+            asked = self._wide_keys[key]
+            centroids = self._wide_centroids
+            own = centroids[asked]
+            if asked != key and poses is not None:
+                rel = se2.between(poses[key], poses[asked])  # `asked` in the query's frame
+                headings = [h - float(rel[2]) for h in headings]
+                own = se2.transform_points(rel, own[None, :])[0]
+        else:
+            centroids, own = self._centroids, self._centroids[key]
         c, s = np.cos(headings[0]), np.sin(headings[0])
         rot = np.array([[c, -s], [s, c]])
-        translation = self._centroids[cand] - rot @ self._centroids[key]
+        translation = centroids[cand] - rot @ own
         result = verify(
             query_points, self._target(cand), headings=headings, translation=translation,
             max_distance=cfg.max_distance, config=cfg.check,
@@ -695,6 +801,18 @@ class LoopClosureDetector:
         return LoopCandidate.checked(
             key, cand, "appearance", result, predicted_distance=distance, **_place_figures(m)
         )
+
+
+def merge_views(per_view: Sequence[Sequence[PlaceMatch]]) -> list[PlaceMatch]:
+    """One query's matches in several views (databases), as one list: each stored
+    keyframe once, as its match with the highest fused score, marked with that view's
+    index (`PlaceMatch.view`); by decreasing fused score (ties: the database's own
+    order, the first view first)."""
+    found = [dataclasses.replace(m, view=view)
+             for view, matches in enumerate(per_view) for m in matches]
+    found.sort(key=lambda m: -m.score)
+    seen: set[Hashable] = set()
+    return [m for m in found if not (m.key in seen or seen.add(m.key))]
 
 
 def distinct_places(

@@ -129,6 +129,9 @@ class PlaceMatch:
             of the query in the stored keyframe's frame (`loopclosure.headings`).
         stamp: the stored keyframe's stamp [s] (None if not given).
         pose: the stored keyframe's pose (as given at `add`, e.g. (x, y, theta)).
+        view: which description of the stored keyframe matched, for a host that
+            describes each keyframe more than once in databases of its own (the loop
+            detector's wide view: 1); 0 from `query`.
     """
 
     key: Hashable
@@ -139,6 +142,7 @@ class PlaceMatch:
     headings: tuple[tuple[float, float], ...]
     stamp: float | None = None
     pose: Any = None
+    view: int = 0
 
     @property
     def verifier_distances(self) -> dict[str, float]:

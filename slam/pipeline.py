@@ -136,7 +136,8 @@ class Mapper:
                 f"unknown uncertainty {cfg.uncertainty!r}; choose since-loop or marginal"
             )
         self.detector = LoopClosureDetector(
-            cfg.loops, submap=self.submap, submap_version=self.submap_version
+            cfg.loops, submap=self.submap, submap_version=self.submap_version,
+            trailing_map=self.trailing_map,
         )
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
@@ -409,21 +410,29 @@ class Mapper:
         cached = self._submaps.get(key)
         if cached is not None and cached[0] == hi:
             return cached[1]
-        centre = self._keyframe(key).odom_pose
-        parts = []
-        for j in range(max(lo, key - n), hi + 1):
-            kf = self._keyframe(j)
-            rel = se2.between(centre, kf.odom_pose)
-            parts.append(se2.transform_points(rel, kf.points))
-        pts = np.vstack(parts) if parts else np.zeros((0, 2))
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
-        pts = voxel_downsample(pts, self.config.submap.voxel)
+        pts = self._local_points(key, max(lo, key - n), hi)
         self._submaps[key] = (hi, pts)
         # Submaps far behind the newest keyframe are complete and rarely needed again.
         stale = key - 4 * n - self.config.loops.exclude_recent
         for old in [k for k in self._submaps if k < stale and self._submaps[k][0] < k + n]:
             del self._submaps[old]
         return pts
+
+    def trailing_map(self, key: int, n: int) -> Array:
+        """Keyframes ``key - n .. key`` of `key`'s session, in `key`'s sensor frame [m],
+        cropped and voxelised as a submap: the map the robot built on its way to `key`
+        (the loop detector's wide view)."""
+        return self._local_points(key, max(self._span(key)[0], key - n), key)
+
+    def _local_points(self, key: int, first: int, last: int) -> Array:
+        """Keyframes ``first .. last`` in `key`'s sensor frame (front-end poses), points
+        beyond ``submap.max_range`` dropped, voxelised by ``submap.voxel`` [m]."""
+        centre = self._keyframe(key).odom_pose
+        parts = [se2.transform_points(se2.between(centre, kf.odom_pose), kf.points)
+                 for kf in map(self._keyframe, range(first, last + 1))]
+        pts = np.vstack(parts) if parts else np.zeros((0, 2))
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
+        return voxel_downsample(pts, self.config.submap.voxel)
 
     # -- the end ----------------------------------------------------------------------
 

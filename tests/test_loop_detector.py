@@ -3,13 +3,21 @@ versions."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from data import se2
 from data.errors import UserError
 from data.sim import simulate_run
-from loopclosure.loop_detector import LoopCandidate, LoopClosureConfig, LoopClosureDetector
+from loopclosure.loop_detector import (
+    LoopCandidate,
+    LoopClosureConfig,
+    LoopClosureDetector,
+    merge_views,
+)
+from loopclosure.place_database import PlaceMatch
 
 
 def _detector(stamps: list[float]) -> LoopClosureDetector:
@@ -263,3 +271,95 @@ def test_a_negative_place_separation_is_a_user_error() -> None:
 def test_a_non_positive_agree_distance_is_a_user_error() -> None:
     with pytest.raises(UserError, match="agree_distance"):
         LoopClosureConfig(agree_distance=0.0)
+
+
+# -- the wide view -------------------------------------------------------------------
+
+
+def _match(key: int, score: float) -> PlaceMatch:
+    return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
+                      score=score, headings=())
+
+
+def test_merge_views_keeps_each_keyframe_once_at_its_best_view() -> None:
+    narrow = [_match(1, 0.9), _match(2, 0.5)]
+    wide = [_match(2, 0.7), _match(3, 0.6), _match(1, 0.2)]
+    merged = merge_views([narrow, wide])
+    assert [(m.key, m.score, m.view) for m in merged] == [
+        (1, 0.9, 0), (2, 0.7, 1), (3, 0.6, 1)]
+    assert merge_views([narrow]) == [dataclasses.replace(m, view=0) for m in narrow]
+    assert merge_views([]) == []
+
+
+@pytest.fixture(scope="module")
+def narrow_keyframes() -> list:
+    """Every 4th scan of a 180-degree laser in the simulated box world."""
+    return simulate_run("box", seed=0, fov_deg=180.0, beams=181).scans[::README_STEP][:60]
+
+
+def _trailing(keyframes: list, calls: list):
+    def trailing_map(key: int, n: int) -> np.ndarray:
+        calls.append(n)
+        centre = keyframes[key].odom
+        return np.vstack([se2.transform_points(se2.between(centre, keyframes[j].odom),
+                                               keyframes[j].points())
+                          for j in range(max(0, key - n), key + 1)])
+    return trailing_map
+
+
+def test_a_narrow_sensor_is_described_twice_and_queried_in_both_views(narrow_keyframes):
+    calls: list[int] = []
+    cfg = LoopClosureConfig(exclude_recent=5, wide_keyframes=12, wide_every=3)
+    det = LoopClosureDetector(cfg, submap=lambda k: narrow_keyframes[k].points(),
+                              trailing_map=_trailing(narrow_keyframes, calls))
+    for key, scan in enumerate(narrow_keyframes):
+        det.add_keyframe(key, scan.stamp, scan)
+    n = len(narrow_keyframes)
+    assert det.wide_database is not None
+    # Every third keyframe is described wide; the two after it query with its view.
+    assert calls == [12] * len(range(0, n, 3))
+    assert det.wide_database.keys == list(range(0, n, 3))
+    assert [det.wide_key(k) for k in range(n)] == [k - k % 3 for k in range(n)]
+    key = n - 1
+    asked = det.wide_key(key)
+    assert asked == key - 2
+    assert not np.array_equal(det.database.descriptors(asked)["pairs"],
+                              det.wide_database.descriptors(asked)["pairs"])
+    allowed = np.flatnonzero(det.eligible(key))
+    found = det.query_places(key, allowed)
+    keys = [int(m.key) for m in found]
+    assert len(keys) == len(set(keys)) and set(keys) <= set(allowed.tolist())
+    assert {m.view for m in found} <= {0, 1}
+    assert [m.score for m in found] == sorted((m.score for m in found), reverse=True)
+    wide_allowed = allowed[np.isin(allowed, det.wide_database.keys)]
+    per_view = [db.query(db.descriptors(k), allowed=a, headings=False)
+                for db, k, a in ((det.database, key, allowed),
+                                 (det.wide_database, asked, wide_allowed))]
+    best = {}
+    for matches in per_view:
+        for m in matches:
+            best[m.key] = max(best.get(m.key, -1.0), m.score)
+    assert {m.key: m.score for m in found} == best
+    # Candidates of either view are checked with their own view's headings.
+    checked = det.verify_places(key, det.places(found, [s.odom for s in narrow_keyframes]),
+                                [s.odom for s in narrow_keyframes])
+    assert checked and all(c.source == "appearance" for c in checked)
+
+
+def test_no_wide_view_without_a_trailing_map_or_for_a_full_circle(
+        narrow_keyframes, keyframes) -> None:
+    off = LoopClosureDetector(LoopClosureConfig(wide_keyframes=0),
+                              submap=lambda k: narrow_keyframes[k].points(),
+                              trailing_map=_trailing(narrow_keyframes, []))
+    assert off.wide_database is None
+    calls: list[int] = []
+    full = LoopClosureDetector(LoopClosureConfig(), submap=lambda k: keyframes[k].points(),
+                               trailing_map=_trailing(keyframes, calls))
+    for key, scan in enumerate(keyframes[:10]):
+        full.add_keyframe(key, scan.stamp, scan)
+    assert calls == [] and len(full.wide_database) == 0
+    assert all(len(full.views(k)) == 1 for k in range(10))
+    with pytest.raises(UserError, match="wide_keyframes"):
+        LoopClosureConfig(wide_keyframes=-1)
+    with pytest.raises(UserError, match="wide_every"):
+        LoopClosureConfig(wide_every=0)
