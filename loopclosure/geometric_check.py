@@ -92,6 +92,9 @@ from loopclosure.registration import (
 )
 
 Array = NDArray[np.float64]
+NOT_A_REVISIT = "not a revisit"
+"""Start of the verdict of a check that fits but places the two keyframes more than
+``max_distance`` apart (every other rule held)."""
 
 
 @dataclass(slots=True)
@@ -263,7 +266,7 @@ def _verify_correlative(
     elif margin < cfg.min_fitness_margin:
         reason = f"ambiguous (fitness margin {margin:.2f})"
     elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
-        reason = f"not a revisit ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
+        reason = f"{NOT_A_REVISIT} ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
     return LoopVerification(
         accepted=reason == "accepted", reason=reason,
         relative=np.asarray(best.pose, dtype=float),
@@ -359,7 +362,7 @@ def verify(
     if reason == "accepted" and max_distance is not None:
         distance = float(np.hypot(best.pose[0], best.pose[1]))
         if distance > max_distance:
-            reason = f"not a revisit ({distance:.1f} m apart)"
+            reason = f"{NOT_A_REVISIT} ({distance:.1f} m apart)"
     return LoopVerification(
         accepted=reason == "accepted",
         reason=reason,

@@ -132,7 +132,12 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from data.types import Scan
-from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, verify
+from loopclosure.geometric_check import (
+    NOT_A_REVISIT,
+    GeometricCheckConfig,
+    LoopVerification,
+    verify,
+)
 from loopclosure.place_config import PlaceDatabaseConfig
 from loopclosure.place_database import PlaceDatabase, PlaceMatch
 from loopclosure.polygon import DegeneratePolygonError, PolygonConfig, polygon_from_scan
@@ -796,11 +801,39 @@ class LoopClosureDetector:
             query_points, self._target(cand), headings=headings, translation=translation,
             max_distance=cfg.max_distance, config=cfg.check,
         )
+        if result.reason.startswith(NOT_A_REVISIT) and poses is not None:
+            cand, result = self._nearer_place(key, cand, result, query_points, poses)
         distance = (float("nan") if poses is None or self._frames[cand] != self._frames[key]
                     else self._distance(poses, cand, key))
         return LoopCandidate.checked(
             key, cand, "appearance", result, predicted_distance=distance, **_place_figures(m)
         )
+
+    def _nearer_place(
+        self, key: int, cand: int, result: LoopVerification, query_points: Array,
+        poses: Array,
+    ) -> tuple[int, LoopVerification]:
+        """A check that fits the query `result.relative` beyond `max_distance` of
+        `cand` has found where the query is: the map's pose of `cand` composed with
+        that relative pose.  The eligible keyframe of `cand`'s frame nearest to that
+        position, when it lies within `place_separation` of it, is checked from
+        there (a prior without covariance: the thresholds of a check with no prior);
+        its result, if accepted, replaces `cand`'s."""
+        cfg = self.config
+        at = se2.compose(poses[cand], result.relative)
+        eligible = self.eligible(key)
+        ids = np.flatnonzero(eligible & np.asarray(self._described[: len(eligible)])
+                             & (np.asarray(self._frames[: len(eligible)])
+                                == self._frames[cand]))
+        if len(ids) == 0:
+            return cand, result
+        d = np.hypot(*(poses[ids, :2] - at[:2]).T)
+        near = int(ids[np.argmin(d)])
+        if near == cand or d.min() > cfg.place_separation:
+            return cand, result
+        second = verify(query_points, self._target(near), prior=se2.between(poses[near], at),
+                        max_distance=cfg.max_distance, config=cfg.check)
+        return (near, second) if second.accepted else (cand, result)
 
 
 def merge_views(per_view: Sequence[Sequence[PlaceMatch]]) -> list[PlaceMatch]:

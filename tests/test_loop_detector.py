@@ -11,6 +11,8 @@ import pytest
 from data import se2
 from data.errors import UserError
 from data.sim import simulate_run
+from loopclosure import loop_detector
+from loopclosure.geometric_check import LoopVerification
 from loopclosure.loop_detector import (
     LoopCandidate,
     LoopClosureConfig,
@@ -363,3 +365,40 @@ def test_no_wide_view_without_a_trailing_map_or_for_a_full_circle(
         LoopClosureConfig(wide_keyframes=-1)
     with pytest.raises(UserError, match="wide_every"):
         LoopClosureConfig(wide_every=0)
+
+
+def _verdict(accepted: bool, reason: str, relative) -> LoopVerification:
+    return LoopVerification(accepted=accepted, reason=reason,
+                            relative=np.asarray(relative, float), covariance=np.eye(3),
+                            fitness=0.5, inlier_ratio=0.5, rms=0.01, degeneracy=0.2,
+                            margin=0.3, hypotheses=1)
+
+
+def test_a_check_that_fits_beyond_a_revisit_is_repeated_at_the_nearest_keyframe(
+        narrow_keyframes, monkeypatch) -> None:
+    det = LoopClosureDetector(LoopClosureConfig(exclude_recent=1, exclude_recent_s=0.0),
+                              submap=lambda k: narrow_keyframes[k].points())
+    for key, scan in enumerate(narrow_keyframes[:12]):
+        det.add_keyframe(key, scan.stamp, scan)
+    poses = np.zeros((12, 3))
+    poses[:, 0] = np.arange(12) * 0.8  # keyframes 0.8 m apart along x
+    poses[5] = [4.0, 0.0, 0.5]
+    calls = []
+
+    def fake_verify(query_points, target, prior=None, **kwargs):
+        calls.append(None if prior is None else np.asarray(prior, float))
+        if prior is None:  # the appearance check of keyframe 2: 2.5 m beyond it
+            return _verdict(False, "not a revisit (2.5 m apart)", [2.5, 0.0, 0.1])
+        return _verdict(True, "accepted", prior + np.array([0.01, 0.0, 0.0]))
+
+    monkeypatch.setattr(loop_detector, "verify", fake_verify)
+    (cand,) = det.verify_places(11, [_match(2, 0.9)], poses)
+    # The query is at (1.6 + 2.5, 0, 0.1): keyframe 5 at (4.0, 0, 0.5) is the nearest.
+    assert cand.accepted and cand.match == 5
+    np.testing.assert_allclose(calls[1], se2.between(poses[5], [4.1, 0.0, 0.1]))
+    np.testing.assert_allclose(cand.relative, calls[1] + [0.01, 0.0, 0.0])
+    # Nothing within place_separation of where the query is: the verdict stands.
+    calls.clear()
+    (far,) = det.verify_places(11, [_match(2, 0.9)], poses + [[0.0, 5.0, 0.0]] * (
+        np.arange(12)[:, None] != 2))
+    assert not far.accepted and far.match == 2 and len(calls) == 1
