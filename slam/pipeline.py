@@ -24,7 +24,9 @@ Submaps: a keyframe's local map is the union of the points of keyframes
 new keyframe's place is described from its trailing submap (``k - n .. k``).  The
 loop detector pulls them through `Mapper.submap`; their version
 (`Mapper.submap_version`: the newest keyframe they include) tells it when a cached
-registration target is out of date.
+registration target is out of date.  The place database's wide view of a keyframe is
+described from the same union over a longer trailing stretch,
+``k - loops.wide_keyframes .. k`` (`Mapper.trailing_map`).
 """
 
 from __future__ import annotations
