@@ -816,9 +816,11 @@ class LoopClosureDetector:
         """A check that fits the query `result.relative` beyond `max_distance` of
         `cand` has found where the query is: the map's pose of `cand` composed with
         that relative pose.  The eligible keyframe of `cand`'s frame nearest to that
-        position, when it lies within `place_separation` of it, is checked from
-        there (a prior without covariance: the thresholds of a check with no prior);
-        its result, if accepted, replaces `cand`'s."""
+        position, when it lies within `max_distance` of it (a revisit by the map), is
+        checked the same way as `cand`, with no prior, its heading hypothesis the
+        heading that position implies in its frame (the same search and thresholds:
+        a check from that pose as a prior would judge by the stricter fitness of
+        a pose-gated ICP); its result, if accepted, replaces `cand`'s."""
         cfg = self.config
         at = se2.compose(poses[cand], result.relative)
         eligible = self.eligible(key)
@@ -829,10 +831,12 @@ class LoopClosureDetector:
             return cand, result
         d = np.hypot(*(poses[ids, :2] - at[:2]).T)
         near = int(ids[np.argmin(d)])
-        if near == cand or d.min() > cfg.place_separation:
+        if near == cand or d.min() > cfg.max_distance:
             return cand, result
-        second = verify(query_points, self._target(near), prior=se2.between(poses[near], at),
-                        max_distance=cfg.max_distance, config=cfg.check)
+        implied = se2.between(poses[near], at)
+        second = verify(query_points, self._target(near), headings=[float(implied[2])],
+                        translation=implied[:2], max_distance=cfg.max_distance,
+                        config=cfg.check)
         return (near, second) if second.accepted else (cand, result)
 
 

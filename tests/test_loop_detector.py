@@ -385,19 +385,32 @@ def test_a_check_that_fits_beyond_a_revisit_is_repeated_at_the_nearest_keyframe(
     poses[5] = [4.0, 0.0, 0.5]
     calls = []
 
-    def fake_verify(query_points, target, prior=None, **kwargs):
-        calls.append(None if prior is None else np.asarray(prior, float))
-        if prior is None:  # the appearance check of keyframe 2: 2.5 m beyond it
+    def fake_verify(query_points, target, prior=None, headings=None, translation=None,
+                    **kwargs):
+        assert prior is None  # both checks are prior-free, judged alike
+        calls.append((list(headings), None if translation is None else list(translation)))
+        if len(calls) == 1:  # the appearance check of keyframe 2: 2.5 m beyond it
             return _verdict(False, "not a revisit (2.5 m apart)", [2.5, 0.0, 0.1])
-        return _verdict(True, "accepted", prior + np.array([0.01, 0.0, 0.0]))
+        return _verdict(True, "accepted", [*translation, headings[0]])
 
     monkeypatch.setattr(loop_detector, "verify", fake_verify)
     (cand,) = det.verify_places(11, [_match(2, 0.9)], poses)
-    # The query is at (1.6 + 2.5, 0, 0.1): keyframe 5 at (4.0, 0, 0.5) is the nearest.
+    # The query is at (1.6 + 2.5, 0, 0.1): keyframe 5 at (4.0, 0, 0.5) is the nearest;
+    # its check searches about the heading and translation that position implies.
+    implied = se2.between(poses[5], [4.1, 0.0, 0.1])
     assert cand.accepted and cand.match == 5
-    np.testing.assert_allclose(calls[1], se2.between(poses[5], [4.1, 0.0, 0.1]))
-    np.testing.assert_allclose(cand.relative, calls[1] + [0.01, 0.0, 0.0])
-    # Nothing within place_separation of where the query is: the verdict stands.
+    np.testing.assert_allclose(calls[1][0], [implied[2]])
+    np.testing.assert_allclose(calls[1][1], implied[:2])
+    np.testing.assert_allclose(cand.relative, implied)
+    # A keyframe 1.2 m from where the query is (beyond place_separation, within
+    # max_distance) is re-checked too.
+    calls.clear()
+    moved = poses.copy()
+    moved[5] = [4.1, 1.2, 0.5]
+    moved[[4, 6]] += [0.0, 5.0, 0.0]
+    (cand,) = det.verify_places(11, [_match(2, 0.9)], moved)
+    assert cand.accepted and cand.match == 5 and len(calls) == 2
+    # Nothing within max_distance of where the query is: the verdict stands.
     calls.clear()
     (far,) = det.verify_places(11, [_match(2, 0.9)], poses + [[0.0, 5.0, 0.0]] * (
         np.arange(12)[:, None] != 2))
