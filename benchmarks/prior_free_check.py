@@ -4,13 +4,15 @@ Two steps::
 
     python benchmarks/prior_free_check.py collect LOG [--relations FILE] --out PAIRS.pkl
     python benchmarks/prior_free_check.py compare PAIRS.pkl [PAIRS.pkl ...]
+        [--set KEY=VALUE] [--variant NAME:KEY=VALUE,...]
 
 ``collect`` runs `loopclosure bench loops`'s protocol (`evaluation.loop_bench`, the
 default pipeline, every keyframe a query with no pose prior; a corrected log takes
 its logged poses as the reference with the drifting odometry of seed 0) and records
-every prior-free check it makes: the query submap, the candidate's submap, the
-heading hypotheses and translation the detector passes to `verify`, the fused score,
-and the reference relative pose.  The file stays outside the repository (data is
+every check with no prior it makes (each checked place of a query, and the re-check
+at a nearer keyframe): the query submap, the candidate's submap, the heading
+hypotheses and translation the detector passes to `verify`, the fused score of the
+query's match, and the reference relative pose.  The file stays outside the repository (data is
 never copied in).
 
 ``compare`` re-runs the check on every recorded pair with ``method="icp"`` (the
@@ -19,10 +21,13 @@ first), both with the same configuration otherwise, in this one process, and pri
 per log and in total: CPU seconds per check (``time.process_time``) and their ratio,
 accepted / correct / false accepts, how many of those false accepts are reference
 artefacts (ICP started at the reference pose converges to the check's pose, within
-5 cm and 0.5 deg), and the recall at 100% precision of the accepted
+5 cm and 0.5 deg), the recall at 100% precision of the accepted
 proposals ranked by fused score over the queries with a revisit (the bench's
-``final`` row, restricted to the recorded queries).  Correct = the reference puts the
-two keyframes within 2 m and the checked relative pose agrees within 0.2 m / 2 deg.
+``final`` row, restricted to the recorded queries), and how many verdicts differ from
+the first variant's.  Correct = the reference puts the two keyframes within 2 m and
+the checked relative pose agrees within 0.2 m / 2 deg.  ``--variant`` replaces the two
+methods by named configurations (e.g. ``--variant numpy:compiled_icp=false
+--variant compiled:``: the check's ICP by numpy or by the compiled kernel).
 """
 
 from __future__ import annotations
@@ -52,40 +57,55 @@ def collect(log: Path, relations: Path | None, out: Path, max_queries: int | Non
               else _trajectory_fn(data, logged_reference(data)))
     records: list[dict] = []
     real_verify = ld.verify
+    real_check = ld.LoopClosureDetector._check_global
+    real_target = ld.LoopClosureDetector._target
+    context: dict = {}
+    target_keys: dict[int, int] = {}
+
+    def check_global(self, key, m, query_points, poses=None):
+        context.update(query=int(key), score=float(m.score))
+        return real_check(self, key, m, query_points, poses)
+
+    def target(self, key):
+        t = real_target(self, key)
+        target_keys[id(t)] = int(key)
+        return t
 
     def recording(query_points, candidate, **kw):
         result = real_verify(query_points, candidate, **kw)
-        records.append({
-            "query_points": np.asarray(query_points, float),
-            "target_points": np.asarray(candidate.points, float),
-            "headings": np.asarray(kw.get("headings"), float),
-            "translation": np.asarray(kw.get("translation"), float),
-            "max_distance": kw.get("max_distance"),
-        })
+        if kw.get("prior") is None and "query" in context:  # a check with no prior
+            records.append({
+                "query_points": np.asarray(query_points, float),
+                "target_points": np.asarray(candidate.points, float),
+                "headings": np.asarray(kw.get("headings"), float),
+                "translation": np.asarray(kw.get("translation"), float),
+                "max_distance": kw.get("max_distance"),
+                "query": context["query"], "match": target_keys[id(candidate)],
+                "score": context["score"],
+            })
         return result
 
     ld.verify = recording
+    ld.LoopClosureDetector._check_global = check_global
+    ld.LoopClosureDetector._target = target
     try:
         bench = run_loop_bench(str(log), data.scans, PipelineConfig(), ref_fn,
                                stages=["fused"], max_queries=max_queries)
     finally:
         ld.verify = real_verify
-    fused = bench.stages["fused"]
+        ld.LoopClosureDetector._check_global = real_check
+        ld.LoopClosureDetector._target = real_target
     ref = bench.reference
+    revisit = dict(zip(bench.query_keys.tolist(), bench.has_revisit.tolist(), strict=True))
     pairs = []
-    j = 0
-    for i, k in enumerate(bench.query_keys):
-        m = int(fused.match[i])
-        if m < 0:
+    for rec in records:
+        k, m = rec["query"], rec["match"]
+        if np.isnan(ref[m]).any() or np.isnan(ref[k]).any():
             continue
-        rec = records[j]
-        j += 1
-        rec.update(query=int(k), match=m, score=float(fused.score[i]),
-                   has_revisit=bool(bench.has_revisit[i]),
+        rec.update(has_revisit=bool(revisit.get(k, False)),
                    truth=se2.between(ref[m], ref[k]),
                    place_ok=bool(np.hypot(*(ref[m, :2] - ref[k, :2])) <= 2.0))
         pairs.append(rec)
-    assert j == len(records), (j, len(records))
     out.parent.mkdir(parents=True, exist_ok=True)
     with open(out, "wb") as f:
         pickle.dump({"name": log.name, "queries": len(bench.query_keys),
@@ -146,29 +166,48 @@ def _reference_agrees(pair: dict, result, cfg) -> bool:
     return bool(np.hypot(d[0], d[1]) <= 0.05 and abs(np.degrees(se2.wrap_angle(d[2]))) <= 0.5)
 
 
-def compare(files: list[Path], overrides: list[str]) -> None:
-    from loopclosure.geometric_check import GeometricCheckConfig
-
-    base = GeometricCheckConfig()
+def _with(cfg, overrides: list[str]):
+    """`cfg` with ``key=value`` overrides (numbers, booleans, strings)."""
     for o in overrides:
         k, v = o.split("=", 1)
-        base = dataclasses.replace(base, **{k: type(getattr(base, k))(float(v))
-                                            if not isinstance(getattr(base, k), bool)
-                                            else v.lower() in ("1", "true")})
-    methods = {"icp": dataclasses.replace(base, method="icp"),
-               "correlative": dataclasses.replace(base, method="correlative")}
+        old = getattr(cfg, k)
+        if isinstance(old, bool):
+            value = v.lower() in ("1", "true")
+        elif isinstance(old, (int, float)):
+            value = type(old)(float(v))
+        else:
+            value = v
+        cfg = dataclasses.replace(cfg, **{k: value})
+    return cfg
+
+
+def compare(files: list[Path], overrides: list[str], variants: list[str]) -> None:
+    from loopclosure.geometric_check import GeometricCheckConfig
+
+    base = _with(GeometricCheckConfig(), overrides)
+    if variants:
+        methods = {}
+        for v in variants:
+            name, _, sets = v.partition(":")
+            methods[name] = _with(base, [x for x in sets.split(",") if x])
+    else:
+        methods = {"icp": dataclasses.replace(base, method="icp"),
+                   "correlative": dataclasses.replace(base, method="correlative")}
+    first = next(iter(methods))
     totals = {m: [0.0, 0] for m in methods}
     print(f"{'log':24s} {'method':12s} {'pairs':>5s} {'ms/chk':>7s} {'acc':>4s} {'ok':>4s} "
-          f"{'false':>5s} {'refArt':>6s} {'R@P100':>6s}")
+          f"{'false':>5s} {'refArt':>6s} {'R@P100':>6s} {'differ':>6s}")
     for f in files:
         with open(f, "rb") as fh:
             doc = pickle.load(fh)
         pairs = doc["pairs"]
         score = np.array([p["score"] for p in pairs])
+        reference = None
         for name, cfg in methods.items():
             res, cpu = _run(pairs, cfg)
             correct = _judge(pairs, res)
             acc = np.array([r.accepted for r in res])
+            reference = acc if reference is None else reference
             totals[name][0] += cpu
             totals[name][1] += len(pairs)
             r100 = _recall_p100(score, correct & acc, acc, doc["revisits"])
@@ -177,11 +216,12 @@ def compare(files: list[Path], overrides: list[str]) -> None:
             print(f"{doc['name'][:24]:24s} {name:12s} {len(pairs):5d} "
                   f"{1e3 * cpu / max(len(pairs), 1):7.1f} {acc.sum():4d} "
                   f"{(acc & correct).sum():4d} {(acc & ~correct).sum():5d} {artefacts:6d} "
-                  f"{r100:6.3f}")
+                  f"{r100:6.3f} {(acc != reference).sum():6d}")
             sys.stdout.flush()
     ms = {m: 1e3 * c / max(n, 1) for m, (c, n) in totals.items()}
-    print(f"CPU per check: icp {ms['icp']:.1f} ms, correlative {ms['correlative']:.1f} ms, "
-          f"ratio {ms['icp'] / max(ms['correlative'], 1e-9):.2f}x")
+    print("CPU per check: " + ", ".join(
+        f"{m} {v:.1f} ms ({ms[first] / max(v, 1e-9):.2f}x of {first}'s speed)"
+        for m, v in ms.items()))
 
 
 def main() -> None:
@@ -195,11 +235,14 @@ def main() -> None:
     m = sub.add_parser("compare")
     m.add_argument("pairs", type=Path, nargs="+")
     m.add_argument("--set", action="append", default=[], help="GeometricCheckConfig key=value")
+    m.add_argument("--variant", action="append", default=[],
+                   help="NAME:KEY=VALUE[,KEY=VALUE] (GeometricCheckConfig); several replace "
+                        "the default icp / correlative pair, the first is the reference")
     a = ap.parse_args()
     if a.cmd == "collect":
         collect(a.log, a.relations, a.out, a.max_queries)
     else:
-        compare(a.pairs, a.set)
+        compare(a.pairs, a.set, a.variant)
 
 
 if __name__ == "__main__":

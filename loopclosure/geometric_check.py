@@ -141,6 +141,10 @@ class GeometricCheckConfig:
         covariance_floor: standard deviations (x [m], y [m], theta [deg]) below which
             the loop constraint's covariance never goes.
         icp: ICP parameters (wider gate than odometry: the guesses are coarser).
+        compiled_icp: every ICP of the check by the compiled kernel
+            (`loopclosure.fast_icp`: the same maths as
+            `loopclosure.registration.register`, a cell grid instead of a KD-tree
+            for the nearest neighbours; several times faster).
     """
 
     min_fitness: float = 0.55
@@ -167,6 +171,7 @@ class GeometricCheckConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
+    compiled_icp: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in ("correlative", "icp"):
@@ -237,7 +242,7 @@ def _verify_correlative(
     """The prior-free check by correlative search (`loopclosure.prior_free`)."""
     multi = match_prior_free(query_points, candidate, headings=headings,
                              max_distance=max_distance, source_voxel=cfg.source_voxel,
-                             icp=cfg.icp, config=cfg.search)
+                             icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp)
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),
@@ -330,7 +335,8 @@ def verify(
                                                    cfg.covariance_floor),
                 fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0,
                 hypotheses=0)
-    multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep)
+    multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep,
+                           compiled=cfg.compiled_icp)
     best: IcpResult = multi.best
     others = [r.fitness for r in multi.results if r.ok and _different(r.pose, best.pose, cfg)]
     margin = best.fitness - (max(others) if others else 0.0)

@@ -125,6 +125,7 @@ def register_multi(
     config: IcpConfig | None = None,
     keep: int | None = None,
     prescreen_tolerance: float = 0.2,
+    compiled: bool = False,
 ) -> MultiResult:
     """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
 
@@ -133,7 +134,8 @@ def register_multi(
     failed runs rank last.  With `keep`, the guesses are first ranked by
     `overlap_scores` (tolerance `prescreen_tolerance` [m]) and ICP runs from the
     best `keep` only (`MultiResult.results` and `guesses` then hold those).  One
-    Python loop over the hypotheses that run ICP (not over points).
+    Python loop over the hypotheses that run ICP (not over points).  With `compiled`
+    each ICP is `loopclosure.fast_icp.register_target` (the same maths, numba).
     """
     g = np.asarray(guesses, dtype=float).reshape(-1, 3)
     if len(g) == 0:
@@ -142,7 +144,12 @@ def register_multi(
     if keep is not None and keep < len(g):
         scores = overlap_scores(src, target, g, prescreen_tolerance)
         g = g[np.sort(np.argsort(-scores, kind="stable")[: max(keep, 1)])]
-    results = [register(src, target, guess, config=config) for guess in g]
+    reg = register
+    if compiled:
+        from loopclosure import fast_icp  # numba loads on first use
+
+        reg = fast_icp.register_target
+    results = [reg(src, target, guess, config=config) for guess in g]
     best = results[0]
     for res in results[1:]:
         if _better(res, best):

@@ -186,6 +186,7 @@ def match_prior_free(
     source_voxel: float,
     icp: IcpConfig,
     config: PriorFreeConfig | None = None,
+    compiled: bool = False,
 ) -> PriorFreeMatch:
     """Search, peaks, ICP and consistency (module docstring).
 
@@ -196,6 +197,9 @@ def match_prior_free(
         max_distance: the loop detector's revisit radius [m] (None: `radius`).
         source_voxel: voxel of the query points given to ICP [m].
         icp: ICP parameters.
+        config: the search's parameters (default `PriorFreeConfig()`).
+        compiled: ICP by `loopclosure.fast_icp.register_target` (the same maths,
+            numba) instead of `loopclosure.registration.register`.
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -223,7 +227,12 @@ def match_prior_free(
     source = voxel_downsample(query, source_voxel)
     icp = dataclasses.replace(icp, max_correspondence_distance=cfg.icp_gate,
                               max_iterations=cfg.icp_iterations)
-    results = [register(source, candidate, s, config=icp) for s in starts]
+    reg = register
+    if compiled:
+        from loopclosure import fast_icp  # numba, as the correlative kernel
+
+        reg = fast_icp.register_target
+    results = [reg(source, candidate, s, config=icp) for s in starts]
     order = sorted(range(len(results)), key=lambda i: _rank(results[i]))
     cand_submap = _cached(
         candidate, ("free", cfg.submap_voxel, cfg.free_bins),

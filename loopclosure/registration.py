@@ -119,6 +119,12 @@ FAILED_VARIANCE = 1.0e6
 _MAD = 1.4826  # median absolute deviation -> standard deviation (Gaussian)
 
 
+#: Where the line of a line-like target point passes (`loopclosure.fast_icp.GridTarget`):
+#: through the point itself (a voxel centroid), or through the mean of the
+#: neighbours that gave its normal.
+LINE_ANCHORS: tuple[str, ...] = ("point", "mean")
+
+
 @dataclass(frozen=True, slots=True)
 class IcpConfig:
     """Parameters of the target normals and of ICP (see module docstring).

@@ -4,7 +4,7 @@ After the pose graph is optimised, a scan between keyframes gets its pose from
 the keyframes around it and its odometry offsets (`slam.keyframes`).  That pose
 carries the front end's own error, made against a *causal* local map (the keyframes
 behind the robot only).  `refine_scan_poses` registers every scan once more, by the
-front end's point-to-line ICP (`slam.odometry.fast_icp.register_fast`), onto a map
+front end's point-to-line ICP (`loopclosure.fast_icp.register_fast`), onto a map
 built from the `half_window` map scans (keyframes) before it and the `half_window`
 after it in scan order, placed at their optimised poses: twice the support of the
 front end's map, on both sides of the robot, and consistent with the loop closures.
@@ -38,7 +38,7 @@ from data.errors import UserError
 from loopclosure.registration import IcpConfig
 
 if TYPE_CHECKING:
-    from slam.odometry.fast_icp import GridTarget
+    from loopclosure.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
 
@@ -111,7 +111,7 @@ def refine_scan_poses(
         config: parameters (`RefineConfig`).
     """
     # The compiled kernel loads numba: only when a refinement runs.
-    from slam.odometry.fast_icp import GridTarget, register_fast, voxel_downsample_fast
+    from loopclosure.fast_icp import GridTarget, register_fast, voxel_downsample_fast
 
     cfg = config or RefineConfig()
     poses = np.asarray(poses, dtype=float).reshape(-1, 3)

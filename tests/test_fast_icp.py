@@ -1,4 +1,4 @@
-"""The compiled scan-to-map ICP (`slam.odometry.fast_icp`) against hand-checked cases and
+"""The compiled ICP (`loopclosure.fast_icp`) against hand-checked cases and
 against the numpy reference `loopclosure.registration.register`."""
 
 from __future__ import annotations
@@ -11,14 +11,18 @@ from scipy.spatial import cKDTree
 
 from data import se2
 from data.errors import UserError
-from loopclosure.registration import IcpConfig, RegistrationTarget, register, voxel_downsample
-from slam.odometry.fast_icp import (
+from loopclosure.fast_icp import (
     KIND_CLUTTER,
     KIND_LINE,
+    TARGET_GRID_CELL,
     GridTarget,
+    grid_of,
     register_fast,
+    register_target,
     voxel_downsample_fast,
 )
+from loopclosure.geometric_check import GeometricCheckConfig, verify
+from loopclosure.registration import IcpConfig, RegistrationTarget, register, voxel_downsample
 
 EXACT = IcpConfig(translation_tolerance=1e-10, rotation_tolerance=1e-10)
 
@@ -43,7 +47,7 @@ def test_grid_nearest_neighbour_is_exact() -> None:
     rng = np.random.default_rng(1)
     pts = rng.uniform(-5, 5, (400, 2))
     grid = GridTarget(pts, cell=0.3)
-    from slam.odometry.fast_icp import _nearest
+    from loopclosure.fast_icp import _nearest
 
     tree = cKDTree(grid.points)
     for gate in (0.05, 0.3, 1.0, 2.5):
@@ -136,6 +140,41 @@ def test_matches_the_numpy_reference(clutter: bool) -> None:
             assert getattr(got, name) == pytest.approx(getattr(ref, name), rel=1e-9, abs=1e-15)
 
 
+def test_register_target_is_register_on_the_cached_grid() -> None:
+    """`register_target` (the geometric check's ICP) equals `register` onto the same
+    prepared target, from a start 0.3 m / 0.1 rad off, and builds its grid once."""
+    target = RegistrationTarget(room(), IcpConfig(max_correspondence_distance=1.0))
+    pose = np.array([0.8, -0.4, 0.6])
+    src = se2.transform_points(se2.inverse(pose), room()[::2])
+    start = pose + np.array([0.3, -0.2, 0.1])
+    ref = register(src, target, start)
+    got = register_target(src, target, start)
+    np.testing.assert_allclose(got.pose, ref.pose, atol=1e-12)
+    np.testing.assert_allclose(got.pose, pose, atol=1e-6)
+    assert got.fitness == pytest.approx(ref.fitness, rel=1e-9)
+    assert got.iterations == ref.iterations
+    assert grid_of(target) is grid_of(target)
+    assert grid_of(target).cell == TARGET_GRID_CELL
+
+
+def test_the_check_decides_alike_with_either_icp() -> None:
+    """The geometric check with the compiled ICP gives the numpy ICP's verdict and pose,
+    with a prior (multi-start ICP) and without (correlative search, then ICP)."""
+    target_pts = room()
+    pose = np.array([0.5, 0.3, 0.4])
+    query = se2.transform_points(se2.inverse(pose), target_pts[1::2])
+    for kwargs in ({"prior": pose + np.array([0.1, -0.1, 0.05])}, {"headings": [0.35]}):
+        out = []
+        for compiled in (False, True):
+            cfg = GeometricCheckConfig(compiled_icp=compiled)
+            target = RegistrationTarget(target_pts, cfg.icp)
+            out.append(verify(query, target, max_distance=2.0, config=cfg, **kwargs))
+        numpy_icp, compiled_icp = out
+        assert numpy_icp.accepted and compiled_icp.accepted
+        np.testing.assert_allclose(compiled_icp.relative, numpy_icp.relative, atol=1e-9)
+        np.testing.assert_allclose(compiled_icp.relative, pose, atol=0.02)
+
+
 def test_failure_keeps_the_initial_guess() -> None:
     grid = GridTarget(room())
     far = np.array([[50.0, 50.0]] * 30) + np.arange(30)[:, None] * 0.05
@@ -173,7 +212,7 @@ def test_mean_anchor_puts_the_line_through_the_neighbourhood_mean() -> None:
 
 
 def test_solve3_matches_numpy_and_survives_a_singular_matrix() -> None:
-    from slam.odometry.fast_icp import _solve3
+    from loopclosure.fast_icp import _solve3
 
     rng = np.random.default_rng(6)
     a = rng.normal(size=(3, 3))

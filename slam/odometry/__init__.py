@@ -45,10 +45,6 @@ Array = NDArray[np.float64]
 #: Front-end names accepted by `make_odometry` (and the CLI's ``--odometry``).
 FRONT_ENDS: tuple[str, ...] = ("icp2d", "kiss-icp", "wheel")
 
-#: Where the line of a line-like map point passes in the ``icp2d`` front end
-#: (`slam.odometry.fast_icp.GridTarget`): through the point itself (a voxel
-#: centroid), or through the mean of the neighbours that gave its normal.
-LINE_ANCHORS: tuple[str, ...] = ("point", "mean")
 
 #: Values of `OdometryEstimate.status`.
 STATUSES: dict[str, str] = {
@@ -243,7 +239,6 @@ def _checked(config: Any, kind: type, name: str) -> Any:
 
 __all__ = [
     "FRONT_ENDS",
-    "LINE_ANCHORS",
     "STATUSES",
     "MotionNoise",
     "Odometry",

@@ -4,7 +4,7 @@ Each scan's valid end points (sensor frame, beams within ``[min_range, max_range
 voxel-downsampled to `source_voxel`) are registered by point-to-line ICP, with
 clutter (vegetation, furniture) matched point to point (the maths of
 `loopclosure.registration.register`, run by the compiled kernel
-`slam.odometry.fast_icp.register_fast`, or by the numpy reference with
+`loopclosure.fast_icp.register_fast`, or by the numpy reference with
 ``compiled=False``) onto a local map: the points of the last `map_keyframes` map
 keyframes, in the odometry frame, merged and voxel-downsampled to `map_voxel`,
 cropped to `map_radius` around the newest keyframe.  A scan becomes a map keyframe
@@ -96,6 +96,7 @@ from data.types import Scan
 from loopclosure.headings import heading_hypotheses
 from loopclosure.multi_start import initial_guesses, register_multi
 from loopclosure.registration import (
+    LINE_ANCHORS,
     IcpConfig,
     IcpResult,
     RegistrationTarget,
@@ -103,10 +104,10 @@ from loopclosure.registration import (
     register,
     voxel_downsample,
 )
-from slam.odometry import LINE_ANCHORS, MotionNoise, OdometryEstimate, scan_odometry
+from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
 
 if TYPE_CHECKING:
-    from slam.odometry.fast_icp import GridTarget
+    from loopclosure.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
 
@@ -135,10 +136,10 @@ class Icp2dConfig:
         max_rms: larger RMS residual of the inliers: status ``failed`` [m].
         min_degeneracy: smaller normalised translational eigenvalue: ``degenerate``.
         use_prior: the prediction is a prior of ICP.
-        compiled: register with the compiled kernel (`slam.odometry.fast_icp`, same
+        compiled: register with the compiled kernel (`loopclosure.fast_icp`, same
             maths and results); False runs the numpy reference
             (`loopclosure.registration.register`).
-        line_anchor: where a wall's line passes (`slam.odometry.fast_icp.ANCHORS`):
+        line_anchor: where a wall's line passes (`loopclosure.fast_icp.ANCHORS`):
             ``"point"``, the nearest map point (a voxel centroid), or ``"mean"``,
             the mean of the neighbours its normal was fitted to (less noise);
             ``"mean"`` needs `compiled`.
@@ -231,9 +232,9 @@ class Icp2dConfig:
 
 
 def _fast():
-    """`slam.odometry.fast_icp`, imported on first use: numba (tens of MB, a fraction
+    """`loopclosure.fast_icp`, imported on first use: numba (tens of MB, a fraction
     of a second) loads only when a scan is registered, not with the config."""
-    from slam.odometry import fast_icp
+    from loopclosure import fast_icp
 
     return fast_icp
 

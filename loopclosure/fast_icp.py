@@ -1,10 +1,12 @@
-"""Compiled scan-to-map ICP: `loopclosure.registration.register` for one scan, in numba.
+"""Compiled point-to-line ICP: `loopclosure.registration.register`, in numba.
 
 The odometry front end registers every scan (200-400 points) onto its local map a
-few times per scan.  With numpy and a `scipy.spatial.cKDTree`, each Gauss-Newton
-iteration is a dozen small array calls whose fixed overhead (tens of microseconds
-each) dominates the arithmetic; here the whole loop, nearest-neighbour search
-included, is one compiled call (numba, ``cache=True``: compiled once per machine).
+few times per scan, and the geometric check registers a keyframe's submap onto a
+candidate's from several starts (`register_multi`, `loopclosure.prior_free`).
+With numpy and a `scipy.spatial.cKDTree`, each Gauss-Newton iteration is a dozen
+small array calls whose fixed overhead (tens of microseconds each) dominates the
+arithmetic; here the whole loop, nearest-neighbour search included, is one compiled
+call (numba, ``cache=True``: compiled once per machine).
 
 Same maths as `loopclosure.registration` (read its module docstring for the
 equations; frames, units and every figure of `IcpResult` are the same):
@@ -46,12 +48,12 @@ from data.errors import UserError
 from loopclosure.registration import (
     FAILED_VARIANCE,
     KERNEL_CONSTANTS,
+    LINE_ANCHORS,
     IcpConfig,
     IcpResult,
     RegistrationTarget,
     as_points,
 )
-from slam.odometry import LINE_ANCHORS
 
 Array = NDArray[np.float64]
 
@@ -652,5 +654,31 @@ def register_fast(
     )
 
 
-__all__ = ["ANCHORS", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "GridTarget", "register_fast",
+#: Grid cell of `grid_of` [m]: a cell holds a few points of a wall at the check's
+#: submap resolution, and a 1 m gate visits 5 x 5 cells; the grid of a 40 m submap
+#: is 6,400 offsets.
+TARGET_GRID_CELL = 0.5
+
+
+def grid_of(target: RegistrationTarget, cell: float = TARGET_GRID_CELL) -> GridTarget:
+    """The `GridTarget` of a prepared target (its points and normals), made on first
+    use and kept in `target.derived`: `register_fast` onto it is `register` onto
+    `target`."""
+    key = ("grid", cell)
+    grid = target.derived.get(key)
+    if grid is None:
+        grid = target.derived[key] = GridTarget.from_target(target, cell)
+    return grid
+
+
+def register_target(source: ArrayLike, target: RegistrationTarget,
+                    initial: ArrayLike = (0.0, 0.0, 0.0), *,
+                    config: IcpConfig | None = None) -> IcpResult:
+    """`loopclosure.registration.register` of `source` onto a prepared target, by the
+    compiled kernel on the target's grid (`grid_of`); no prior."""
+    return register_fast(source, grid_of(target), initial, config=config)
+
+
+__all__ = ["ANCHORS", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "TARGET_GRID_CELL",
+           "GridTarget", "grid_of", "register_fast", "register_target",
            "voxel_downsample_fast"]
