@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/stripes_features.py [--meshes DIR] [--seeds 0,1]
+    python benchmarks/stripes_features.py [--meshes DIR] [--seeds 0,1] [--figure PNG]
 
 Scans (same pose: one scan per object, yaw within +-15 degrees, as
 ``benchmarks/stripes_real.py``) the YCB multi-instance classes and the second labelled
@@ -28,9 +28,12 @@ It also prints the stripe images against the paper's (Section VI.C: 600 x 712 pi
 images, 140 stripes per object on average): image size, stripes per object (mean,
 min, max), stripe width in pixels, the share of columns missing inside a stripe's
 span (detector gaps, occlusion), and the share of laser positions that cut the
-object but gave no stripe.
+object but gave no stripe.  With ``--figure PNG`` it draws, for the first object of
+every class of both sets (first seed), every 4th stripe in image coordinates stacked
+along the sweep (the paper's Fig. 4(c) / Fig. 6 second row) and the heights the
+relief reads (`StripeScan.height_map`, millimetres, top view).
 
-Nothing is written; the meshes are read in place.
+Nothing is written but the figure; the meshes are read in place.
 """
 
 from __future__ import annotations
@@ -115,10 +118,39 @@ def profile_figures(scans: list, labels: np.ndarray, scanner: ScannerConfig) -> 
     return out
 
 
+def draw(scans: list, labels: list[str], scanner: ScannerConfig, path: Path) -> None:
+    """The figure of ``--figure`` (module docstring): two panels per scan."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = 4
+    rows = -(-len(scans) // cols)
+    fig, axes = plt.subplots(rows, 2 * cols, figsize=(4 * cols, 2.2 * rows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_axis_off()
+    for k, (scan, lab) in enumerate(zip(scans, labels, strict=True)):
+        a, b = axes[k // cols, 2 * (k % cols)], axes[k // cols, 2 * (k % cols) + 1]
+        for i, st in enumerate(scan.stripes[::4]):
+            a.plot(st[:, 0], -st[:, 1] - 3.0 * i, ",k")
+        a.set_title(f"{lab}: {scan.name[:18]}\n{len(scan.stripes)} stripes", fontsize=6)
+        z, (row_m, col_m) = scan.height_map(scanner)
+        seen = np.flatnonzero(np.isfinite(z).any(axis=0))
+        b.imshow(1000 * z[:, seen.min():seen.max() + 1], aspect=row_m / col_m,
+                 interpolation="nearest")
+        b.set_title(f"heights, top {1000 * np.nanmax(z):.0f} mm", fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"figure: {path}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
     ap.add_argument("--seeds", default="0,1")
+    ap.add_argument("--figure", type=Path, default=None, help="write the figure here (PNG)")
     args = ap.parse_args(argv)
     if not args.meshes.is_dir():
         print(f"skipped: no mesh folder {args.meshes}")
@@ -128,6 +160,13 @@ def main(argv: list[str] | None = None) -> None:
     for seed in (int(s) for s in args.seeds.split(",")):
         scanned = {n: scan_objects(o, scanner, seed) for n, o in objs.items()}
         labels = {n: np.array(s.labels) for n, s in scanned.items()}
+        if args.figure is not None:
+            first: dict[str, object] = {}  # class -> its first scan, both sets
+            for sc in scanned.values():
+                for scan, lab in zip(sc.scans, sc.labels, strict=True):
+                    first.setdefault(lab, scan)
+            draw(list(first.values()), list(first), scanner, args.figure)
+            args.figure = None
         fds = {n: StripeDatabase(describe_many([x.stripes for x in s.scans])).pairwise_features()
                for n, s in scanned.items()}
         for name, _ in SETS:
