@@ -103,3 +103,36 @@ def test_fused_relief_row_is_the_fusion_of_profile_relief_and_shape_context():
         seed=1, baselines=(), fused=(), fused_sc=(), fused_relief=(), scanner=scanner))
     assert none.fused_relief is None and "fused-relief" not in none.methods()
     assert "relief" in none.methods()
+
+
+def test_fused_database_with_reliefs_is_the_three_part_fusion():
+    from loopclosure.polygon import Polygon
+    from loopclosure.stripes import FusedObjectDatabase, ProfileDatabase, describe_profiles, fuse
+
+    t = np.linspace(0.2, np.pi - 0.2, 40)
+    arc = [np.column_stack([20 * np.cos(t), 20 * np.sin(t)])] * 20
+    line = [np.column_stack([np.arange(40.0), np.zeros(40)])] * 20
+    profiles = describe_profiles([arc, line, arc[:10]])
+    cell = (0.1 / 41, 0.1 / 41)
+    reliefs = [describe_relief(dome(), cell), describe_relief(np.full((9, 9), 0.02), cell),
+               describe_relief(dome(lid=0.02), cell)]
+    u = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    polys = [Polygon(np.column_stack([20 * np.cos(u), 20 * np.sin(u)])),
+             Polygon(np.array([[0, 0], [40, 0], [40, 40], [0, 40]], float)),
+             Polygon(np.column_stack([30 * np.cos(u), 20 * np.sin(u)]))]
+    db = FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs)
+    parts = db.method_distances(profiles[2], polys[2], reliefs[2])
+    assert len(parts) == 3
+    np.testing.assert_allclose(parts[0], ProfileDatabase(profiles).distances(profiles[2]))
+    np.testing.assert_allclose(parts[1], ReliefDatabase(reliefs).distances(reliefs[2]))
+    np.testing.assert_allclose(db.distances(profiles[2], polys[2], reliefs[2]), fuse(parts))
+    assert db.query(profiles[2], polys[2], k=1, relief=reliefs[2])[0][0] == 2
+    with pytest.raises(UserError, match="relief exactly"):
+        db.distances(profiles[2], polys[2])
+    with pytest.raises(UserError, match="weights need 3"):
+        FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs, weights=[1, 1])
+    with pytest.raises(UserError, match="one relief per object"):
+        FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs[:2])
+    plain = FusedObjectDatabase(profiles, polys, verifiers=("fft",))
+    with pytest.raises(UserError, match="no reliefs"):
+        plain.distances(profiles[2], polys[2], reliefs[2])
