@@ -14,6 +14,9 @@ cut into the mesh -- and prints, per nuisance and per feature of Eq. 1-3 (``l``,
 scan and the disturbed scan of the same object divided by the median distance
 between reference scans of objects of *different* classes.  A ratio near 0: the
 nuisance does not matter; near 1: it moves an object as far as a class change does.
+The last row, ``other member of class``, is the same ratio for two *different*
+objects of one class (reference scans): the spread of a class against the distance
+between classes, which no scanner setting can shrink.
 It also prints the stripe counts and stripe widths per class (the paper: about 140
 stripes per object on 600 x 712 images) and, per class, the spread (standard
 deviation over the class's objects) of each object's mean ``d``: ``d`` is a size
@@ -23,7 +26,9 @@ With ``--profile`` the same table is made for the stripe profile
 (`loopclosure.stripes.profile`): per feature ``l``, ``d`` (scale-free), ``e`` the
 mean absolute difference of the two profiles, and for their combination the mean of
 the three each divided by its median between classes, the smaller of the two
-orientations (forward, reversed).
+orientations (forward, reversed); and the same ratio for the relief
+(`loopclosure.stripes.relief`: depth below the top, ring by ring, from each scan's
+heights with the scanner configuration that made it).
 
 Nothing is written; the meshes are read in place.
 """
@@ -45,9 +50,11 @@ from evaluation.stripes_objects import mesh_folder_objects  # noqa: E402
 from loopclosure.stripes import (  # noqa: E402
     DescriptorConfig,
     ProfileDatabase,
+    ReliefDatabase,
     StripeDatabase,
     describe_many,
     describe_profiles,
+    describe_relief,
 )
 from loopclosure.stripes.matching import LAMBDA_PAPER, combine  # noqa: E402
 
@@ -95,8 +102,10 @@ def profile_table(meshes: list[Mesh], labels: np.ndarray, ref: list, base: Scann
     both = np.minimum(fw, rv)
     scale = np.array([float(np.median(both[..., t][between])) for t in range(3)])
     comb = float(np.median(_combined(fw, rv, scale)[between]))
-    print(f"\n{'nuisance':22s} {'l':>6s} {'d':>6s} {'e':>6s} {'all':>6s}   "
-          "(stripe profile: same object, disturbed / different classes; medians)")
+    ref_r = [describe_relief(*s.height_map(base)) for s in ref]
+    rel_between = float(np.median(ReliefDatabase(ref_r).pairwise()[between]))
+    print(f"\n{'nuisance':22s} {'l':>6s} {'d':>6s} {'e':>6s} {'all':>6s} {'relief':>6s}   "
+          "(stripe profile, relief: same object, disturbed / different classes; medians)")
     for name, (over, holes) in NUISANCES.items():
         cfg = replace(base, **over)
         scans = [scan_mesh(with_holes(m, holes, rng) if holes > 0 else m, cfg, rng)
@@ -107,7 +116,15 @@ def profile_table(meshes: list[Mesh], labels: np.ndarray, ref: list, base: Scann
         f2, r2 = f2[idx, idx], r2[idx, idx]
         ratios = [float(np.median(np.minimum(f2, r2)[:, t])) / scale[t] for t in range(3)]
         ratios.append(float(np.median(_combined(f2, r2, scale))) / comb)
+        db = ReliefDatabase([describe_relief(*s.height_map(cfg)) for s in scans])
+        same = [db.distances(q)[i] for i, q in enumerate(ref_r)]
+        ratios.append(float(np.median(same)) / rel_between)
         print(f"{name:22s} " + " ".join(f"{r:6.2f}" for r in ratios))
+    within = (labels[:, None] == labels[None, :]) & ~np.eye(len(labels), dtype=bool)
+    ratios = [float(np.median(both[..., t][within])) / scale[t] for t in range(3)]
+    ratios.append(float(np.median(_combined(fw, rv, scale)[within])) / comb)
+    ratios.append(float(np.median(ReliefDatabase(ref_r).pairwise()[within])) / rel_between)
+    print(f"{'other member of class':22s} " + " ".join(f"{r:6.2f}" for r in ratios))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -164,6 +181,10 @@ def main(argv: list[str] | None = None) -> None:
         ratios = [float(np.median(same[:, t])) / max(scale[t], 1e-12) for t in range(3)]
         ratios.append(float(np.median(combine(same, LAMBDA_PAPER))) / max(scale[3], 1e-12))
         print(f"{name:22s} " + " ".join(f"{r:6.2f}" for r in ratios))
+    within = (labels[:, None] == labels[None, :]) & ~np.eye(len(labels), dtype=bool)
+    ratios = [float(np.median(fd[..., t][within])) / max(scale[t], 1e-12) for t in range(3)]
+    ratios.append(float(np.median(combine(fd, LAMBDA_PAPER)[within])) / max(scale[3], 1e-12))
+    print(f"{'other member of class':22s} " + " ".join(f"{r:6.2f}" for r in ratios))
 
 
 if __name__ == "__main__":

@@ -22,7 +22,11 @@ distances divided by their per-query median, then averaged, `loopclosure.stripes
   `loopclosure.stripes.fusion.VERIFIER_PRESETS`), the default ``fused-sc`` verifier;
   ``fuse(p,sc)`` is the profile fused with the 100-point shape context;
 - ``p>sc topK``: the profile's K nearest re-ranked by shape context;
-- ``rank(p+sc)``: the sum of the two methods' rank positions.
+- ``rank(p+sc)``: the sum of the two methods' rank positions;
+- ``relief`` (`loopclosure.stripes.relief`, the ``relief`` row of ``bench stripes``)
+  and ``fused-relief`` (profile + relief + ``shape-context-50``, the ``fused-relief``
+  row); ``fuse(p,relief)``, ``fuse(relief,sc50)``, ``fuse(p,relief,mrm)``: the relief
+  with other partners.
 
 Time (column ``s/100``): seconds of representation + matching of 100 objects (every
 descriptor and the full distance matrix), one wall-clock measurement per method on
@@ -53,6 +57,7 @@ from evaluation.stripes_benchmark import (  # noqa: E402
     StripesBenchmarkConfig,
     baseline_distances,
     profile_distances,
+    relief_distances,
     run_stripes_benchmark,
     stripes_distances,
 )
@@ -139,6 +144,10 @@ PARTS: dict[str, tuple[str, ...]] = {
     "fuse(p,2sc)": P_SC, "fuse(2p,sc)": P_SC, "fuse(p,mrm)": ("profile", "mrm", "fuse"),
     "sc50": ("shape-context-50",), "fuse(p,sc50)": ("profile", "shape-context-50", "fuse"),
     "fuse(p,sc40)": ("profile", "sc40", "fuse"), "fuse(p,sc60)": ("profile", "sc60", "fuse"),
+    "fused-relief": ("profile", "relief", *SC_VERIFIERS, "fuse"),
+    "fuse(p,relief)": ("profile", "relief", "fuse"),
+    "fuse(relief,sc50)": ("relief", "shape-context-50", "fuse"),
+    "fuse(p,relief,mrm)": ("profile", "relief", "mrm", "fuse"),
     "p>sc top2": P_SC, "p>sc top3": P_SC, "p>sc top5": P_SC, "rank(p+sc)": P_SC,
 }
 
@@ -147,6 +156,7 @@ def method_seconds(scans: list, polys: list) -> dict[str, float]:
     """Wall seconds of representation + matching of `scans` per method (and "fuse")."""
     out = {"stripes": stripes_distances(scans)[1]}
     p, out["profile"] = profile_distances(scans)
+    out["relief"] = relief_distances(scans, ScannerConfig())[1]
     t0 = time.perf_counter()
     prof_elong([s.stripes for s in scans], polys)
     out["prof+elong"] = time.perf_counter() - t0
@@ -189,6 +199,10 @@ def variants(r, scanner: ScannerConfig) -> dict[str, np.ndarray]:
     for k in (2, 3, 5):
         v[f"p>sc top{k}"] = rerank(p, sc, k)
     v["rank(p+sc)"] = ranks(p) + ranks(sc)
+    rel = m["relief"]
+    v["fuse(p,relief)"] = fuse([p, rel])
+    v["fuse(relief,sc50)"] = fuse([rel, sc50])
+    v["fuse(p,relief,mrm)"] = fuse([p, rel, m["mrm"]])
     return v
 
 

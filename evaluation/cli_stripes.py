@@ -95,6 +95,12 @@ def stripes(
                      "shape-context-50: 50 points, compiled kernel; shape-context: 100 "
                      "points)."),
     ] = "shape-context-50",
+    fused_relief: Annotated[
+        str,
+        typer.Option("--fused-relief", help="Silhouette verifiers of the fused-relief row, "
+                     "the profile and the relief (depth below the top, ring by ring) "
+                     "verified by them ('none': no fused-relief row)."),
+    ] = "shape-context-50",
     stripe_count: Annotated[
         int | None,
         typer.Option("--stripe-count", help="Describe each object by at most N evenly "
@@ -158,7 +164,8 @@ def stripes(
     names = _names(baselines) or ()
     verifiers = _names(fused) or ()
     sc_verifiers = _names(fused_sc) or ()
-    for name in (*names, *verifiers, *sc_verifiers):
+    relief_verifiers = _names(fused_relief) or ()
+    for name in (*names, *verifiers, *sc_verifiers, *relief_verifiers):
         try:
             baseline_matcher(name)  # unknown names fail here, before any work
         except ImportError:
@@ -171,6 +178,7 @@ def stripes(
         descriptor=DescriptorConfig(stripe_count=stripe_count, scale_free=scale_free),
         fused=verifiers,
         fused_sc=sc_verifiers,
+        fused_relief=relief_verifiers,
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)

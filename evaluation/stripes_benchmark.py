@@ -40,6 +40,15 @@ Methods on the same scans:
   the outline and repeat much of what the profile's ``l`` already says.  Its time is
   the profile's plus shape context's (all pairs: quadratic in the set, shape
   context's point matching dominates).
+- ``relief``: the same stripes' rows as heights above the table
+  (`data.stripe_scanner.StripeScan.height_map`, the scanner's calibration) and
+  `loopclosure.stripes.ReliefDatabase`: the mean depth below the object's top, in
+  units of its size, in rings about the footprint's centre (yaw and scale free).
+- ``fused-relief``: the ``fused-sc`` rule with the relief as a third part (profile,
+  relief and shape context, each divided by its per-query median, equal weights).
+  The relief says what the other two cannot: how deep the surface falls below the
+  top (flat box tops against studded bricks, lids, domes and hollows); its time is
+  the three parts' times.
 
 With two or more scans per object every method also gets the different-pose figures
 (`evaluation.stripes_retrieval.cross_pose`): first scans as queries against a
@@ -85,9 +94,12 @@ from loopclosure.stripes import (
     DescriptorConfig,
     ProfileConfig,
     ProfileDatabase,
+    ReliefConfig,
+    ReliefDatabase,
     StripeDatabase,
     describe_many,
     describe_profiles,
+    describe_relief,
     fuse,
 )
 from loopclosure.stripes.fusion import VERIFIER_PRESETS, verifier_options
@@ -134,6 +146,17 @@ def profile_distances(
     profiles = describe_profiles([s.stripes for s in scans], config,
                                  names=[s.name for s in scans])
     d = ProfileDatabase(profiles).pairwise()
+    return d, time.perf_counter() - t0
+
+
+def relief_distances(
+    scans: Sequence[StripeScan], scanner: ScannerConfig, config: ReliefConfig | None = None
+) -> tuple[Array, float]:
+    """Reliefs of every scan (heights from `StripeScan.height_map` with the `scanner`
+    that made them) and the full distance matrix; wall time [s]."""
+    t0 = time.perf_counter()
+    reliefs = [describe_relief(*s.height_map(scanner), config, s.name) for s in scans]
+    d = ReliefDatabase(reliefs).pairwise()
     return d, time.perf_counter() - t0
 
 
@@ -197,6 +220,9 @@ class StripesBenchmarkConfig:
         profile: stripe profile parameters (the ``profile`` row and the fused matcher).
         fused: silhouette verifiers of the fused matcher (empty: no fused row).
         fused_sc: silhouette verifiers of the ``fused-sc`` row (empty: no such row).
+        relief: relief parameters (the ``relief`` row and the ``fused-relief`` row).
+        fused_relief: silhouette verifiers of the ``fused-relief`` row, the profile and
+            the relief verified by them (empty: no such row).
     """
 
     seed: int = 0
@@ -209,6 +235,8 @@ class StripesBenchmarkConfig:
     profile: ProfileConfig = field(default_factory=ProfileConfig)
     fused: tuple[str, ...] = DEFAULT_VERIFIERS
     fused_sc: tuple[str, ...] = SC_VERIFIERS
+    relief: ReliefConfig = field(default_factory=ReliefConfig)
+    fused_relief: tuple[str, ...] = SC_VERIFIERS
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -225,6 +253,8 @@ class StripesBenchmarkConfig:
             "profile": asdict(self.profile),
             "fused": list(self.fused),
             "fused_sc": list(self.fused_sc),
+            "relief": asdict(self.relief),
+            "fused_relief": list(self.fused_relief),
         }
 
 
@@ -243,6 +273,8 @@ class StripesBenchmarkResult:
     skipped_baselines: dict[str, str]
     silhouette_seconds: float
     fused_sc: MethodResult | None = None
+    relief: MethodResult | None = None
+    fused_relief: MethodResult | None = None
 
     @property
     def classes(self) -> list[str]:
@@ -255,13 +287,13 @@ class StripesBenchmarkResult:
                 for c in self.classes}
 
     def methods(self) -> dict[str, MethodResult]:
-        """Every method's figures: stripes, profile, fused and fused-sc (when run), then
-        the baselines."""
+        """Every method's figures: stripes, profile, relief, fused, fused-sc and
+        fused-relief (when run), then the baselines."""
         out = {"stripes": self.stripes, "profile": self.profile}
-        if self.fused is not None:
-            out["fused"] = self.fused
-        if self.fused_sc is not None:
-            out["fused-sc"] = self.fused_sc
+        for name, res in (("relief", self.relief), ("fused", self.fused),
+                          ("fused-sc", self.fused_sc), ("fused-relief", self.fused_relief)):
+            if res is not None:
+                out[name] = res
         return {**out, **self.baselines}
 
     def wins_and_losses(
@@ -293,6 +325,8 @@ class StripesBenchmarkResult:
             "profile": self.profile.to_json(),
             "fused": None if self.fused is None else self.fused.to_json(),
             "fused_sc": None if self.fused_sc is None else self.fused_sc.to_json(),
+            "relief": None if self.relief is None else self.relief.to_json(),
+            "fused_relief": None if self.fused_relief is None else self.fused_relief.to_json(),
             "different_pose": s.different_pose,
             "dataset": self.dataset,
             "scans": len(self.scanned.scans),
@@ -404,6 +438,8 @@ def matcher_task(task: MatcherTask) -> MatcherRows:
         return MatcherRows("stripes", *stripes_distances(scanned.scans, cfg.descriptor))
     if task.method == "profile":
         return MatcherRows("profile", *profile_distances(scanned.scans, cfg.profile))
+    if task.method == "relief":
+        return MatcherRows("relief", *relief_distances(scanned.scans, cfg.scanner, cfg.relief))
     key = _scan_key(task.source, cfg)
     if key not in _SILHOUETTES:
         t0 = time.perf_counter()
@@ -443,12 +479,13 @@ def run_stripes_benchmark(
                         "memory")
     available, skipped = _available_baselines(cfg.baselines)
     scanned = scan_objects(objects, cfg.scanner, cfg.seed, cfg.scans_per_object, progress)
-    verifiers = list(dict.fromkeys(n for n in (*cfg.fused, *cfg.fused_sc)
+    verifiers = list(dict.fromkeys(n for n in (*cfg.fused, *cfg.fused_sc, *cfg.fused_relief)
                                    if n not in available))
     for name in verifiers:
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
     key: StripesSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
-    tasks = [MatcherTask(key, cfg, m) for m in ("stripes", "profile", *available, *verifiers)]
+    tasks = [MatcherTask(key, cfg, m)
+             for m in ("stripes", "profile", "relief", *available, *verifiers)]
     _SCANNED[_scan_key(key, cfg)] = (scanned, progress)
     try:
         rows = {}
@@ -460,15 +497,23 @@ def run_stripes_benchmark(
         _SILHOUETTES.pop(_scan_key(key, cfg), None)
     stripes = _rank_with_stripes(scanned, cfg, rows.pop("stripes"))
     profile = _rank_with_profile(scanned, cfg, rows.pop("profile"))
+    relief_rows = rows.pop("relief")
+    relief = evaluate("relief", relief_rows.distances, scanned.labels, scanned.objects,
+                      relief_rows.seconds, cfg.k, {"rings": cfg.relief.rings,
+                                                   "reach": cfg.relief.reach,
+                                                   "top_percentile": cfg.relief.top_percentile})
     ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
                           r.options) for n, r in rows.items()}
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
     fused = _fused(scanned, profile, ranked, cfg, cfg.fused) if cfg.fused else None
     fused_sc = (_fused(scanned, profile, ranked, cfg, cfg.fused_sc, "fused-sc")
                 if cfg.fused_sc else None)
+    fused_relief = (_fused(scanned, profile, ranked, cfg, cfg.fused_relief, "fused-relief",
+                           relief) if cfg.fused_relief else None)
     baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
-                                  baselines, fused, skipped, silhouette_seconds, fused_sc)
+                                  baselines, fused, skipped, silhouette_seconds, fused_sc,
+                                  relief, fused_relief)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -513,12 +558,16 @@ def _rank_with_profile(
 def _fused(
     scanned: ScannedSet, profile: MethodResult, ranked: dict[str, MethodResult],
     cfg: StripesBenchmarkConfig, verifiers: Sequence[str], name: str = "fused",
+    relief: MethodResult | None = None,
 ) -> MethodResult:
-    """A fused matcher's figures from the profile's and the `verifiers`' matrices."""
+    """A fused matcher's figures from the profile's (and the `relief`'s, when given) and
+    the `verifiers`' matrices."""
     t0 = time.perf_counter()
-    d = fuse([profile.distances, *(ranked[n].distances for n in verifiers)])
-    secs = (profile.seconds + sum(ranked[n].seconds for n in verifiers)
+    stripe_side = [profile] if relief is None else [profile, relief]
+    d = fuse([*(r.distances for r in stripe_side), *(ranked[n].distances for n in verifiers)])
+    secs = (sum(r.seconds for r in stripe_side) + sum(ranked[n].seconds for n in verifiers)
             + time.perf_counter() - t0)
     return evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"verifiers": list(verifiers), "normalisation": "per-query median",
-                     "stripes": "profile", "samples": cfg.profile.samples})
+                     "stripes": "profile" if relief is None else "profile + relief",
+                     "samples": cfg.profile.samples})

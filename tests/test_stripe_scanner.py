@@ -236,3 +236,18 @@ def test_ycb_mesh_scan_real_data():
     classes = {c for _, c in rows}
     assert classes == {"ball", "cup", "lego_duplo", "toy_airplane", "box"}
     assert sum(c == "cup" for _, c in rows) == 10
+
+
+def test_height_map_inverts_the_camera_model():
+    # A 50 mm box top, at the configured standoff and from a raised scanner (a 0.33 m
+    # post): every seen cell reads the box's height; cells are step x fov/width apart.
+    cfg = ScannerConfig(**CLEAN, step=0.005)
+    z, cell = scan_mesh(box(0.03, 0.02, 0.05), cfg, seed=0).height_map(cfg)
+    seen = z[np.isfinite(z)]
+    assert seen.size > 0 and np.allclose(seen, 0.05, atol=2e-4)
+    assert cell == pytest.approx((0.005, cfg.field_of_view / cfg.width))
+    post = scan_mesh(box(0.03, 0.03, 0.33, "post"), cfg)
+    zp, cell_p = post.height_map(cfg)
+    assert post.standoff > cfg.standoff
+    assert np.allclose(zp[np.isfinite(zp)], 0.33, atol=1e-3)
+    assert cell_p[1] == pytest.approx(post.field_of_view / cfg.width)

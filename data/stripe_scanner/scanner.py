@@ -194,6 +194,29 @@ class StripeScan:
         """Scanned footprint: True where a frame saw the object in a column."""
         return np.isfinite(self.range_image())
 
+    def height_map(self, config: ScannerConfig | None = None) -> tuple[Array, tuple[float, float]]:
+        """Top view of the scanned surface in metres: ``(heights, (row_m, column_m))``.
+
+        ``heights`` is `range_image` (frames x columns, NaN: no line) with each detected
+        row turned into the height ``z`` above the table by inverting the camera model
+        of the module docstring (`config`: the scanner that made the scan; its
+        `triangulation_deg`, `table_row`, `width` and `step`, with this scan's
+        `standoff` and `field_of_view`): a point of the laser plane at height ``z``
+        images at ``v = table_row + f z sin(alpha) / (h / cos(alpha) - z cos(alpha))``,
+        so ``z = dv h / (cos(alpha) (f sin(alpha) + dv cos(alpha)))`` with
+        ``dv = v - table_row`` and ``h`` the standoff.  ``row_m`` is the laser step
+        (the spacing of the frames along the sweep) and ``column_m`` the table width
+        of one image column, ``field_of_view / width`` (the perspective shrink of
+        high points across the sweep is not corrected, as in `silhouette`).
+        """
+        cfg = config or ScannerConfig()
+        a = cfg.alpha
+        h = self.standoff
+        f = cfg.width * (h / np.cos(a)) / self.field_of_view
+        dv = self.range_image() - cfg.table_row
+        z = dv * h / (np.cos(a) * (f * np.sin(a) + dv * np.cos(a)))
+        return z, (float(cfg.step), float(self.field_of_view / cfg.width))
+
 
 def _rotation_z(yaw: float) -> Array:
     c, s = np.cos(yaw), np.sin(yaw)

@@ -7,8 +7,10 @@ Bhattacharyya distances of Gaussian fits of each feature after trimming (Eq. 4-6
 `matching`); `database.StripeDatabase` answers a query against thousands of objects in
 one vectorised pass.  `profile` keeps the stripes in scan order instead: a fixed-length,
 scale-free sequence of ``[l, d, e]`` per object (`profile.ProfileDatabase`), for object
-classes whose members differ in size; `fusion.FusedObjectDatabase` verifies the stripe
-distance with silhouette matchers.
+classes whose members differ in size; `relief` reads the stripes' heights as one top
+view (how far the surface lies below the object's top, ring by ring about its centre:
+`relief.ReliefDatabase`); `fusion.FusedObjectDatabase` verifies the stripe distance
+with silhouette matchers.
 """
 
 from loopclosure.stripes.database import StripeDatabase
@@ -54,6 +56,12 @@ from loopclosure.stripes.profile import (
     resample_profile,
     stripe_shape,
 )
+from loopclosure.stripes.relief import (
+    ReliefConfig,
+    ReliefDatabase,
+    StripeRelief,
+    describe_relief,
+)
 
 __all__ = [
     "DEFAULT_VERIFIERS",
@@ -65,14 +73,18 @@ __all__ = [
     "FusedObjectDatabase",
     "ProfileConfig",
     "ProfileDatabase",
+    "ReliefConfig",
+    "ReliefDatabase",
     "StripeDatabase",
     "StripeDescriptor",
     "StripeProfile",
+    "StripeRelief",
     "bhattacharyya",
     "chain_pixels",
     "describe_many",
     "describe_profile",
     "describe_profiles",
+    "describe_relief",
     "describe_stripes",
     "feature_distances",
     "fuse",

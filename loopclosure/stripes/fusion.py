@@ -22,10 +22,15 @@ verifiers add the footprint's outline, which the profile sees only along the swe
 is the description that avoids Eq. 4's trimming of objects swept by different
 stripe counts.
 
-`FusedObjectDatabase` holds one `ProfileDatabase` (or `StripeDatabase`) and, per
-verifier, the silhouette descriptors of the same objects; a query is the object's
-stripe profile (or descriptor) and its
-silhouette polygon (the scanned footprint in the table plane, millimetres).  The
+`FusedObjectDatabase` holds one `ProfileDatabase` (or `StripeDatabase`), optionally
+a `relief.ReliefDatabase` (the objects' reliefs: depth below the top, ring by ring,
+read from the same stripes as heights), and, per verifier, the silhouette
+descriptors of the same objects; a query is the object's stripe profile (or
+descriptor), its relief when the database holds reliefs, and its silhouette polygon
+(the scanned footprint in the table plane, millimetres).  Profile, relief and
+shape context (`SC_VERIFIERS`) together are the ``fused-relief`` matcher of
+``bench stripes``: the relief says how deep the surface falls below the top, which
+neither the profile (each stripe in units of its own width) nor the outline sees.  The
 default verifiers are FFT and ring projection (`loopclosure.matchers`), scale
 invariant: both cost microseconds per pair, so the fused matcher keeps the stripes'
 speed.
@@ -45,6 +50,7 @@ from loopclosure.polygon import Polygon
 from loopclosure.stripes.database import StripeDatabase
 from loopclosure.stripes.descriptor import DescriptorConfig, StripeDescriptor
 from loopclosure.stripes.profile import ProfileDatabase, StripeProfile
+from loopclosure.stripes.relief import ReliefDatabase, StripeRelief
 
 Array = NDArray[np.float64]
 
@@ -129,8 +135,10 @@ class FusedObjectDatabase:
             described the same way.
         silhouettes: one silhouette `Polygon` per object (same order).
         verifiers: silhouette matcher names (`loopclosure.matchers`).
-        weights: fusion weights, stripes first then each verifier (None: equal).
+        weights: fusion weights, stripes first, then the relief (when `reliefs` is
+            given), then each verifier (None: equal).
         stripe_weights: Eq. 5 weights of the stripe distance (`StripeDescriptor`s only).
+        reliefs: one `StripeRelief` per object (same order), or None: no relief part.
     """
 
     def __init__(
@@ -140,12 +148,18 @@ class FusedObjectDatabase:
         verifiers: Sequence[str] = DEFAULT_VERIFIERS,
         weights: Sequence[float] | None = None,
         stripe_weights: Sequence[float] | None = None,
+        reliefs: Sequence[StripeRelief] | None = None,
     ) -> None:
         if len(descriptors) != len(silhouettes):
             raise UserError(f"silhouettes must hold one polygon per object: {len(silhouettes)} "
                             f"for {len(descriptors)} descriptors")
-        if weights is not None and len(weights) != 1 + len(verifiers):
-            raise UserError(f"weights need {1 + len(verifiers)} values (stripes, then each "
+        if reliefs is not None and len(reliefs) != len(descriptors):
+            raise UserError(f"reliefs must hold one relief per object: {len(reliefs)} "
+                            f"for {len(descriptors)} descriptors")
+        parts = 1 + (reliefs is not None) + len(verifiers)
+        if weights is not None and len(weights) != parts:
+            raise UserError(f"weights need {parts} values (stripes, "
+                            f"{'the relief, ' if reliefs is not None else ''}then each "
                             f"verifier), got {len(weights)}")
         self.stripes: ProfileDatabase | StripeDatabase
         if descriptors and all(isinstance(d, StripeProfile) for d in descriptors):
@@ -156,6 +170,7 @@ class FusedObjectDatabase:
             self.stripes = (StripeDatabase(descriptors) if stripe_weights is None  # type: ignore[arg-type]
                             else StripeDatabase(descriptors, stripe_weights))  # type: ignore[arg-type]
         self.weights = None if weights is None else tuple(float(w) for w in weights)
+        self.reliefs = None if reliefs is None else ReliefDatabase(reliefs)
         self.matchers = [verifier(n) for n in verifiers]
         self.verifier_names = tuple(verifiers)
         self.stacks = [m.stack([m.describe(p) for p in silhouettes]) for m in self.matchers]
@@ -164,22 +179,35 @@ class FusedObjectDatabase:
         return len(self.stripes)
 
     def method_distances(
-        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
+        relief: StripeRelief | None = None,
     ) -> list[Array]:
-        """``(K,)`` distances of the stripes, then of each verifier, to every object."""
+        """``(K,)`` distances of the stripes, the relief (when the database holds
+        reliefs: then the query's `relief` is required), then each verifier, to every
+        object."""
+        if (relief is None) != (self.reliefs is None):
+            raise UserError("give the query's relief exactly when the database holds "
+                            "reliefs" if self.reliefs is not None else
+                            "this database holds no reliefs; query without a relief")
         out = [self.stripes.distances(descriptor)]  # type: ignore[arg-type]
+        if self.reliefs is not None and relief is not None:
+            out.append(self.reliefs.distances(relief))
         for m, st in zip(self.matchers, self.stacks, strict=True):
             out.append(np.asarray(m.distances(m.describe(silhouette), st), dtype=float))
         return out
 
-    def distances(self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon) -> Array:
+    def distances(
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
+        relief: StripeRelief | None = None,
+    ) -> Array:
         """``(K,)`` fused distances of the query to every object (module docstring)."""
-        return fuse(self.method_distances(descriptor, silhouette), self.weights)
+        return fuse(self.method_distances(descriptor, silhouette, relief), self.weights)
 
     def query(
-        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10,
+        relief: StripeRelief | None = None,
     ) -> tuple[NDArray[np.int64], Array]:
         """Indices and fused distances of the `k` nearest objects, nearest first."""
-        d = self.distances(descriptor, silhouette)
+        d = self.distances(descriptor, silhouette, relief)
         order = np.argsort(d, kind="stable")[:k]
         return order, d[order]
