@@ -638,7 +638,7 @@ def _cascade_rows(
     t = time.perf_counter()
     matches = db.query(desc, allowed=mask)
     if wide_desc is not None:
-        matches = merge_views([matches, wide.db.query(wide_desc, allowed=wide_mask)])
+        matches = merge_views([matches, wide.db.query_stored(asked, allowed=wide_mask)])
     t_query = time.perf_counter() - t
     out.time("fused", t_query)
     best = matches[0]

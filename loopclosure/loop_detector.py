@@ -637,10 +637,17 @@ class LoopClosureDetector:
             allowed = np.asarray(allowed, dtype=np.int64).ravel()
         per_view = []
         for db, asked in self.views(key):
+            if db is not self.wide_database:
+                per_view.append(db.query(db.descriptors(asked), allowed=allowed,
+                                         headings=headings))
+                continue
             keys = allowed
-            if db is self.wide_database and allowed is not None:  # holds some keys only
+            if allowed is not None:  # the wide database holds some keys only
                 keys = allowed[np.isin(allowed, self._wide_described)]
-            per_view.append(db.query(db.descriptors(asked), allowed=keys, headings=headings))
+            # Keyframes sharing a wide view ask it again: `query_stored` reuses the
+            # last answer and queries only the keys allowed since.
+            per_view.append(db.query(db.descriptors(asked), allowed=keys, headings=True)
+                            if headings else db.query_stored(asked, allowed=keys))
         return merge_views(per_view)
 
     def places(self, matches: Sequence[PlaceMatch], poses: ArrayLike) -> list[PlaceMatch]:

@@ -113,6 +113,13 @@ def _vector(stage: str, descriptor: Any) -> ArrayLike:
     return getattr(descriptor, "amplitudes", descriptor)
 
 
+def _rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
+    """Boolean mask ``(m,)`` over insertion order holding `rows`."""
+    mask = np.zeros(m, bool)
+    mask[rows] = True
+    return mask
+
+
 @dataclass(slots=True, frozen=True)
 class PlaceMatch:
     """One verified candidate of a query.
@@ -226,6 +233,7 @@ class PlaceDatabase:
         self._scales = np.ones(len(cfg.stages))
         self._scales_at = 0
         self._scratch = np.empty(0, np.float32)
+        self._last_stored: tuple | None = None  # `query_stored`'s previous answer
         if cfg.fixed_scales:
             self._scales = np.asarray(cfg.fixed_scales, float)
         self._fusion = cfg.resolved_fusion
@@ -535,6 +543,38 @@ class PlaceDatabase:
                 )
             )
         return out
+
+    def query_stored(self, key: Hashable, *, allowed: ArrayLike | None = None
+                     ) -> list[PlaceMatch]:
+        """`query` (no headings) of the stored keyframe `key`'s own descriptors over
+        `allowed` (keys, a boolean mask over insertion order, or None: all).
+
+        The previous call's answer is kept.  When it was for the same `key`, with
+        the same normalisation scales, over rows that `allowed` still holds (a host
+        asking again as more keyframes become eligible), only the newly allowed
+        rows are queried: the K candidates are the K smallest prefilter distances of
+        the previous K and the new rows' K, which are those of a query over all the
+        allowed rows (candidates are ranked by exact prefilter distance; the fused
+        score of a candidate does not depend on the others).
+        """
+        q = self.descriptors(key)
+        self._refresh_scales()
+        mask = self._selection(allowed, None)
+        rows = np.arange(len(self)) if mask is None else np.flatnonzero(mask)
+        last = self._last_stored
+        if (last is None or last[0] != key or last[1] != self._scales_at
+                or not np.isin(last[2], rows, assume_unique=True).all()):
+            matches = self.query(q, allowed=_rows_mask(rows, len(self)), headings=False)
+        else:
+            new = np.setdiff1d(rows, last[2], assume_unique=True)
+            extra = (self.query(q, allowed=_rows_mask(new, len(self)), headings=False)
+                     if len(new) else [])
+            pool = sorted(last[3] + extra, key=lambda m: m.prefilter_distance)
+            pool = [replace(m, prefilter_rank=j)
+                    for j, m in enumerate(pool[: self.config.top_k])]
+            matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
+        self._last_stored = (key, self._scales_at, rows, matches)
+        return matches
 
     def with_headings(
         self, polygon_or_descriptors: Polygon | Descriptors, matches: Sequence[PlaceMatch]

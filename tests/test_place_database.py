@@ -350,3 +350,33 @@ def test_stored_descriptors_query_like_the_polygon(polygons: list[Polygon]) -> N
     assert stored == fresh  # every key, distance, score and heading bit for bit
     with pytest.raises(UserError, match="not in the place database"):
         db.descriptors(99)
+
+
+def test_a_stored_key_asked_again_queries_only_the_new_keys(polygons, monkeypatch) -> None:
+    """`query_stored` over a growing allowed set (keys added between the calls) gives
+    `query`'s answer over all allowed keys, and on a repeat queries only the new ones."""
+    stages = PlaceDatabaseConfig().stages
+    db = PlaceDatabase(top_k=5, fixed_scales=(1.0,) * len(stages))  # no re-estimates
+    for i, p in enumerate(polygons[:30]):
+        db.add(i, p)
+    asked: list[int] = []
+    real_query = PlaceDatabase.query
+
+    def counting(self, q, *, allowed=None, **kw):
+        asked.append(int(np.count_nonzero(allowed)) if allowed is not None else len(self))
+        return real_query(self, q, allowed=allowed, **kw)
+
+    monkeypatch.setattr(PlaceDatabase, "query", counting)
+    for n in (12, 13, 13, 20):  # the keys 0..n-1 are allowed; 30.. are added as it grows
+        got = db.query_stored(25, allowed=np.arange(n))
+        want = real_query(db, db.descriptors(25), allowed=np.arange(n), headings=False)
+        assert [m.key for m in got] == [m.key for m in want]
+        assert [m.score for m in got] == pytest.approx([m.score for m in want], rel=1e-12)
+        assert sorted(m.prefilter_rank for m in got) == list(range(len(want)))
+        db.add(len(db), polygons[len(db)])
+    # 12 keys first; then 1 new key, none, 7 new keys.
+    assert asked == [12, 1, 7]
+    # Another stored key, or an allowed set that lost keys, asks in full.
+    db.query_stored(26, allowed=np.arange(20))
+    db.query_stored(26, allowed=np.arange(1, 20))
+    assert asked[-2:] == [20, 19]
