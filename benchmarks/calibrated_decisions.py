@@ -17,6 +17,11 @@ chain twice:
   *outlier-free* graph at its clean optimum (`slam.variance_components`).  No back end
   knows ``s_odo``: the row says what deciding under calibrated odometry could give with
   a perfect, outlier-free estimate of it;
+* ``readmit`` (with ``--readmit``): the ``oracle`` decisions, then the loops they reject
+  re-admitted on the whole calibrated graph by the innovation test of
+  `slam.consistency` (``greedy_admission`` at ``c``, at the calibrated solution, re-solved
+  after each round until nothing is admitted): the time-ordered pass on stiff odometry
+  rejects early loops whose innovation on the finished graph is far below ``c``;
 * ``iterated`` (with ``--iterated``): without the oracle, ``s`` estimated from the
   back end's own result (its accepted loops, `estimate_variance_factors`), the
   decision repeated on the graph calibrated by it, until the accepted set stops
@@ -44,8 +49,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from data.g2o import read_g2o
 from evaluation.outlier_policies import inject_false_loops
 from evaluation.robustness import aligned_position_error, clean_optimum
-from slam.consistency import incremental_tls, refine_tls
-from slam.least_squares import dogleg_qr
+from slam.consistency import (
+    InnovationTest,
+    greedy_admission,
+    incremental_tls,
+    needs_qr,
+    refine_tls,
+    tls_threshold,
+)
+from slam.least_squares import StickySolver, dogleg_qr
 from slam.optimize import default_outlier_residual, initial_guess
 from slam.pose_graph import PoseGraph, RobustKernel, poses_from_values, whitened_residual
 from slam.variance_components import estimate_variance_factors, with_information_scaled
@@ -54,17 +66,48 @@ ROOT = Path(__file__).resolve().parents[1]
 ITERATIONS = 4  # re-decisions of the ``iterated`` run
 
 
-def decided(graph: PoseGraph, decide: PoseGraph, values: gtsam.Values) -> tuple[dict, np.ndarray]:
-    """`incremental_tls` on `decide`, re-decided and polished on `graph`: (id -> pose,
-    loop weights)."""
-    admission = incremental_tls(decide, values)
-    refined, weights = refine_tls(graph, admission.values, admission.weights)
+def _kept(graph: PoseGraph, weights: np.ndarray) -> tuple[gtsam.NonlinearFactorGraph, list]:
+    """Anchors, odometry and the loops of weight 1 of `graph`; and every loop's factor."""
     base, loop_index = graph.factor_graph(RobustKernel("none"))
     kept = gtsam.NonlinearFactorGraph()
     for k in range(base.size() - len(loop_index)):
         kept.add(base.at(k))
     for k in np.flatnonzero(weights > 0.5):
         kept.add(base.at(loop_index[k]))
+    return kept, [base.at(k) for k in loop_index]
+
+
+def readmitted(decide: PoseGraph, values: gtsam.Values, weights: np.ndarray,
+               ) -> tuple[gtsam.Values, np.ndarray]:
+    """The ``readmit`` step (module docstring) on `decide` from its solution `values`."""
+    solve = StickySolver()
+    solve.dogleg = needs_qr(decide, values)
+    weights = weights.copy()
+    for _ in range(20):
+        rest = np.flatnonzero(weights < 0.5)
+        if len(rest) == 0:
+            break
+        kept, loops = _kept(decide, weights)
+        test = InnovationTest(kept, values, decide.keys, 3)
+        admitted, _ = greedy_admission(test.gains([loops[k] for k in rest]),
+                                       tls_threshold(decide.dim))
+        if not admitted:
+            break
+        weights[rest[admitted]] = 1.0
+        values = solve(_kept(decide, weights)[0], values)
+    return values, weights
+
+
+def decided(graph: PoseGraph, decide: PoseGraph, values: gtsam.Values, readmit: bool = False,
+            ) -> tuple[dict, np.ndarray]:
+    """`incremental_tls` on `decide` (then `readmitted`), re-decided and polished on
+    `graph`: (id -> pose, loop weights)."""
+    admission = incremental_tls(decide, values)
+    solution, weights = admission.values, admission.weights
+    if readmit:
+        solution, weights = readmitted(decide, solution, weights)
+    refined, weights = refine_tls(graph, solution, weights)
+    kept, _ = _kept(graph, weights)
     return poses_from_values(dogleg_qr(kept, refined, 100).optimize(), graph.dim), weights
 
 
@@ -86,6 +129,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data" / "g2o")
     parser.add_argument("--iterated", action="store_true", help="also the iterated run")
+    parser.add_argument("--readmit", action="store_true", help="also the readmit run")
     parser.add_argument("cases", nargs="+", help="graph.g2o:scale:policy:ratio:seed")
     args = parser.parse_args()
     clean: dict[tuple[str, float], tuple[PoseGraph, dict, float]] = {}
@@ -112,6 +156,8 @@ def main() -> None:
                 f"  s_odo {s_odo:.3g}")
         runs = (("stated", corrupted),
                 ("oracle", with_information_scaled(corrupted, 1.0 / min(s_odo, 1.0))))
+        if args.readmit:
+            runs += (("readmit", runs[1][1]),)
         if args.iterated:
             runs += (("iterated", None),)
         for label, decide in runs:
@@ -120,7 +166,7 @@ def main() -> None:
                 poses, used = iterated(corrupted, values)
                 label += " (s " + ", ".join(f"{s:.3g}" for s in used) + ")"
             else:
-                poses, _ = decided(corrupted, decide, values)
+                poses, _ = decided(corrupted, decide, values, readmit=label == "readmit")
             seconds = time.process_time() - start
             residuals = np.array([whitened_residual(c, poses, graph.dim)
                                   for c in corrupted.loops])
