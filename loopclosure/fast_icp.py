@@ -142,8 +142,9 @@ class GridTarget:
             normals, usable, clutter = normals[order], usable[order], clutter[order]
         else:
             normals, usable, clutter, means = _grid_normals(self, self.config)
-        anchors = self.points.copy()
+        anchors = self.points  # the same array unless lines pass through the mean
         if anchor == "mean":
+            anchors = self.points.copy()
             anchors[usable] = means[usable]
         self.anchors = np.ascontiguousarray(anchors)
         kind = np.zeros(len(self.points), dtype=np.int8)
@@ -654,31 +655,22 @@ def register_fast(
     )
 
 
-#: Grid cell of `grid_of` [m]: a cell holds a few points of a wall at the check's
-#: submap resolution, and a 1 m gate visits 5 x 5 cells; the grid of a 40 m submap
-#: is 6,400 offsets.
+#: Grid cell of `register_target` [m]: a cell holds a few points of a wall at the
+#: check's submap resolution, and a 1 m gate visits 5 x 5 cells.
 TARGET_GRID_CELL = 0.5
 
 
-def grid_of(target: RegistrationTarget, cell: float = TARGET_GRID_CELL) -> GridTarget:
-    """The `GridTarget` of a prepared target (its points and normals), made on first
-    use and kept in `target.derived`: `register_fast` onto it is `register` onto
-    `target`."""
-    key = ("grid", cell)
-    grid = target.derived.get(key)
-    if grid is None:
-        grid = target.derived[key] = GridTarget.from_target(target, cell)
-    return grid
-
-
-def register_target(source: ArrayLike, target: RegistrationTarget,
-                    initial: ArrayLike = (0.0, 0.0, 0.0), *,
-                    config: IcpConfig | None = None) -> IcpResult:
-    """`loopclosure.registration.register` of `source` onto a prepared target, by the
-    compiled kernel on the target's grid (`grid_of`); no prior."""
-    return register_fast(source, grid_of(target), initial, config=config)
+def register_target(source: ArrayLike, target: RegistrationTarget, initials: ArrayLike, *,
+                    config: IcpConfig | None = None) -> list[IcpResult]:
+    """`loopclosure.registration.register` of `source` onto a prepared target from
+    each of `initials` (``(K, 3)``), by the compiled kernel on one grid of the
+    target (its points and normals, `GridTarget.from_target`) made for these runs
+    and dropped after them: a grid per cached target would cost the loop detector's
+    target cache tens of MB."""
+    grid = GridTarget.from_target(target, TARGET_GRID_CELL)
+    return [register_fast(source, grid, x0, config=config)
+            for x0 in np.asarray(initials, dtype=float).reshape(-1, 3)]
 
 
 __all__ = ["ANCHORS", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "TARGET_GRID_CELL",
-           "GridTarget", "grid_of", "register_fast", "register_target",
-           "voxel_downsample_fast"]
+           "GridTarget", "register_fast", "register_target", "voxel_downsample_fast"]

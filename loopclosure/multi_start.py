@@ -144,12 +144,12 @@ def register_multi(
     if keep is not None and keep < len(g):
         scores = overlap_scores(src, target, g, prescreen_tolerance)
         g = g[np.sort(np.argsort(-scores, kind="stable")[: max(keep, 1)])]
-    reg = register
     if compiled:
         from loopclosure import fast_icp  # numba loads on first use
 
-        reg = fast_icp.register_target
-    results = [reg(src, target, guess, config=config) for guess in g]
+        results = fast_icp.register_target(src, target, g, config=config)
+    else:
+        results = [register(src, target, guess, config=config) for guess in g]
     best = results[0]
     for res in results[1:]:
         if _better(res, best):

@@ -227,12 +227,12 @@ def match_prior_free(
     source = voxel_downsample(query, source_voxel)
     icp = dataclasses.replace(icp, max_correspondence_distance=cfg.icp_gate,
                               max_iterations=cfg.icp_iterations)
-    reg = register
     if compiled:
         from loopclosure import fast_icp  # numba, as the correlative kernel
 
-        reg = fast_icp.register_target
-    results = [reg(source, candidate, s, config=icp) for s in starts]
+        results = fast_icp.register_target(source, candidate, starts, config=icp)
+    else:
+        results = [register(source, candidate, s, config=icp) for s in starts]
     order = sorted(range(len(results)), key=lambda i: _rank(results[i]))
     cand_submap = _cached(
         candidate, ("free", cfg.submap_voxel, cfg.free_bins),

@@ -14,9 +14,7 @@ from data.errors import UserError
 from loopclosure.fast_icp import (
     KIND_CLUTTER,
     KIND_LINE,
-    TARGET_GRID_CELL,
     GridTarget,
-    grid_of,
     register_fast,
     register_target,
     voxel_downsample_fast,
@@ -140,21 +138,22 @@ def test_matches_the_numpy_reference(clutter: bool) -> None:
             assert getattr(got, name) == pytest.approx(getattr(ref, name), rel=1e-9, abs=1e-15)
 
 
-def test_register_target_is_register_on_the_cached_grid() -> None:
+def test_register_target_is_register_from_every_start() -> None:
     """`register_target` (the geometric check's ICP) equals `register` onto the same
-    prepared target, from a start 0.3 m / 0.1 rad off, and builds its grid once."""
+    prepared target from each start (0.3 m / 0.1 rad off and another), and keeps no
+    grid in the target."""
     target = RegistrationTarget(room(), IcpConfig(max_correspondence_distance=1.0))
     pose = np.array([0.8, -0.4, 0.6])
     src = se2.transform_points(se2.inverse(pose), room()[::2])
     start = pose + np.array([0.3, -0.2, 0.1])
-    ref = register(src, target, start)
-    got = register_target(src, target, start)
-    np.testing.assert_allclose(got.pose, ref.pose, atol=1e-12)
-    np.testing.assert_allclose(got.pose, pose, atol=1e-6)
-    assert got.fitness == pytest.approx(ref.fitness, rel=1e-9)
-    assert got.iterations == ref.iterations
-    assert grid_of(target) is grid_of(target)
-    assert grid_of(target).cell == TARGET_GRID_CELL
+    starts = np.array([start, pose + np.array([-0.2, 0.3, -0.05])])
+    for ref, got in zip([register(src, target, s) for s in starts],
+                        register_target(src, target, starts), strict=True):
+        np.testing.assert_allclose(got.pose, ref.pose, atol=1e-12)
+        np.testing.assert_allclose(got.pose, pose, atol=1e-6)
+        assert got.fitness == pytest.approx(ref.fitness, rel=1e-9)
+        assert got.iterations == ref.iterations
+    assert not target.derived  # the grid is not kept
 
 
 def test_the_check_decides_alike_with_either_icp() -> None:
