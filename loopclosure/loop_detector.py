@@ -180,7 +180,8 @@ class LoopClosureConfig:
             its loops join the sessions only when several agree, so the score need not
             guard each one).
         global_verify: appearance candidates checked per query (distinct places,
-            best fused score first).
+            best fused score first).  A revisit's place may rank below a few
+            look-alikes; every check costs 5-10 ms, so a budget, not a filter.
         place_separation: two candidates closer than this in the map are one place,
             checked once [m] (half of `max_distance`: the check of one searches the
             query within `max_distance` of it, so a neighbour farther away may be
@@ -224,7 +225,7 @@ class LoopClosureConfig:
     global_every: int = 1
     min_score: float = 0.5
     min_score_across: float = 0.0
-    global_verify: int = 5
+    global_verify: int = 8
     place_separation: float = 1.0
     agree_distance: float = 1.0
     free_every: int = 10
