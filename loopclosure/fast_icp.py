@@ -46,12 +46,12 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from loopclosure.registration import (
-    FAILED_VARIANCE,
     KERNEL_CONSTANTS,
     LINE_ANCHORS,
     IcpConfig,
     IcpResult,
     RegistrationTarget,
+    _failed,  # the failed result of either ICP: the initial pose, no information
     as_points,
 )
 
@@ -584,16 +584,6 @@ def _figures(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, kerne
         fit += max(0.0, 1.0 - (rp / fitness_tol) ** 2)
     rms = np.sqrt(sq / inliers) if inliers > 0 else 0.0
     return h, wsum, wr2, inliers, rms, fit / src.shape[0]
-
-
-def _failed(initial: Array, iterations: int, count: int, prior_cov: Array | None) -> IcpResult:
-    cov = FAILED_VARIANCE * np.eye(3) if prior_cov is None else prior_cov.copy()
-    return IcpResult(
-        pose=initial.copy(), covariance=cov, hessian=np.zeros((3, 3)), sigma=0.0,
-        inlier_ratio=0.0, rms=0.0, fitness=0.0, degeneracy=0.0,
-        degenerate_axis=np.array([1.0, 0.0]), iterations=iterations, converged=False,
-        correspondences=count, ok=False, initial=initial.copy(),
-    )
 
 
 def register_fast(
