@@ -143,8 +143,8 @@ class GeometricCheckConfig:
         icp: ICP parameters (wider gate than odometry: the guesses are coarser).
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
-            `loopclosure.registration.register`, a cell grid instead of a KD-tree
-            for the nearest neighbours; several times faster).
+            `loopclosure.registration.register`, nearest neighbours in a cell grid
+            of the candidate's submap made per check instead of its KD-tree).
     """
 
     min_fitness: float = 0.55
