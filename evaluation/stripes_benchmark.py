@@ -76,7 +76,7 @@ from __future__ import annotations
 import time
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -240,7 +240,6 @@ class StripesBenchmarkConfig:
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
-        from dataclasses import asdict
 
         return {
             "seed": self.seed,
@@ -499,9 +498,7 @@ def run_stripes_benchmark(
     profile = _rank_with_profile(scanned, cfg, rows.pop("profile"))
     relief_rows = rows.pop("relief")
     relief = evaluate("relief", relief_rows.distances, scanned.labels, scanned.objects,
-                      relief_rows.seconds, cfg.k, {"rings": cfg.relief.rings,
-                                                   "reach": cfg.relief.reach,
-                                                   "top_percentile": cfg.relief.top_percentile})
+                      relief_rows.seconds, cfg.k, asdict(cfg.relief))
     ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
                           r.options) for n, r in rows.items()}
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
