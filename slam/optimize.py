@@ -354,6 +354,15 @@ class Smoother(ABC):
     def estimate(self) -> dict[int, Array]:
         """Current id -> pose estimate (of every pose added so far)."""
 
+    def estimate_rows(self) -> tuple[NDArray[np.int64], Array]:
+        """The current estimate as arrays: ids ascending ``(N,)`` and their poses
+        (``(N, 3)`` in 2-D, ``(N, 4, 4)`` in 3-D), for a caller that wants them all."""
+        est = self.estimate()
+        keys = np.array(sorted(est), dtype=np.int64)
+        shape = (0, 3) if self.dim == 2 else (0, 4, 4)
+        poses = np.array([est[k] for k in keys]) if len(keys) else np.empty(shape)
+        return keys, poses
+
     @abstractmethod
     def marginal_covariance(self, key: int) -> Array:
         """Marginal covariance of pose `key` (gtsam tangent order) at the current estimate."""
@@ -472,6 +481,12 @@ class IncrementalSmoother(Smoother):
         if self._estimate is None:
             return {}
         return poses_from_values(self._estimate, self.dim)
+
+    def estimate_rows(self) -> tuple[NDArray[np.int64], Array]:
+        if self._estimate is None or self.dim != 2:
+            return super().estimate_rows()
+        keys = np.asarray(self._estimate.keys(), dtype=np.int64)  # ascending
+        return keys, gtsam.utilities.extractPose2(self._estimate)  # rows in key order
 
     def marginal_covariance(self, key: int) -> Array:
         return np.asarray(self._isam.marginalCovariance(key))

@@ -6,6 +6,9 @@
                                                   -> describe the place (database)
                                                   -> detect + verify loop closures
                                                   -> robust loop factors, iSAM2 update
+                                                     (only when a loop was added: until
+                                                     then a new pose is its odometry guess,
+                                                     where iSAM2 would put it)
     at the end:      batch GNC over every loop (outliers dropped, reported)
                      -> a pose for every scan (blended between keyframes)
                      -> optionally every scan registered onto the optimised
@@ -257,7 +260,10 @@ class Mapper:
         start = time.perf_counter()
         self.detector.add_keyframe(key, kf.stamp, kf.scan, session=int(self._saved is not None))
         self.timings["loop_detection"] += time.perf_counter() - start
-        self._update()
+        if self.config.uncertainty == "marginal":
+            self._update()  # iSAM2's marginal of the new pose gates the search
+        else:  # iSAM2 would put the new pose at its guess: defer its update to a loop
+            self._estimate = np.vstack([self._estimate[:key], guess])
         start = time.perf_counter()
         covariance = (
             self._marginal(key) if self.config.uncertainty == "marginal" else self._drift
@@ -290,12 +296,14 @@ class Mapper:
     def _update(self) -> None:
         start = time.perf_counter()
         self.smoother.update()
-        est = self.smoother.estimate()
+        keys, poses = self.smoother.estimate_rows()
+        first = 0 if self._joined else self._base
+        if len(keys) and not np.array_equal(keys, np.arange(first, first + len(keys))):
+            raise RuntimeError("pose keys are not consecutive")  # a mapper bug, not input
         if self._joined:
-            self._estimate = np.array([est[k] for k in range(len(est))]).reshape(-1, 3)
+            self._estimate = poses.reshape(-1, 3)
         else:  # the saved poses, then the new session's in its own frame
-            new = [est[k] for k in range(self._base, self._base + len(est))]
-            self._estimate = np.vstack([self._estimate[: self._base], np.reshape(new, (-1, 3))])
+            self._estimate = np.vstack([self._estimate[: self._base], poses.reshape(-1, 3)])
         self.timings["optimisation"] += time.perf_counter() - start
 
     def _marginal(self, key: int) -> Array | None:
