@@ -40,6 +40,7 @@ def _angle_bin(c, edges):
 def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, edges, hist):
     n = p.shape[0]
     dscale = n_distance / max_distance
+    max_d2 = max_distance * max_distance
     for a in range(n - 1):
         ax, ay = p[a, 0], p[a, 1]
         nax, nay = nrm[a, 0], nrm[a, 1]
@@ -47,16 +48,18 @@ def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, edges, hist):
         for b in range(a + 1, n):
             dx = p[b, 0] - ax
             dy = p[b, 1] - ay
-            d = math.hypot(dx, dy)
-            if not (d > 0.0 and d < max_distance):
+            d2 = dx * dx + dy * dy  # squared first: most far pairs skip the root
+            if not (d2 > 0.0 and d2 < max_d2):
                 continue
-            ux, uy = dx / d, dy / d
-            dbin = min(int(d * dscale), n_distance - 1)
+            d = math.sqrt(d2)
+            inv = 1.0 / d
+            ux, uy = dx * inv, dy * inv
+            row = min(int(d * dscale), n_distance - 1) * n_angle
             ww = wa * w[b]
             ca = abs(nax * ux + nay * uy)
             cb = abs(nrm[b, 0] * ux + nrm[b, 1] * uy)
-            hist[dbin * n_angle + _angle_bin(ca, edges)] += ww
-            hist[dbin * n_angle + _angle_bin(cb, edges)] += ww
+            hist[row + _angle_bin(ca, edges)] += ww
+            hist[row + _angle_bin(cb, edges)] += ww
 
 
 def pair_histogram_compiled(
