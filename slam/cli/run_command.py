@@ -158,6 +158,9 @@ def _open_input(
             "no input given: running the embedded demo (simulated box world, drifting "
             "wheel odometry)", err=True,
         )
+        from loopclosure.warm_up import warm_up
+
+        warm_up()  # the first run after an install compiles the kernels for every later one
         demo = simulate_run(
             "box", seed=0, odometry_noise=OdometryNoise(heading_bias=DEMO_HEADING_BIAS),
             **DEMO_SENSOR,

@@ -1,0 +1,30 @@
+"""`loopclosure.warm_up`: the synthetic room's ranges, and every kernel compiled."""
+
+import numpy as np
+import pytest
+
+from loopclosure import correlative, fast_icp
+from loopclosure.matchers import flirt_kernel, pair_kernel
+from loopclosure.warm_up import room_scan, warm_up
+
+
+def _range_at(scan, angle):
+    return scan.ranges[np.argmin(np.abs(np.angle(np.exp(1j * (scan.angles - angle)))))]
+
+
+def test_room_scan_hits_the_nearest_wall_or_the_pillar():
+    scan = room_scan(-1.0, -0.5)  # walls x = +-5, y = +-3; pillar (1, 0.5), r 0.4
+    assert _range_at(scan, 0.0) == pytest.approx(6.0)  # east wall, pillar 1 m off the ray
+    assert _range_at(scan, np.pi / 2) == pytest.approx(3.5)  # north wall
+    assert _range_at(scan, np.pi) == pytest.approx(4.0)  # west wall
+    below = room_scan(1.0, -2.0)
+    assert _range_at(below, np.pi / 2) == pytest.approx(2.1)  # pillar's south side
+    assert np.all(np.isfinite(scan.ranges)) and len(scan.ranges) == 360
+
+
+def test_warm_up_compiles_every_kernel_the_mapper_calls():
+    warm_up()
+    kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._icp,
+               fast_icp._figures, correlative._correlate, pair_kernel._pair_kernel,
+               flirt_kernel.flirt_entries]
+    assert all(k.signatures for k in kernels)
