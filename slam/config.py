@@ -101,6 +101,10 @@ class PipelineConfig:
             (iSAM2's marginal covariance of the newest keyframe; grows with the
             distance from the first pose and costs a marginal per keyframe).
         sessions: when a new log continuing a saved map (``run --map``) is joined to it.
+        front_end_worker: run the laser front end (``icp2d``, ``wheel``) in a forked
+            worker process, a few scans ahead of the rest of the mapper
+            (`slam.front_end_worker`; same results, the front end's time hidden on a
+            second core).
     """
 
     odometry: str = "icp2d"
@@ -116,6 +120,7 @@ class PipelineConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)
     uncertainty: str = "since-loop"
     sessions: SessionsConfig = field(default_factory=SessionsConfig)
+    front_end_worker: bool = True
 
     def submap_neighbours(self) -> int:
         """Keyframes on each side of a keyframe in its submap (`SubmapConfig.neighbours`)."""

@@ -48,6 +48,7 @@ from loopclosure.loop_detector import LoopCandidate, LoopClosureDetector
 from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
+from slam.front_end_worker import map_in_worker, worker_available
 from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
@@ -205,22 +206,48 @@ class Mapper:
     ) -> MappingResult:
         """Map every scan; Ctrl-C stops early and still returns what was mapped."""
         interrupted = False
+        if self._front_end_in_worker():
+            steps = map_in_worker(self._odometry_step, scans)
+        else:
+            steps = ((scan, self._odometry_step(scan)) for scan in scans)
         try:
-            for n, scan in enumerate(scans, 1):
-                self.process(scan)
+            for n, (scan, (estimate, seconds)) in enumerate(steps, 1):
+                self._after_odometry(scan, estimate, seconds)
                 if progress is not None:
                     progress(n, len(self.keyframes.keyframes), self._accepted())
         except KeyboardInterrupt:
             interrupted = True
+        except SystemError as exc:  # Ctrl-C during a numba kernel surfaces as this
+            if not isinstance(exc.__cause__, KeyboardInterrupt):
+                raise
+            interrupted = True
+        finally:
+            steps.close()  # stops the worker of an interrupted run
         return self.finish(interrupted=interrupted)
 
     def process(self, scan: Scan | PointCloud) -> None:
         """One scan through odometry, keyframing and (for keyframes) loop closure."""
+        self._after_odometry(scan, *self._odometry_step(scan))
+
+    def _front_end_in_worker(self) -> bool:
+        """`PipelineConfig.front_end_worker`, for the laser front ends, where a process
+        can fork (`slam.front_end_worker`)."""
+        return (self.config.front_end_worker and self.config.odometry != "kiss-icp"
+                and worker_available())
+
+    def _odometry_step(self, scan: Scan | PointCloud) -> tuple[OdometryEstimate, float]:
+        """The front end's estimate of `scan` and the seconds it took."""
         if isinstance(scan, PointCloud) and self.config.odometry != "kiss-icp":
             raise UserError("point clouds need --odometry kiss-icp")
         start = time.perf_counter()
         estimate = self.odometry.process(scan)
-        self.timings["odometry"] += time.perf_counter() - start
+        return estimate, time.perf_counter() - start
+
+    def _after_odometry(
+        self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float
+    ) -> None:
+        """Keyframing and (for keyframes) loop closure of a scan the front end placed."""
+        self.timings["odometry"] += seconds
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
         self.odometry_poses.append(np.asarray(estimate.pose, dtype=float))
         if isinstance(scan, PointCloud):
@@ -251,6 +278,8 @@ class Mapper:
         else:
             guess = se2.compose(self._estimate[key - 1], kf.delta)
         self.smoother.add_pose(key, guess)
+        # iSAM2 would put the new pose at its guess: its update waits for a loop.
+        self._estimate = np.vstack([self._estimate[:key], guess])
         if kf.id > 0:
             cov = kf.covariance + self._floor
             self.smoother.add_odometry(key - 1, key, kf.delta, np.linalg.inv(cov))
@@ -262,8 +291,6 @@ class Mapper:
         self.timings["loop_detection"] += time.perf_counter() - start
         if self.config.uncertainty == "marginal":
             self._update()  # iSAM2's marginal of the new pose gates the search
-        else:  # iSAM2 would put the new pose at its guess: defer its update to a loop
-            self._estimate = np.vstack([self._estimate[:key], guess])
         start = time.perf_counter()
         covariance = (
             self._marginal(key) if self.config.uncertainty == "marginal" else self._drift
@@ -456,7 +483,8 @@ class Mapper:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
         graph = self.smoother.graph
-        poses = {k: self._estimate[k] for k in graph.initial}
+        known = len(self._estimate)  # a run stopped by Ctrl-C may hold a newer pose
+        poses = {k: self._estimate[k] if k < known else graph.initial[k] for k in graph.initial}
         rejected: set[int] = set()
         if graph.loops and self.config.backend.final_gnc and not interrupted:
             result = optimize(
