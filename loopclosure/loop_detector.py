@@ -139,7 +139,7 @@ from loopclosure.geometric_check import (
     verify,
 )
 from loopclosure.place_config import PlaceDatabaseConfig
-from loopclosure.place_database import PlaceDatabase, PlaceMatch
+from loopclosure.place_database import Descriptors, PlaceDatabase, PlaceMatch
 from loopclosure.polygon import DegeneratePolygonError, PolygonConfig, polygon_from_scan
 from loopclosure.registration import RegistrationTarget
 from loopclosure.virtual_scan import virtual_scan
@@ -328,6 +328,28 @@ class LoopCandidate:
         )
 
 
+@dataclass(slots=True)
+class KeyframePlace:
+    """A keyframe's place as `LoopClosureDetector.describe_keyframe` made it.
+
+    Attributes:
+        place_scan: the 360-degree scan the place was described from (its own scan
+            or the virtual scan of its submap).
+        centroid: ``(2,)`` centroid of its polygon [m, sensor frame]; None (and no
+            descriptors) when no polygon could be made.
+        descriptors: the place database's descriptors of the polygon.
+        wide_key: the keyframe whose wide view it queries with (-1: none).
+        wide_centroid, wide_descriptors: its own wide view, when `wide_key` is itself.
+    """
+
+    place_scan: Scan
+    centroid: Array | None = None
+    descriptors: Descriptors | None = None
+    wide_key: int = -1
+    wide_centroid: Array | None = None
+    wide_descriptors: Descriptors | None = None
+
+
 class LoopClosureDetector:
     """Place database + geometric check behind one call per keyframe (module docstring)."""
 
@@ -367,16 +389,17 @@ class LoopClosureDetector:
 
     def add_keyframe(
         self, key: int, stamp: float, scan: Scan, *, session: int = 0,
-        place_scan: Scan | None = None,
+        place_scan: Scan | None = None, place: KeyframePlace | None = None,
     ) -> bool:
         """Describe and store keyframe `key` (keys are 0, 1, 2, ... in order).
 
         A sensor covering less than `full_circle_deg` is described by a virtual scan
         of ``submap(key)`` (its own scan when there is no `submap` callback).
         `place_scan` describes it from that scan instead (the `place_scan` of a
-        keyframe restored from a saved map).  `session` labels the log the keyframe
-        comes from (module docstring, "Sessions"); its frame starts as the session's
-        own.
+        keyframe restored from a saved map).  `place` stores a description already
+        made by `describe_keyframe` (in another process, on the same keyframes).
+        `session` labels the log the keyframe comes from (module docstring,
+        "Sessions"); its frame starts as the session's own.
 
         Returns False when no polygon could be made (all beams invalid, a degenerate
         local map): the keyframe is then never a candidate, but keys stay aligned.
@@ -389,54 +412,73 @@ class LoopClosureDetector:
                 f"add_keyframe: keyframes must be added in order 0, 1, 2, ...: expected key "
                 f"{len(self._stamps)}, got {key}"
             )
-        cfg = self.config
+        if place is None:
+            place = self.describe_keyframe(key, stamp, scan, session=session,
+                                           place_scan=place_scan)
         if self._stamps and self._sessions[-1] == session and float(stamp) == self._stamps[-1]:
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._stamps.append(float(stamp))
         self._sessions.append(int(session))
         self._frames.append(int(session))
+        self._place_scans.append(place.place_scan)
+        self._wide_keys.append(place.wide_key)
+        if place.wide_descriptors is not None:
+            assert self.wide_database is not None and place.wide_centroid is not None
+            self._wide_centroids[key] = place.wide_centroid
+            self._wide_described = np.append(self._wide_described, key)
+            self.wide_database.add_descriptors(key, place.wide_descriptors, stamp=stamp)
+        if place.descriptors is None:
+            self._centroids.append(np.zeros(2))
+            self._described.append(False)
+            return False
+        self._centroids.append(place.centroid)
+        self._described.append(True)
+        self.database.add_descriptors(key, place.descriptors, stamp=stamp)
+        return True
+
+    def describe_keyframe(
+        self, key: int, stamp: float, scan: Scan, *, session: int = 0,
+        place_scan: Scan | None = None,
+    ) -> KeyframePlace:
+        """The description `add_keyframe(key, ...)` stores, made without storing it:
+        it reads only keys before `key` and the `submap` / `trailing_map` callbacks."""
+        cfg = self.config
         if place_scan is None:
             if np.degrees(scan.fov) >= cfg.full_circle_deg or self._submap is None:
                 place_scan = scan
             else:
                 pts = self._submap_points(key)
                 place_scan = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
-        self._place_scans.append(place_scan)
-        self._wide_keys.append(-1)
+        place = KeyframePlace(place_scan)
         try:
             polygon = polygon_from_scan(place_scan, cfg.polygon)
         except DegeneratePolygonError:
-            self._centroids.append(np.zeros(2))
-            self._described.append(False)
-            return False
-        self._centroids.append(polygon.centroid())
-        self._described.append(True)
-        self.database.add_descriptors(key, self.database.describe(polygon), stamp=stamp)
+            return place
+        place.centroid = polygon.centroid()
+        place.descriptors = self.database.describe(polygon)
         if self.wide_database is not None and np.degrees(scan.fov) < cfg.full_circle_deg:
-            self._wide_keys[key] = self._add_wide(key, stamp)
-        return True
+            self._describe_wide(key, stamp, session, place)
+        return place
 
-    def _add_wide(self, key: int, stamp: float) -> int:
+    def _describe_wide(self, key: int, stamp: float, session: int, place: KeyframePlace) -> None:
         """The key whose wide view `key` queries with (module docstring, 1.): the latest
         one of its session while it is less than `wide_every` keyframes old, else `key`
         itself, described now (-1 when that makes no polygon)."""
         assert self._trailing_map is not None and self.wide_database is not None
         cfg = self.config
         latest = self._wide_keys[key - 1] if key > 0 else -1
-        if latest >= 0 and key - latest < cfg.wide_every and (
-                self._sessions[latest] == self._sessions[key]):
-            return latest
+        if latest >= 0 and key - latest < cfg.wide_every and self._sessions[latest] == session:
+            place.wide_key = latest
+            return
         pts = np.asarray(self._trailing_map(key, cfg.wide_keyframes), float).reshape(-1, 2)
         wide = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
         try:
             polygon = polygon_from_scan(wide, cfg.polygon)
         except DegeneratePolygonError:
-            return -1
-        self._wide_centroids[key] = polygon.centroid()
-        self._wide_described = np.append(self._wide_described, key)
-        db = self.wide_database
-        db.add_descriptors(key, db.describe(polygon), stamp=stamp)
-        return key
+            return
+        place.wide_key = key
+        place.wide_centroid = polygon.centroid()
+        place.wide_descriptors = self.wide_database.describe(polygon)
 
     def wide_key(self, key: int) -> int | None:
         """The keyframe whose wide view `key` queries with (itself or a few keyframes

@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 from data import se2
 from data.errors import UserError
 from data.types import PointCloud, Scan
-from loopclosure.loop_detector import LoopCandidate, LoopClosureDetector
+from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
 from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
@@ -207,12 +207,12 @@ class Mapper:
         """Map every scan; Ctrl-C stops early and still returns what was mapped."""
         interrupted = False
         if self._front_end_in_worker():
-            steps = map_in_worker(self._odometry_step, scans)
+            steps = map_in_worker(self._worker_step, scans)
         else:
-            steps = ((scan, self._odometry_step(scan)) for scan in scans)
+            steps = ((scan, (*self._odometry_step(scan), None, 0.0)) for scan in scans)
         try:
-            for n, (scan, (estimate, seconds)) in enumerate(steps, 1):
-                self._after_odometry(scan, estimate, seconds)
+            for n, (scan, step) in enumerate(steps, 1):
+                self._after_odometry(scan, *step)
                 if progress is not None:
                     progress(n, len(self.keyframes.keyframes), self._accepted())
         except KeyboardInterrupt:
@@ -243,11 +243,34 @@ class Mapper:
         estimate = self.odometry.process(scan)
         return estimate, time.perf_counter() - start
 
+    def _worker_step(
+        self, scan: Scan
+    ) -> tuple[OdometryEstimate, float, KeyframePlace | None, float]:
+        """In the front end's worker (`slam.front_end_worker`), a fork of this mapper:
+        the odometry of `scan` and, when it makes a keyframe, that keyframe's place
+        description, with the seconds of each.  Keyframes and places depend only on the
+        odometry, so the worker's copies of the keyframe selector and the detector stay
+        in step with the mapper's."""
+        estimate, seconds = self._odometry_step(scan)
+        keyframe = self.keyframes.push(scan, estimate)
+        if keyframe is None:
+            return estimate, seconds, None, 0.0
+        start = time.perf_counter()
+        key, session = self._base + keyframe.id, int(self._saved is not None)
+        place = self.detector.describe_keyframe(key, keyframe.stamp, keyframe.scan,
+                                                session=session)
+        self.detector.add_keyframe(key, keyframe.stamp, keyframe.scan, session=session,
+                                   place=place)
+        return estimate, seconds, place, time.perf_counter() - start
+
     def _after_odometry(
-        self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float
+        self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float,
+        place: KeyframePlace | None = None, place_seconds: float = 0.0,
     ) -> None:
-        """Keyframing and (for keyframes) loop closure of a scan the front end placed."""
+        """Keyframing and (for keyframes) loop closure of a scan the front end placed;
+        `place` is the keyframe's place description when the worker made it."""
         self.timings["odometry"] += seconds
+        self.timings["loop_detection"] += place_seconds
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
         self.odometry_poses.append(np.asarray(estimate.pose, dtype=float))
         if isinstance(scan, PointCloud):
@@ -257,8 +280,10 @@ class Mapper:
         self.timings["keyframes"] += time.perf_counter() - start
         if self.config.refine_scans:
             self._keep_points(scan, keyframe is not None)
+        if (keyframe is None) != (place is None) and self._front_end_in_worker():
+            raise RuntimeError("the front end worker's keyframes differ from the mapper's")
         if keyframe is not None:
-            self._add_keyframe(keyframe, estimate)
+            self._add_keyframe(keyframe, estimate, place)
 
     @property
     def saved(self) -> SavedMap | None:
@@ -270,7 +295,9 @@ class Mapper:
         """The new session is in the saved map's frame (always true without one)."""
         return self._joined
 
-    def _add_keyframe(self, kf: Keyframe, estimate: OdometryEstimate) -> None:
+    def _add_keyframe(
+        self, kf: Keyframe, estimate: OdometryEstimate, place: KeyframePlace | None = None
+    ) -> None:
         start = time.perf_counter()
         key = self._base + kf.id
         if kf.id == 0:
@@ -287,7 +314,8 @@ class Mapper:
             self._path += float(np.hypot(kf.delta[0], kf.delta[1]))
         self.timings["keyframes"] += time.perf_counter() - start
         start = time.perf_counter()
-        self.detector.add_keyframe(key, kf.stamp, kf.scan, session=int(self._saved is not None))
+        self.detector.add_keyframe(key, kf.stamp, kf.scan, session=int(self._saved is not None),
+                                   place=place)
         self.timings["loop_detection"] += time.perf_counter() - start
         if self.config.uncertainty == "marginal":
             self._update()  # iSAM2's marginal of the new pose gates the search
