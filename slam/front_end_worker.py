@@ -12,8 +12,9 @@ worker is a ``fork`` of this process: it inherits the front end and the scan
 iterator as they are (nothing is pickled on the way in) and sends the results back
 in batches through a pipe, whose buffer bounds how far ahead it runs.  An exception
 in the worker (a malformed log under ``--strict``) is raised again here.  Where
-``fork`` is missing (Windows, or macOS's default), `worker_available` is False and
-the mapper runs the front end in its own process.
+``fork`` is missing (Windows), or in a daemon process or a thread other than the
+main one (a cluster's task), `worker_available` is False and the mapper runs the
+front end in its own process.
 
 The mapper still reports the front end's time (measured in the worker), so the stage
 timings of a run add up to more than its wall time.
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -37,8 +39,12 @@ _ITEMS = "items"
 
 
 def worker_available() -> bool:
-    """True where a forked worker can run the front end (POSIX with ``fork``)."""
-    return "fork" in mp.get_all_start_methods()
+    """True where a forked worker can run the front end: POSIX with ``fork``, from the
+    main thread of a process that may have children.  Not in a daemon process, nor
+    in a task thread of a cluster worker (a fork copies only the calling thread, and
+    the cluster already keeps the cores busy)."""
+    return ("fork" in mp.get_all_start_methods() and not mp.current_process().daemon
+            and threading.current_thread() is threading.main_thread())
 
 
 def _work(step: Callable[[Any], Any], scans: Iterable[Any], conn: Any) -> None:

@@ -55,3 +55,13 @@ def test_mapper_with_the_front_end_in_a_worker_maps_identically() -> None:
     np.testing.assert_array_equal(results[0].odometry_poses, results[1].odometry_poses)
     np.testing.assert_array_equal(results[0].scan_poses, results[1].scan_poses)
     assert len(results[0].accepted_loops) == len(results[1].accepted_loops) > 0
+
+
+def test_no_worker_from_a_thread_other_than_the_main_one() -> None:
+    import threading
+
+    seen = []
+    thread = threading.Thread(target=lambda: seen.append(worker_available()))
+    thread.start()
+    thread.join()
+    assert seen == [False]

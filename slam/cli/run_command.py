@@ -220,6 +220,8 @@ def _print_summary(summary: dict[str, Any], out: Path, report_lines: list[str]) 
         f"{by_search.get('pose', 0)} by the pose search), "
         f"{summary['loops_rejected_by_gnc']} rejected by GNC; {summary['wall_s']:.1f} s, "
         f"peak {summary['peak_rss_mb']:.0f} MB"
+        + (f" (front-end worker {summary['peak_rss_mb_worker']:.0f} MB)"
+           if summary.get("peak_rss_mb_worker") else "")
         + ("  (interrupted)" if summary.get("interrupted") else "")
     )
     sessions = summary.get("sessions", [])
