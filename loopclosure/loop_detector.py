@@ -548,7 +548,8 @@ class LoopClosureDetector:
             )
 
     def detect(
-        self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None
+        self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None,
+        matches: list[PlaceMatch] | None = None,
     ) -> list[LoopCandidate]:
         """Candidates of keyframe `key`, each verified (see the module docstring).
 
@@ -557,6 +558,8 @@ class LoopClosureDetector:
             poses: ``(n, 3)`` current estimates of keyframes ``0..n-1`` (map frame),
                 ``n > key``.
             covariance: ``3x3`` marginal covariance of the query's pose, or None.
+            matches: `appearance_matches(key)` when already made (in another process,
+                on the same keyframes); None: asked here when needed.
 
         Raises:
             UserError: `key` was never added, or `poses` does not reach it.
@@ -570,7 +573,7 @@ class LoopClosureDetector:
             return []
         cov, sigma, gate = self._gate(covariance)
         query_points = self._submap_points(key)
-        appearance = self._appearance(key, eligible, poses)
+        appearance = self._appearance(key, eligible, poses, matches)
         frames = np.asarray(self._frames[: len(eligible)])
         same = frames == self._frames[key]  # pose estimates comparable with the query's
         pose = [] if cfg.search == "appearance" else self._local(
@@ -702,8 +705,22 @@ class LoopClosureDetector:
         return distinct_places(matches, cfg.global_verify, xy, self._frames,
                                cfg.place_separation)
 
+    def appearance_matches(self, key: int) -> list[PlaceMatch]:
+        """The place database's matches of `key` over its eligible keyframes, as
+        `detect` asks for them (empty where it would not ask).  They depend on the
+        keyframes' descriptions and stamps only, not on any pose estimate."""
+        cfg = self.config
+        eligible = self.eligible(key)
+        if (cfg.search == "pose" or cfg.global_every <= 0 or not eligible.any()
+                or not self._described[key]):
+            return []
+        # Heading hypotheses only for the candidates checked with no prior
+        # (`_verify_free`): one checked from the pose prior needs none.
+        return self.query_places(key, np.flatnonzero(eligible))
+
     def _appearance(
-        self, key: int, eligible: NDArray[np.bool_], poses: Array
+        self, key: int, eligible: NDArray[np.bool_], poses: Array,
+        matches: list[PlaceMatch] | None = None,
     ) -> list[PlaceMatch]:
         """The place database's proposals for `key` (empty when it is not asked)."""
         cfg = self.config
@@ -713,9 +730,8 @@ class LoopClosureDetector:
         if self._since_global < cfg.global_every:
             return []
         self._since_global = 0
-        # Heading hypotheses only for the candidates checked with no prior
-        # (`_verify_free`): one checked from the pose prior needs none.
-        matches = self.query_places(key, np.flatnonzero(eligible))
+        if matches is None:
+            matches = self.query_places(key, np.flatnonzero(eligible))
         frame = self._frames[key]
         chosen = self.places([
             m for m in matches

@@ -45,6 +45,7 @@ from data import se2
 from data.errors import UserError
 from data.types import PointCloud, Scan
 from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
+from loopclosure.place_database import PlaceMatch
 from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
@@ -209,7 +210,7 @@ class Mapper:
         if self._front_end_in_worker():
             steps = map_in_worker(self._worker_step, scans)
         else:
-            steps = ((scan, (*self._odometry_step(scan), None, 0.0)) for scan in scans)
+            steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
         try:
             for n, (scan, step) in enumerate(steps, 1):
                 self._after_odometry(scan, *step)
@@ -243,32 +244,36 @@ class Mapper:
         estimate = self.odometry.process(scan)
         return estimate, time.perf_counter() - start
 
-    def _worker_step(
-        self, scan: Scan
-    ) -> tuple[OdometryEstimate, float, KeyframePlace | None, float]:
+    def _worker_step(self, scan: Scan) -> tuple[
+        OdometryEstimate, float, KeyframePlace | None, list[PlaceMatch] | None, float
+    ]:
         """In the front end's worker (`slam.front_end_worker`), a fork of this mapper:
         the odometry of `scan` and, when it makes a keyframe, that keyframe's place
-        description, with the seconds of each.  Keyframes and places depend only on the
-        odometry, so the worker's copies of the keyframe selector and the detector stay
-        in step with the mapper's."""
+        description and the place database's matches of it, with the seconds taken.
+        Keyframes, places and matches depend only on the odometry, so the worker's
+        copies of the keyframe selector and the detector stay in step with the
+        mapper's."""
         estimate, seconds = self._odometry_step(scan)
         keyframe = self.keyframes.push(scan, estimate)
         if keyframe is None:
-            return estimate, seconds, None, 0.0
+            return estimate, seconds, None, None, 0.0
         start = time.perf_counter()
         key, session = self._base + keyframe.id, int(self._saved is not None)
         place = self.detector.describe_keyframe(key, keyframe.stamp, keyframe.scan,
                                                 session=session)
         self.detector.add_keyframe(key, keyframe.stamp, keyframe.scan, session=session,
                                    place=place)
-        return estimate, seconds, place, time.perf_counter() - start
+        matches = self.detector.appearance_matches(key)
+        return estimate, seconds, place, matches, time.perf_counter() - start
 
     def _after_odometry(
         self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float,
-        place: KeyframePlace | None = None, place_seconds: float = 0.0,
+        place: KeyframePlace | None = None, matches: list[PlaceMatch] | None = None,
+        place_seconds: float = 0.0,
     ) -> None:
         """Keyframing and (for keyframes) loop closure of a scan the front end placed;
-        `place` is the keyframe's place description when the worker made it."""
+        `place` and `matches` are the keyframe's place description and the place
+        database's matches of it when the worker made them."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
@@ -283,7 +288,7 @@ class Mapper:
         if (keyframe is None) != (place is None) and self._front_end_in_worker():
             raise RuntimeError("the front end worker's keyframes differ from the mapper's")
         if keyframe is not None:
-            self._add_keyframe(keyframe, estimate, place)
+            self._add_keyframe(keyframe, estimate, place, matches)
 
     @property
     def saved(self) -> SavedMap | None:
@@ -296,7 +301,8 @@ class Mapper:
         return self._joined
 
     def _add_keyframe(
-        self, kf: Keyframe, estimate: OdometryEstimate, place: KeyframePlace | None = None
+        self, kf: Keyframe, estimate: OdometryEstimate, place: KeyframePlace | None = None,
+        matches: list[PlaceMatch] | None = None,
     ) -> None:
         start = time.perf_counter()
         key = self._base + kf.id
@@ -323,7 +329,7 @@ class Mapper:
         covariance = (
             self._marginal(key) if self.config.uncertainty == "marginal" else self._drift
         )
-        candidates = self.detector.detect(key, self._estimate, covariance)
+        candidates = self.detector.detect(key, self._estimate, covariance, matches)
         self.timings["loop_detection"] += time.perf_counter() - start
         added = False
         for c in candidates:
