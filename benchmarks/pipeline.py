@@ -2,18 +2,28 @@
 
 Run from the repository root::
 
-    python benchmarks/pipeline.py [--data DIR] [--limit N] \
+    python benchmarks/pipeline.py [--data DIR] [--limit N] [--logs intel,seattle,...] \
         [--variant NAME:key=value,key=value ...]
 
-Every variant maps the same first `--limit` scans of the Intel log
-(``carmen/intel.clf.bz2``; all of it with ``--limit 0``) with `slam.pipeline.Mapper`
-and the defaults of `slam.config.PipelineConfig` changed by its ``key=value``
-overrides (the syntax of ``loopclosure run --set``).  The scans are read once,
-before any timing.  For each variant the script prints wall-clock seconds per stage
-(odometry, keyframes, loop detection, iSAM2 updates, final GNC), loop counts, and
-the relations metric (Kümmerle et al. 2009) of the per-scan trajectory against
-``carmen/intel.relations`` (relations whose both stamps were mapped), and then the
-ratio of each variant's times to the first variant's.
+Every variant maps the same scans of each log with `slam.pipeline.Mapper` and the
+defaults of `slam.config.PipelineConfig` changed by its ``key=value`` overrides (the
+syntax of ``loopclosure run --set``).  The scans are read once, before any timing.
+For each log and variant the script prints wall-clock seconds and the CPU seconds of
+the mapper's process, seconds per stage (odometry, keyframes, loop detection, iSAM2
+updates, final GNC; the stages a worker process ran overlap the others), loop
+counts, peak memory of the process [MB], and the error:
+
+- ``intel`` (``carmen/intel.clf.bz2``, the first `--limit` scans, all with
+  ``--limit 0``): the relations metric (Kümmerle et al. 2009) of the per-scan
+  trajectory against ``carmen/intel.relations``, all relations whose both stamps were
+  mapped and the short ones (under 1 s apart);
+- a GMapping-corrected log (``freiburg-101``, ``seattle``, ``intel-corrected``,
+  ``orebro``, ``belgioioso``, ``freiburg-campus``; whole): the ATE [m] against the
+  logged poses, mapped from the simulator's drifting wheel odometry (seed 0) as
+  ``loopclosure bench slam LOG --odometry-noise 0 --reference-from-log`` does.
+
+Then, per log, the ratio of each variant's times to the first variant's.  The peak
+memory is the process's peak so far: it only grows from one variant to the next.
 
 Without ``--variant`` it compares the three loop searches (``loops.search`` =
 ``pose``, the default ``both``, ``appearance``).
@@ -34,10 +44,17 @@ from data.carmen import CarmenLog
 from data.relations import read_relations
 from data.types import Trajectory
 from evaluation.relations_metric import relations_metric
+from evaluation.slam_input import evaluation_stamps, load_input
+from evaluation.slam_reference import logged_reference, trajectory_at_stamps
+from evaluation.trajectory_error import trajectory_errors
 from slam.config import PipelineConfig
 from slam.config_io import apply_overrides
+from slam.memory import peak_rss_mb
 from slam.pipeline import Mapper
 from slam.refine_scans import refine_scan_poses
+
+CORRECTED = ("freiburg-101", "seattle", "intel-corrected", "orebro", "belgioioso",
+             "freiburg-campus")
 
 SHORT_S = 1.0
 
@@ -74,15 +91,17 @@ def score(stamps: np.ndarray, poses: np.ndarray, relations: list, prefix: str) -
     return row
 
 
-def run_variant(scans: list, overrides: list[str], relations: list,
-                refine: bool = False) -> dict[str, float]:
-    """Map `scans` with the overridden defaults; timings, loop counts and relations error."""
+def run_variant(scans: list, overrides: list[str], relations: list | None,
+                refine: bool = False, reference: Trajectory | None = None) -> dict[str, float]:
+    """Map `scans` with the overridden defaults; timings, loop counts, peak memory and
+    the relations error (with `relations`) or the ATE against `reference`."""
     cfg = apply_overrides(PipelineConfig(), overrides)
     start = time.perf_counter()
     cpu = time.process_time()
     result = Mapper(cfg).run(scans)
     wall = time.perf_counter() - start
     row: dict[str, float] = {"wall_s": wall, "cpu_s": time.process_time() - cpu}
+    row["peak_mb"] = peak_rss_mb()
     row.update({f"{k}_s": v for k, v in result.timings.items()})
     row["keyframes"] = len(result.keyframes)
     row["candidates"] = len(result.loops)
@@ -94,7 +113,11 @@ def run_variant(scans: list, overrides: list[str], relations: list,
     )
     row["gnc_rejected"] = sum(e.rejected_by_gnc for e in result.loops)
     stamps = result.scan_stamps
-    row.update(score(stamps, result.scan_poses, relations, "rel_"))
+    if reference is not None:
+        estimate = trajectory_at_stamps(evaluation_stamps(stamps)[0], result.scan_poses)
+        row["ate_m"] = trajectory_errors(estimate, reference).ate_rmse
+        return row
+    row.update(score(stamps, result.scan_poses, relations or [], "rel_"))
     if refine and len(stamps) == len(scans):
         start = time.perf_counter()
         position = {s.index: i for i, s in enumerate(scans)}
@@ -106,40 +129,57 @@ def run_variant(scans: list, overrides: list[str], relations: list,
     return row
 
 
+def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Trajectory | None]:
+    """Scans of log `name` with its relations (Intel) or its reference (corrected logs)."""
+    if name == "intel":
+        log = data / "carmen" / "intel.clf.bz2"
+        if not log.exists():
+            sys.exit(f"{log} not found: pass --data with the shared data folder")
+        scans = []
+        for scan in CarmenLog(log):
+            scans.append(scan)
+            if limit and len(scans) >= limit:
+                break
+        return scans, read_relations(data / "carmen" / "intel.relations"), None
+    if name not in CORRECTED:
+        sys.exit(f"unknown log {name!r}: intel or one of {', '.join(CORRECTED)}")
+    log = data / "carmen-corrected" / f"{name}-corrected.log.gz"
+    if not log.exists():
+        sys.exit(f"{log} not found: pass --data with the shared data folder")
+    loaded = load_input(log, odometry_noise=0)
+    return loaded.scans, None, logged_reference(loaded)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2]
                         / "shared" / "data")
-    parser.add_argument("--limit", type=int, default=4000, help="scans (0: the whole log)")
+    parser.add_argument("--limit", type=int, default=4000,
+                        help="Intel scans (0: the whole log)")
+    parser.add_argument("--logs", default="intel",
+                        help=f"comma-separated: intel, {', '.join(CORRECTED)}")
     parser.add_argument("--refine", action="store_true",
-                        help="also score the scans refined by slam.refine_scans")
+                        help="also score the scans refined by slam.refine_scans (Intel)")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable)")
     args = parser.parse_args()
-    log = args.data / "carmen" / "intel.clf.bz2"
-    if not log.exists():
-        sys.exit(f"{log} not found: pass --data with the shared data folder")
-    scans = []
-    for scan in CarmenLog(log):
-        scans.append(scan)
-        if args.limit and len(scans) >= args.limit:
-            break
-    relations = read_relations(args.data / "carmen" / "intel.relations")
-    print(f"Intel, {len(scans)} scans")
-    rows: dict[str, dict[str, float]] = {}
-    for spec in args.variant or DEFAULT_VARIANTS:
-        name, _, sets = spec.partition(":")
-        overrides = [s for s in sets.split(",") if s]
-        rows[name] = run_variant(scans, overrides, relations, args.refine)
-        r = rows[name]
-        print(f"\n{name} ({', '.join(overrides) or 'defaults'})")
-        print("  " + "  ".join(f"{k} {v:.4g}" for k, v in r.items()))
-    first = next(iter(rows.values()))
-    print("\ntime ratios against the first variant (lower is faster)")
-    keys = [k for k in first if k.endswith("_s") and first[k] > 0]
-    print(f"{'variant':<20}" + "".join(f"{k:>22}" for k in keys))
-    for name, r in rows.items():
-        print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" for k in keys))
+    for log in [n.strip() for n in args.logs.split(",") if n.strip()]:
+        scans, relations, reference = load_log(args.data, log, args.limit)
+        print(f"\n== {log}, {len(scans)} scans")
+        rows: dict[str, dict[str, float]] = {}
+        for spec in args.variant or DEFAULT_VARIANTS:
+            name, _, sets = spec.partition(":")
+            overrides = [s for s in sets.split(",") if s]
+            rows[name] = run_variant(scans, overrides, relations, args.refine, reference)
+            r = rows[name]
+            print(f"\n{name} ({', '.join(overrides) or 'defaults'})")
+            print("  " + "  ".join(f"{k} {v:.4g}" for k, v in r.items()))
+        first = next(iter(rows.values()))
+        print(f"\n{log}: time ratios against the first variant (lower is faster)")
+        keys = [k for k in first if k.endswith("_s") and first[k] > 0]
+        print(f"{'variant':<20}" + "".join(f"{k:>22}" for k in keys))
+        for name, r in rows.items():
+            print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" for k in keys))
 
 
 if __name__ == "__main__":
