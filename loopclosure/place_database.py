@@ -335,12 +335,13 @@ class PlaceDatabase:
     # -- scales -----------------------------------------------------------------------
 
     def _refresh_scales(self) -> None:
-        """Re-estimate stage scales when the size reached a power of two (>= 2)."""
-        m = len(self)
-        if self.config.fixed_scales or m < 2:
+        """Re-estimate stage scales when the size reached a power of two (>= 2), from
+        the first that many rows: the scales depend on the stored descriptors only,
+        not on when the database was first asked after growing past the power."""
+        if self.config.fixed_scales or len(self) < 2:
             return
-        target = 1 << (m.bit_length() - 1)  # largest power of two <= m
-        if target <= self._scales_at:
+        m = 1 << (len(self).bit_length() - 1)  # largest power of two <= the size
+        if m <= self._scales_at:
             return
         rng = np.random.default_rng([self.config.seed, m])
         scales = []
@@ -351,7 +352,7 @@ class PlaceDatabase:
             scales.append(_positive_median(np.sqrt(np.einsum("ij,ij->i", diff, diff))))
         for v in self.config.verifiers:
             matcher = self.matchers[v]
-            descs = [d[v] for d in self._descriptors]
+            descs = [d[v] for d in self._descriptors[:m]]
             n_anchor = max(1, int(np.sqrt(self.config.scale_pairs)))
             per = max(1, self.config.scale_pairs // n_anchor)
             values = []
@@ -362,7 +363,7 @@ class PlaceDatabase:
                 values.append(np.asarray(matcher.distances(descs[i], stacked), float))
             scales.append(_positive_median(np.concatenate(values)))
         self._scales = np.asarray(scales, float)
-        self._scales_at = target
+        self._scales_at = m
 
     # -- queries ----------------------------------------------------------------------
 

@@ -6,8 +6,10 @@ updates the graph for scan ``i``, a forked worker process can already register
 scans ``i + 1, i + 2, ...``.  On 2 cores this hides the front end's time (a fifth
 to a half of a run on a 2-D laser log) behind the rest.
 
-`map_in_worker(step, scans)` yields ``(scan, step(scan))`` in input order, exactly
-what calling ``step`` (the mapper's odometry step) here would have returned.  The
+`map_in_worker(step, scans)` yields ``(scan, step(scan, ahead))`` in input order,
+exactly what calling ``step`` (the mapper's odometry step) here would have returned.
+``ahead`` tells the step whether the worker is ahead of the mapper (results waiting
+unread) and so has time for work the mapper would otherwise do itself.  The
 worker is a ``fork`` of this process: it inherits the front end and the scan
 iterator as they are (nothing is pickled on the way in) and sends the results back
 in batches through a pipe, whose buffer bounds how far ahead it runs.  An exception
@@ -47,14 +49,17 @@ def worker_available() -> bool:
             and threading.current_thread() is threading.main_thread())
 
 
-def _work(step: Callable[[Any], Any], scans: Iterable[Any], conn: Any) -> None:
+def _work(step: Callable[[Any, int], Any], scans: Iterable[Any], conn: Any,
+          consumed: Any) -> None:
     """The worker: `step` of every scan, sent back in batches, then _DONE."""
     batch: list[tuple[Any, Any]] = []
+    sent = 0
     try:
         for scan in scans:
-            batch.append((scan, step(scan)))
+            batch.append((scan, step(scan, sent - consumed.value)))
             if len(batch) == BATCH:
                 conn.send((_ITEMS, batch))
+                sent += len(batch)
                 batch = []
         if batch:
             conn.send((_ITEMS, batch))
@@ -72,13 +77,17 @@ def _work(step: Callable[[Any], Any], scans: Iterable[Any], conn: Any) -> None:
 
 
 def map_in_worker(
-    step: Callable[[Any], Any], scans: Iterable[Any]
+    step: Callable[[Any, int], Any], scans: Iterable[Any]
 ) -> Iterator[tuple[Any, Any]]:
-    """``(scan, step(scan))`` of every scan, computed in a forked worker (module
-    docstring).  Closing the generator early (an interrupted run) stops the worker."""
+    """``(scan, step(scan, ahead))`` of every scan, computed in a forked worker (module
+    docstring).  ``ahead`` is how many results the worker has sent that the caller
+    has not yet taken: at least `BATCH` when the caller is the slower of the two, so
+    `step` may then take on work the caller would otherwise do.  Closing the
+    generator early (an interrupted run) stops the worker."""
     ctx = mp.get_context("fork")
     receive, send = ctx.Pipe(duplex=False)
-    worker = ctx.Process(target=_work, args=(step, scans, send), daemon=True,
+    consumed = ctx.RawValue("q", 0)  # written here only, read by the worker
+    worker = ctx.Process(target=_work, args=(step, scans, send, consumed), daemon=True,
                          name="loopclosure-front-end")
     worker.start()
     send.close()  # the worker holds the only writing end: EOF when it is gone
@@ -91,7 +100,9 @@ def map_in_worker(
                     f"the front end worker stopped without a result (exit code "
                     f"{worker.exitcode})") from None
             if kind == _ITEMS:
-                yield from payload
+                for item in payload:
+                    yield item
+                    consumed.value += 1
             elif kind == _ERROR:
                 raise payload
             else:

@@ -49,7 +49,7 @@ from loopclosure.place_database import PlaceMatch
 from loopclosure.registration import voxel_downsample
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
-from slam.front_end_worker import map_in_worker, worker_available
+from slam.front_end_worker import BATCH, map_in_worker, worker_available
 from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
@@ -244,15 +244,16 @@ class Mapper:
         estimate = self.odometry.process(scan)
         return estimate, time.perf_counter() - start
 
-    def _worker_step(self, scan: Scan) -> tuple[
+    def _worker_step(self, scan: Scan, ahead: int) -> tuple[
         OdometryEstimate, float, KeyframePlace | None, list[PlaceMatch] | None, float
     ]:
         """In the front end's worker (`slam.front_end_worker`), a fork of this mapper:
         the odometry of `scan` and, when it makes a keyframe, that keyframe's place
-        description and the place database's matches of it, with the seconds taken.
-        Keyframes, places and matches depend only on the odometry, so the worker's
-        copies of the keyframe selector and the detector stay in step with the
-        mapper's."""
+        description, with the seconds taken.  Keyframes and places depend only on the
+        odometry, so the worker's copies of the keyframe selector and the detector stay
+        in step with the mapper's.  While the worker is `ahead` of the mapper by a
+        batch of results it also asks the place database (the same matches, which the
+        mapper otherwise asks for itself): the work goes to whichever process waits."""
         estimate, seconds = self._odometry_step(scan)
         keyframe = self.keyframes.push(scan, estimate)
         if keyframe is None:
@@ -263,7 +264,7 @@ class Mapper:
                                                 session=session)
         self.detector.add_keyframe(key, keyframe.stamp, keyframe.scan, session=session,
                                    place=place)
-        matches = self.detector.appearance_matches(key)
+        matches = self.detector.appearance_matches(key) if ahead >= BATCH else None
         return estimate, seconds, place, matches, time.perf_counter() - start
 
     def _after_odometry(

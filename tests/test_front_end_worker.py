@@ -14,7 +14,8 @@ from slam.pipeline import Mapper
 pytestmark = pytest.mark.skipif(not worker_available(), reason="no fork on this platform")
 
 
-def _square(x: int) -> int:
+def _square(x: int, ahead: int) -> int:
+    assert ahead >= 0
     return x * x
 
 
@@ -28,7 +29,7 @@ def test_an_empty_input_yields_nothing() -> None:
 
 
 def test_an_exception_in_the_worker_is_raised_here_after_the_earlier_results() -> None:
-    def step(x: int) -> int:
+    def step(x: int, ahead: int) -> int:
         if x == BATCH + 3:
             raise ValueError("bad scan 19")
         return x
@@ -65,3 +66,14 @@ def test_no_worker_from_a_thread_other_than_the_main_one() -> None:
     thread.start()
     thread.join()
     assert seen == [False]
+
+
+def test_ahead_counts_the_results_sent_and_not_yet_taken() -> None:
+    import time
+
+    gen = map_in_worker(lambda x, ahead: ahead, iter(range(6 * BATCH)))
+    first = [next(gen) for _ in range(BATCH)]
+    time.sleep(1.0)  # the worker runs on while this side holds back
+    rest = list(gen)
+    assert [a for _, a in first[:BATCH]] == [0] * BATCH  # nothing sent yet
+    assert max(a for _, a in rest) >= BATCH  # later batches saw unread results
