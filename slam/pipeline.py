@@ -14,6 +14,13 @@
                      -> optionally every scan registered onto the optimised
                         keyframes around it (`refine_scans`)
 
+Two processes (`Mapper.run`, `PipelineConfig.front_end_worker`): the first column
+(odometry, keyframe choice, describing the place, and the place database's query
+while the worker is ahead) needs only the scans and the odometry, so a forked worker
+runs it a batch of scans ahead (`slam.front_end_worker`); this process does what
+needs the pose estimates.  `Mapper.process(scan)` does all of it here, one scan at a
+time.
+
 A new session of a saved map (``Mapper(saved=...)``) restores the saved keyframes
 first and joins the new log to them by place recognition (`slam.sessions`).
 
@@ -205,7 +212,8 @@ class Mapper:
     def run(
         self, scans: Iterable[Scan | PointCloud], progress: Progress | None = None
     ) -> MappingResult:
-        """Map every scan; Ctrl-C stops early and still returns what was mapped."""
+        """Map every scan (the front end in a worker process where it can: module
+        docstring); Ctrl-C stops early and still returns what was mapped."""
         interrupted = False
         if self._front_end_in_worker():
             steps = map_in_worker(self._worker_step, scans)
