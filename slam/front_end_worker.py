@@ -30,6 +30,8 @@ import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+from slam.memory import peak_rss_mb
+
 __all__ = ["BATCH", "map_in_worker", "worker_available"]
 
 BATCH = 16
@@ -63,7 +65,7 @@ def _work(step: Callable[[Any, int], Any], scans: Iterable[Any], conn: Any,
                 batch = []
         if batch:
             conn.send((_ITEMS, batch))
-        conn.send((_DONE, None))
+        conn.send((_DONE, peak_rss_mb()))
     except KeyboardInterrupt:  # Ctrl-C reaches the whole process group: the mapper
         pass  # stops the run itself
     except BaseException as exc:
@@ -77,13 +79,15 @@ def _work(step: Callable[[Any, int], Any], scans: Iterable[Any], conn: Any,
 
 
 def map_in_worker(
-    step: Callable[[Any, int], Any], scans: Iterable[Any]
+    step: Callable[[Any, int], Any], scans: Iterable[Any], stats: dict[str, float] | None = None
 ) -> Iterator[tuple[Any, Any]]:
     """``(scan, step(scan, ahead))`` of every scan, computed in a forked worker (module
     docstring).  ``ahead`` is how many results the worker has sent that the caller
     has not yet taken: at least `BATCH` when the caller is the slower of the two, so
     `step` may then take on work the caller would otherwise do.  Closing the
-    generator early (an interrupted run) stops the worker."""
+    generator early (an interrupted run) stops the worker.  At the end `stats` gets
+    ``peak_rss_mb``, the worker's peak resident memory [MB] (with the pages it shares
+    with this process since the fork)."""
     ctx = mp.get_context("fork")
     receive, send = ctx.Pipe(duplex=False)
     consumed = ctx.RawValue("q", 0)  # written here only, read by the worker
@@ -106,6 +110,8 @@ def map_in_worker(
             elif kind == _ERROR:
                 raise payload
             else:
+                if stats is not None:
+                    stats["peak_rss_mb"] = payload
                 return
     finally:
         receive.close()

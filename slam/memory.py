@@ -17,19 +17,12 @@ import functools
 import resource
 from collections.abc import Callable
 
-__all__ = ["peak_rss_mb", "peak_rss_mb_children", "release_free_memory"]
+__all__ = ["peak_rss_mb", "release_free_memory"]
 
 
 def peak_rss_mb() -> float:
     """Peak resident memory of this process [MB] (Linux: ru_maxrss is in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def peak_rss_mb_children() -> float:
-    """Peak resident memory of the largest finished child process [MB] (the front
-    end's worker; 0 without one).  Pages it shares with this process since the fork
-    count in both."""
-    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
 
 
 @functools.cache

@@ -107,6 +107,8 @@ class MappingResult:
         saved_map: the run as a saved map (``session.npz``; of an interrupted run too:
             what was mapped).
         loop_outliers: indices of the graph's loops the final optimisation rejected.
+        worker_peak_rss_mb: peak resident memory of the front end's worker process
+            [MB] (`slam.front_end_worker`; 0 without one).
     """
 
     scan_stamps: Array
@@ -122,6 +124,7 @@ class MappingResult:
     sessions: list[SessionInfo] = field(default_factory=list)
     saved_map: SavedMap | None = None
     loop_outliers: set[int] = field(default_factory=set)
+    worker_peak_rss_mb: float = 0.0
 
     @property
     def accepted_loops(self) -> list[LoopEvent]:
@@ -155,6 +158,7 @@ class Mapper:
         )
         self.loops: list[LoopEvent] = []
         self.odometry_poses: list[Array] = []
+        self._worker_stats: dict[str, float] = {}
         # With `refine_scans`: every scan's points (float32; `refine_scan_poses`
         # voxelises them) and the positions of the keyframes among them.
         self._scan_points: list[NDArray[np.float32]] = []
@@ -216,7 +220,7 @@ class Mapper:
         docstring); Ctrl-C stops early and still returns what was mapped."""
         interrupted = False
         if self._front_end_in_worker():
-            steps = map_in_worker(self._worker_step, scans)
+            steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
             steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
         try:
@@ -572,6 +576,7 @@ class Mapper:
             interrupted=interrupted,
             odometry_status=dict(self.status),
             loop_outliers=rejected,
+            worker_peak_rss_mb=self._worker_stats.get("peak_rss_mb", 0.0),
         )
         return complete_sessions(self, result, poses)
 

@@ -17,7 +17,7 @@ from data.types import Trajectory
 from slam.json_io import write_json
 from slam.map_io import render_png
 from slam.map_io import write_map as write_map_files
-from slam.memory import peak_rss_mb, peak_rss_mb_children, release_free_memory
+from slam.memory import peak_rss_mb, release_free_memory
 from slam.occupancy_map import MapConfig, build_occupancy_grid
 from slam.outputs import LoopRecord, output_stamps, write_loops_csv, write_trajectories
 from slam.pipeline import MappingResult
@@ -158,7 +158,7 @@ def write_results(
         },
         "wall_s": wall_s + timings["output"],
         "peak_rss_mb": peak_rss_mb(),
-        "peak_rss_mb_worker": peak_rss_mb_children(),
+        "peak_rss_mb_worker": result.worker_peak_rss_mb,
         "timings_s": timings,
         "odometry_status": result.odometry_status,
         "trajectory_stamps": stamp_rule,

@@ -21,7 +21,9 @@ def _square(x: int, ahead: int) -> int:
 
 def test_results_come_back_in_input_order_across_batches() -> None:
     items = range(3 * BATCH + 5)
-    assert list(map_in_worker(_square, iter(items))) == [(x, x * x) for x in items]
+    stats: dict[str, float] = {}
+    assert list(map_in_worker(_square, iter(items), stats)) == [(x, x * x) for x in items]
+    assert stats["peak_rss_mb"] > 10  # a Python process with numpy loaded
 
 
 def test_an_empty_input_yields_nothing() -> None:
@@ -56,6 +58,7 @@ def test_mapper_with_the_front_end_in_a_worker_maps_identically() -> None:
     np.testing.assert_array_equal(results[0].odometry_poses, results[1].odometry_poses)
     np.testing.assert_array_equal(results[0].scan_poses, results[1].scan_poses)
     assert len(results[0].accepted_loops) == len(results[1].accepted_loops) > 0
+    assert results[0].worker_peak_rss_mb == 0.0 < results[1].worker_peak_rss_mb
 
 
 def test_no_worker_from_a_thread_other_than_the_main_one() -> None:
