@@ -219,13 +219,14 @@ class Mapper:
         """Map every scan (the front end in a worker process where it can: module
         docstring); Ctrl-C stops early and still returns what was mapped."""
         interrupted = False
-        if self._front_end_in_worker():
+        worker = self._front_end_in_worker()
+        if worker:
             steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
             steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
         try:
             for n, (scan, step) in enumerate(steps, 1):
-                self._after_odometry(scan, *step)
+                self._after_odometry(scan, *step, from_worker=worker)
                 if progress is not None:
                     progress(n, len(self.keyframes.keyframes), self._accepted())
         except KeyboardInterrupt:
@@ -282,11 +283,11 @@ class Mapper:
     def _after_odometry(
         self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float,
         place: KeyframePlace | None = None, matches: list[PlaceMatch] | None = None,
-        place_seconds: float = 0.0,
+        place_seconds: float = 0.0, *, from_worker: bool = False,
     ) -> None:
         """Keyframing and (for keyframes) loop closure of a scan the front end placed;
         `place` and `matches` are the keyframe's place description and the place
-        database's matches of it when the worker made them."""
+        database's matches of it when the worker made them (`from_worker`)."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
@@ -298,7 +299,7 @@ class Mapper:
         self.timings["keyframes"] += time.perf_counter() - start
         if self.config.refine_scans:
             self._keep_points(scan, keyframe is not None)
-        if (keyframe is None) != (place is None) and self._front_end_in_worker():
+        if from_worker and (keyframe is None) != (place is None):
             raise RuntimeError("the front end worker's keyframes differ from the mapper's")
         if keyframe is not None:
             self._add_keyframe(keyframe, estimate, place, matches)

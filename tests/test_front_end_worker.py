@@ -80,3 +80,15 @@ def test_ahead_counts_the_results_sent_and_not_yet_taken() -> None:
     rest = list(gen)
     assert [a for _, a in first[:BATCH]] == [0] * BATCH  # nothing sent yet
     assert max(a for _, a in rest) >= BATCH  # later batches saw unread results
+
+
+def test_mapping_scan_by_scan_needs_no_worker() -> None:
+    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
+                       motion=MotionConfig(laps=0.3))
+    by_scan = Mapper(PipelineConfig(odometry="icp2d"))
+    for scan in run.scans:
+        by_scan.process(scan)
+    result = by_scan.finish()
+    whole = Mapper(PipelineConfig(odometry="icp2d")).run(run.scans)
+    np.testing.assert_array_equal(result.scan_poses, whole.scan_poses)
+    assert result.worker_peak_rss_mb == 0.0
