@@ -54,6 +54,7 @@ from data.types import PointCloud, Scan
 from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
 from loopclosure.registration import voxel_downsample
+from loopclosure.warm_up import warm_up
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.front_end_worker import BATCH, map_in_worker, worker_available
@@ -221,6 +222,7 @@ class Mapper:
         interrupted = False
         worker = self._front_end_in_worker()
         if worker:
+            warm_up()  # load the kernels once, here: the forked worker inherits them
             steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
             steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
