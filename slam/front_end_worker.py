@@ -1,13 +1,14 @@
-"""The odometry front end in a worker process, one step ahead of the mapper.
+"""The front of the mapper in a worker process, a batch of scans ahead of the rest.
 
 The front end needs nothing from the back end: scan ``i``'s odometry depends only
-on the scans before it.  So while the mapper describes places, checks loops and
-updates the graph for scan ``i``, a forked worker process can already register
-scans ``i + 1, i + 2, ...``.  On 2 cores this hides the front end's time (a fifth
-to a half of a run on a 2-D laser log) behind the rest.
+on the scans before it, and so do the choice of keyframes and the description of
+their places (`slam.pipeline`).  So while the mapper checks loops and updates the
+graph for scan ``i``, a forked worker process can already register scans ``i + 1,
+i + 2, ...`` and describe their places; on 2 cores that work leaves the mapper's
+critical path.
 
 `map_in_worker(step, scans)` yields ``(scan, step(scan, ahead))`` in input order,
-exactly what calling ``step`` (the mapper's odometry step) here would have returned.
+exactly what calling ``step`` (the mapper's `_worker_step`) here would have returned.
 ``ahead`` tells the step whether the worker is ahead of the mapper (results waiting
 unread) and so has time for work the mapper would otherwise do itself.  The
 worker is a ``fork`` of this process: it inherits the front end and the scan
