@@ -1,0 +1,314 @@
+"""A final re-check of a TLS solution's loop decisions under calibrated odometry.
+
+The time-ordered admission (`slam.consistency`) decides loops against the graph's
+*stated* covariances.  A false loop whose innovation against the rest of the graph is
+below the TLS threshold ``c`` under those covariances lowers the stated TLS objective,
+so every exact solver of that objective admits it; where the stated odometry is far
+looser than its residuals show (a short false loop between poses a few metres apart in
+the sequence, or any false loop on a graph whose odometry information is stated ten or
+a hundred times too small), such loops are common.  Judged against odometry whose
+information is what the data supports, most are many sigma off.
+
+The re-check: with the decided loops, estimate the odometry's variance factor ``s``
+(actual / stated variance), divide the odometry information by ``s`` and solve the
+accepted graph; ``s`` is refined by one variance-component step per round
+(`odometry_variance_step`, the estimate of `slam.variance_components` reached by re-
+weighting, capped at 1: odometry is never made looser than stated), and loops are
+decided once a step changes it by less than `FACTOR_TOLERANCE`. At that solution ``x*``
+(whitened Jacobian ``A``, information ``H = A^T A`` *including* every accepted loop),
+removing an accepted loop ``k`` (whitened residual ``b``, Jacobian ``B``, ``M = B H^-1
+B^T``) lowers the least-squares cost, to first order, by the leave-one-out innovation::
+
+    rho_k = 0.5 b^T (I - M)^-1 b          (gtsam error units)
+
+(the innovation of ``k`` against the graph without it, written with the quantities of
+the graph with it). Keeping ``k`` is worth it under TLS iff ``rho_k < c``; since all
+``n`` accepted loops are tested at once, a loop is removed only above the family-wise
+gate `removal_gate` (``c`` at the per-loop level ``p^(1/n)``, Sidak), so that a graph of
+true loops loses none with probability ``p``. Loops are removed greedily, largest
+``rho`` first while ``rho`` exceeds the gate; after each removal the others' ``b``,
+``M`` and ``H^-1 B^T`` are updated exactly for it by the rank-``dof`` Woodbury downdate
+``H'^-1 = H^-1 + Y (I - M)^-1 Y^T`` (``Y = H^-1 B^T``) and the Gauss-Newton step it
+causes, ``dx = -Y (I - M)^-1 b``, so a false loop that props up another is judged after
+it is gone. Then the loops rejected earlier (and not removed here) are offered back by
+the innovation test of `slam.consistency` (`greedy_admission` at ``c``), ``s`` is re-
+estimated with the new decisions, and the rounds repeat until no decision changes (at
+most `MAX_ROUNDS`). A loop removed by the re-check is never re-admitted by it, so the
+rounds end.
+
+Before the re-check, `calibrated_choice` picks among the candidate solutions of the
+time-ordered admission (`slam.consistency.incremental_tls`'s odometry ladder and
+gates) by their TLS cost under calibrated odometry instead of the stated one: each
+candidate's own variance factor (`own_factor`), the smallest of them for all (the
+odometry as precise as some candidate's loops show it to be; a candidate whose false
+loops bend the odometry shows a larger factor), each re-solved there.  A stated winner
+whose false loops fold a loosely stated stretch then loses to a rung that rejected them.
+
+The decisions returned are the re-checked ones; the caller solves the *stated* graph
+with them (without false loops, when the re-check changes nothing, that is the plain
+optimum).
+
+Limits: one factor for all the odometry.  A graph whose odometry is noisier in some
+stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
+the family-wise gate from removing a false loop whose leave-one-out innovation is no
+larger than its worst true loop's; and the factor is estimated from the decided loops,
+so when the stated decisions admitted many false loops that agree with one another it
+is inflated and the re-check removes fewer of them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from slam.consistency import InnovationTest, _Gains, greedy_admission, tls_threshold
+from slam.least_squares import StickySolver
+from slam.pose_graph import Constraint, PoseGraph, chi2_quantile, pose_dof
+from slam.variance_components import BOUNDS
+
+Array = NDArray[np.float64]
+MAX_ROUNDS = 20  # re-check rounds (each: a calibrated solve, a factor step, maybe decisions)
+FACTOR_TOLERANCE = 0.01  # decide once a round changes the odometry factor by less than this
+OWN_ROUNDS = 5  # calibrated solves of `own_factor`
+
+
+def removal_costs(gains: _Gains) -> Array:
+    """``rho_q = 0.5 b^T (I - M)^-1 b`` of every accepted loop (gtsam error units), with
+    `gains` linearised at the solution of the graph that includes them."""
+    s = np.eye(gains.b.shape[1]) - gains.M
+    return 0.5 * np.einsum("ma,ma->m", gains.b, np.linalg.solve(s, gains.b[..., None])[..., 0])
+
+
+def greedy_removal(gains: _Gains, gate: float) -> tuple[list[int], Array]:
+    """Remove accepted loops largest ``rho`` first while ``rho > gate`` (module docstring).
+
+    Returns the removed indices in order and the final ``rho`` of every loop (of the
+    removed ones meaningless).  `gains` is consumed."""
+    m = len(gains.b)
+    open_ = np.ones(m, dtype=bool)
+    removed: list[int] = []
+    eye = np.eye(gains.b.shape[1])
+    while open_.any():
+        rho = removal_costs(gains)
+        rho[~open_] = -np.inf
+        k = int(np.argmax(rho))
+        if not rho[k] > gate:
+            break
+        removed.append(k)
+        open_[k] = False
+        gain = np.linalg.inv(eye - gains.M[k])
+        c = gains.cross(gains.Y[k])  # B_q H^-1 B_k^T
+        gains.b = gains.b + np.einsum("mab,bc,c->ma", c, gain, gains.b[k])
+        gains.M = gains.M + np.einsum("mab,bc,mdc->mad", c, gain, c)
+        gains.Y = gains.Y + np.einsum("nb,bc,mdc->mnd", gains.Y[k], gain, c)
+        # The removed loop's own rows are meaningless from here on; keep M_k off I.
+        gains.M[k] = 0.0
+    return removed, removal_costs(gains)
+
+
+def odometry_variance_step(
+    odometry_error: float, rows: int, unknowns: int, loop_traces: Array, dof: int
+) -> float:
+    """Variance factor of the odometry at a least-squares solution: ``2 E_o / r_o``.
+
+    ``E_o``: the odometry's gtsam error (``0.5 r^T I r``); the odometry's redundancy is
+    the total redundancy less the loops', ``r_o = (rows - unknowns) - sum_k (dof -
+    tr M_k)``, with ``M_k = B_k H^-1 B_k^T`` of every accepted loop (`_Gains.M`) and
+    `rows` counting every factor row (anchor priors too: their redundancy is 0).
+    Multiplying the odometry's stated variance by this step and re-solving converges
+    to the variance-component estimate (`slam.variance_components`).
+    """
+    r_loops = dof * len(loop_traces) - float(np.sum(loop_traces))
+    return 2.0 * odometry_error / max(rows - unknowns - r_loops, 1e-12)
+
+
+def removal_gate(n: int, dof: int, probability: float = 0.99) -> float:
+    """Error level above which one of `n` accepted loops is removed: ``0.5 chi2_dof^-1(p^(1/n))``.
+
+    The re-check tests all `n` accepted loops at once against "every one is an inlier";
+    at this per-loop level (Sidak) the chance of removing any true loop of a Gaussian
+    graph is ``1 - p``, as for one loop at the TLS threshold ``c`` (``n = 1``).
+    """
+    return 0.5 * chi2_quantile(probability ** (1.0 / max(n, 1)), dof)
+
+
+def _calibrated_fixed(
+    graph: PoseGraph, s: float, priors: Sequence[gtsam.NonlinearFactor]
+) -> tuple[gtsam.NonlinearFactorGraph, list[gtsam.NonlinearFactor]]:
+    """Anchors and odometry with the odometry information divided by `s`; and the
+    odometry factors alone."""
+    odometry = [graph.between_factor(Constraint(o.i, o.j, o.measurement, o.information / s))
+                for o in graph.odometry]
+    fixed = gtsam.NonlinearFactorGraph()
+    for f in [*priors, *odometry]:
+        fixed.add(f)
+    return fixed, odometry
+
+
+def own_factor(
+    graph: PoseGraph, values: gtsam.Values, weights: Array, *,
+    unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, max_rounds: int = OWN_ROUNDS,
+) -> tuple[float, gtsam.Values]:
+    """The odometry variance factor the loops of weight 1 support and the calibrated
+    solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant steps on
+    ``log step`` against ``log s`` (as `slam.variance_components`; a plain re-weighting
+    step first and where the secant is flat), capped at 1, at most `max_rounds` solves."""
+    d, keys = pose_dof(graph.dim), graph.keys
+    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
+    w = np.asarray(weights) > 0.5
+    s, current, last = 1.0, values, None
+    for _ in range(max_rounds):
+        fixed, odometry = _calibrated_fixed(graph, s, priors)
+        accepted = _accepted(fixed, unit, w.astype(float))
+        current = solver(accepted, current)
+        if not w.any():
+            break
+        kept = [unit[k] for k in np.flatnonzero(w)]
+        gains = InnovationTest(accepted, current, keys, d).gains(kept)
+        step = odometry_variance_step(
+            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
+            np.trace(gains.M, axis1=1, axis2=2), d)
+        if (step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE:
+            s = float(np.clip(s * step, BOUNDS[0], 1.0))
+            break
+        x, y = np.log(s), np.log(step)
+        slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
+        last = (x, y)
+        if not -20.0 < slope < -0.05:
+            slope = -1.0
+        s = float(np.clip(np.exp(x - y / slope), BOUNDS[0], 1.0))
+    return s, current
+
+
+def calibrated_choice(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array]], *,
+    probability: float = 0.99, solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+) -> int:
+    """Index of the candidate TLS solution (values, loop weights) with the lowest TLS cost
+    under calibrated odometry: each candidate's own factor (`own_factor`), the smallest of
+    them for all, each candidate re-solved there with its loops, then the odometry's
+    calibrated error plus ``min(e_k, c)`` over every loop.  Ties (and candidates with the
+    same loops) keep the first; -1 when a calibrated solve fails (gtsam finds the system
+    indeterminate: odometry far stiffer than stated on a nearly noise-free graph)."""
+    solve = solver or StickySolver()
+    if unit is None:
+        unit = [graph.between_factor(lp) for lp in graph.loops]
+    c = tls_threshold(graph.dim, probability)
+    distinct: dict[bytes, int] = {}
+    for n, (_, w) in enumerate(candidates):
+        distinct.setdefault((np.asarray(w) > 0.5).tobytes(), n)
+    if len(distinct) == 1:
+        return 0
+    try:
+        return _cheapest(graph, candidates, list(distinct.values()), c, solve, unit)
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return -1
+
+
+def _cheapest(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array]], which: list[int],
+    c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
+) -> int:
+    """`calibrated_choice` among the candidates `which`."""
+    own = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit, solver=solve)
+           for n in which}
+    s = min(f for f, _ in own.values())
+    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
+    fixed, _ = _calibrated_fixed(graph, s, priors)
+    best, best_cost = 0, np.inf
+    for n, (_, start) in own.items():
+        w = np.asarray(candidates[n][1], dtype=float)
+        x = solve(_accepted(fixed, unit, w), start)
+        cost = fixed.error(x) + float(np.minimum([f.error(x) for f in unit], c).sum())
+        if cost < best_cost * (1.0 - 1e-9):
+            best, best_cost = n, cost
+    return best
+
+
+def _accepted(
+    fixed: gtsam.NonlinearFactorGraph, unit: Sequence[gtsam.NonlinearFactor], w: Array
+) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph(fixed)
+    for k in np.flatnonzero(w > 0.5):
+        graph.add(unit[k])
+    return graph
+
+
+def recheck_loops(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    weights: Array,
+    *,
+    probability: float = 0.99,
+    solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+    max_rounds: int = MAX_ROUNDS,
+) -> tuple[Array, float]:
+    """Re-checked loop weights of a TLS solution (`values`, `weights`) and the last
+    odometry variance factor used (module docstring); `weights` unchanged (factor 1) when
+    a calibrated solve fails (as in `calibrated_choice`).
+
+    `unit`: the loops' Gaussian factors (computed when None); `solver`: the least-squares
+    solver for the calibrated solves.
+    """
+    try:
+        return _recheck(graph, values, weights, probability, solver or StickySolver(),
+                        unit, max_rounds)
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return (np.asarray(weights) > 0.5).astype(float), 1.0
+
+
+def _recheck(
+    graph: PoseGraph, values: gtsam.Values, weights: Array, probability: float,
+    solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor] | None, max_rounds: int,
+) -> tuple[Array, float]:
+    """`recheck_loops`' rounds."""
+    if unit is None:
+        unit = [graph.between_factor(lp) for lp in graph.loops]
+    c = tls_threshold(graph.dim, probability)
+    d = pose_dof(graph.dim)
+    keys = graph.keys
+    w = (np.asarray(weights) > 0.5).astype(float)
+    removed = np.zeros(len(w), dtype=bool)
+    current, s = values, 1.0
+    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
+    for _ in range(max_rounds):
+        kept = np.flatnonzero(w > 0.5)
+        if len(kept) == 0:
+            break
+        odometry = [graph.between_factor(Constraint(o.i, o.j, o.measurement, o.information / s))
+                    for o in graph.odometry]
+        fixed = gtsam.NonlinearFactorGraph()
+        for f in [*priors, *odometry]:
+            fixed.add(f)
+        accepted = _accepted(fixed, unit, w)
+        current = solve(accepted, current)
+        test = InnovationTest(accepted, current, keys, d)
+        gains = test.gains([unit[k] for k in kept])
+        step = odometry_variance_step(
+            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
+            np.trace(gains.M, axis1=1, axis2=2), d)
+        settled = (s * step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
+        s = float(np.clip(s * step, BOUNDS[0], 1.0))
+        if not settled:
+            continue
+        drop, _ = greedy_removal(gains, removal_gate(len(kept), d, probability))
+        changed = bool(drop)
+        if drop:
+            w[kept[drop]] = 0.0
+            removed[kept[drop]] = True
+            current = solve(_accepted(fixed, unit, w), current)
+            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
+        offer = np.flatnonzero((w < 0.5) & ~removed)
+        if len(offer):
+            admitted, _ = greedy_admission(test.gains([unit[k] for k in offer]), c)
+            if admitted:
+                w[offer[admitted]] = 1.0
+                changed = True
+        if not changed:
+            break
+    return w, s
