@@ -837,8 +837,8 @@ def incremental_tls(
     which repeats the winning run's graph and gate.
 
     `choose`: picks the winner among the refined runs instead of the lowest stated cost,
-    called as ``choose(graph, [(values, weights), ...], probability=..., solver=...,
-    unit=...)`` and returning an index, or -1 to keep the lowest stated cost
+    called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
+    solver=..., unit=...)`` and returning an index, or -1 to keep the lowest stated cost
     (`slam.recheck.calibrated_choice`).
     """
     if not ladder:
@@ -880,7 +880,7 @@ def incremental_tls(
             decided = decide
     assert best is not None and decided is not None
     if choose is not None and len(finished) > 1:
-        pick = choose(graph, [(a.values, a.weights) for a, _ in finished],
+        pick = choose(graph, [(a.values, a.weights, a.tls_cost) for a, _ in finished],
                       probability=probability, solver=solver, unit=unit)
         if pick >= 0:
             best, decided = finished[pick]

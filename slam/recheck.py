@@ -11,10 +11,9 @@ information is what the data supports, most are many sigma off.
 
 The re-check: with the decided loops, estimate the odometry's variance factor ``s``
 (actual / stated variance), divide the odometry information by ``s`` and solve the
-accepted graph; ``s`` is refined by one variance-component step per round
-(`odometry_variance_step`, the estimate of `slam.variance_components` reached by re-
-weighting, capped at 1: odometry is never made looser than stated), and loops are
-decided once a step changes it by less than `FACTOR_TOLERANCE`. At that solution ``x*``
+accepted graph; ``s`` is the fixed point of `odometry_variance_step` (`own_factor`: the
+estimate of `slam.variance_components`, capped at 1: odometry is never made looser than
+stated), re-estimated every round from the last. At that solution ``x*``
 (whitened Jacobian ``A``, information ``H = A^T A`` *including* every accepted loop),
 removing an accepted loop ``k`` (whitened residual ``b``, Jacobian ``B``, ``M = B H^-1
 B^T``) lowers the least-squares cost, to first order, by the leave-one-out innovation::
@@ -38,11 +37,11 @@ rounds end.
 
 Before the re-check, `calibrated_choice` picks among the candidate solutions of the
 time-ordered admission (`slam.consistency.incremental_tls`'s odometry ladder and
-gates) by their TLS cost under calibrated odometry instead of the stated one: each
-candidate's own variance factor (`own_factor`), the smallest of them for all (the
-odometry as precise as some candidate's loops show it to be; a candidate whose false
-loops bend the odometry shows a larger factor), each re-solved there.  A stated winner
-whose false loops fold a loosely stated stretch then loses to a rung that rejected them.
+gates) by their TLS cost under calibrated odometry instead of the stated one: at the
+variance factor the winner's own loops support, found by starting from the stated winner
+and moving to whichever candidate is cheapest there until the winner stays.  A stated
+winner whose false loops fold a loosely stated stretch then loses to a rung that
+rejected them.
 
 The decisions returned are the re-checked ones; the caller solves the *stated* graph
 with them (without false loops, when the re-check changes nothing, that is the plain
@@ -59,6 +58,7 @@ is inflated and the re-check removes fewer of them.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -148,85 +148,124 @@ def _calibrated_fixed(
     return fixed, odometry
 
 
+@dataclass(slots=True)
+class Calibrated:
+    """The accepted graph solved under calibrated odometry (`own_factor`).
+
+    Attributes:
+        s: the odometry variance factor of the solve (actual / stated variance).
+        values: the solution.
+        fixed: anchors and odometry with the information divided by `s`.
+        gains: the accepted loops linearised at `values` (`InnovationTest.gains`), in
+            the order of `kept`; None without accepted loops.
+        kept: indices of the accepted loops.
+    """
+
+    s: float
+    values: gtsam.Values
+    fixed: gtsam.NonlinearFactorGraph
+    gains: _Gains | None
+    kept: NDArray[np.int64]
+
+
 def own_factor(
     graph: PoseGraph, values: gtsam.Values, weights: Array, *,
-    unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, max_rounds: int = OWN_ROUNDS,
-) -> tuple[float, gtsam.Values]:
-    """The odometry variance factor the loops of weight 1 support and the calibrated
-    solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant steps on
-    ``log step`` against ``log s`` (as `slam.variance_components`; a plain re-weighting
-    step first and where the secant is flat), capped at 1, at most `max_rounds` solves."""
+    unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, start: float = 1.0,
+    max_rounds: int = OWN_ROUNDS,
+) -> Calibrated:
+    """The odometry variance factor the loops of weight 1 support, from `start`, and the
+    calibrated solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant
+    steps on ``log step`` against ``log s`` (as `slam.variance_components`; a plain
+    re-weighting step first and where the secant is flat), capped at 1, at most
+    `max_rounds` solves (the last one's factor is returned)."""
     d, keys = pose_dof(graph.dim), graph.keys
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
     w = np.asarray(weights) > 0.5
-    s, current, last = 1.0, values, None
-    for _ in range(max_rounds):
+    kept = np.flatnonzero(w)
+    s, current, last = start, values, None
+    for n in range(max_rounds):
         fixed, odometry = _calibrated_fixed(graph, s, priors)
         accepted = _accepted(fixed, unit, w.astype(float))
         current = solver(accepted, current)
         if not w.any():
-            break
-        kept = [unit[k] for k in np.flatnonzero(w)]
-        gains = InnovationTest(accepted, current, keys, d).gains(kept)
+            return Calibrated(s, current, fixed, None, kept)
+        gains = InnovationTest(accepted, current, keys, d).gains([unit[k] for k in kept])
         step = odometry_variance_step(
             sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
             np.trace(gains.M, axis1=1, axis2=2), d)
-        if (step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE:
-            s = float(np.clip(s * step, BOUNDS[0], 1.0))
-            break
-        x, y = np.log(s), np.log(step)
+        if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
+                or n == max_rounds - 1):
+            return Calibrated(s, current, fixed, gains, kept)
+        x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
         slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
         last = (x, y)
         if not -20.0 < slope < -0.05:
             slope = -1.0
         s = float(np.clip(np.exp(x - y / slope), BOUNDS[0], 1.0))
-    return s, current
+    raise AssertionError("unreachable")
 
 
 def calibrated_choice(
-    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array]], *,
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]], *,
     probability: float = 0.99, solver: StickySolver | None = None,
     unit: Sequence[gtsam.NonlinearFactor] | None = None,
 ) -> int:
-    """Index of the candidate TLS solution (values, loop weights) with the lowest TLS cost
-    under calibrated odometry: each candidate's own factor (`own_factor`), the smallest of
-    them for all, each candidate re-solved there with its loops, then the odometry's
-    calibrated error plus ``min(e_k, c)`` over every loop.  Ties (and candidates with the
-    same loops) keep the first; -1 when a calibrated solve fails (gtsam finds the system
-    indeterminate: odometry far stiffer than stated on a nearly noise-free graph)."""
+    """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
+    the cheapest under the odometry calibrated by its own loops.
+
+    Start from the candidate of lowest stated cost; with the odometry information divided
+    by its own variance factor ``s`` (`own_factor`), re-solve every candidate with its
+    loops and take the cheapest by the calibrated odometry's error plus ``min(e_k, c)``
+    over every loop; repeat with the winner's own factor until the winner is the
+    candidate whose factor it was judged at (or a winner recurs).  A candidate whose
+    false loops bend the odometry shows a larger ``s`` than the outlier-free one, and loses
+    to it at the stiffer ``s`` that one supports; a candidate that rejected many true loops
+    supports a small ``s`` from little redundancy, which is why the factor is never the
+    smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
+    the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
+    odometry far stiffer than stated on a nearly noise-free graph).
+    """
     solve = solver or StickySolver()
     if unit is None:
         unit = [graph.between_factor(lp) for lp in graph.loops]
     c = tls_threshold(graph.dim, probability)
     distinct: dict[bytes, int] = {}
-    for n, (_, w) in enumerate(candidates):
+    for n, (_, w, _) in enumerate(candidates):
         distinct.setdefault((np.asarray(w) > 0.5).tobytes(), n)
     if len(distinct) == 1:
         return 0
     try:
-        return _cheapest(graph, candidates, list(distinct.values()), c, solve, unit)
+        return _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return -1
 
 
-def _cheapest(
-    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array]], which: list[int],
-    c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
+def _self_consistent(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
+    which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
 ) -> int:
     """`calibrated_choice` among the candidates `which`."""
-    own = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit, solver=solve)
-           for n in which}
-    s = min(f for f, _ in own.values())
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
-    fixed, _ = _calibrated_fixed(graph, s, priors)
-    best, best_cost = 0, np.inf
-    for n, (_, start) in own.items():
-        w = np.asarray(candidates[n][1], dtype=float)
-        x = solve(_accepted(fixed, unit, w), start)
-        cost = fixed.error(x) + float(np.minimum([f.error(x) for f in unit], c).sum())
-        if cost < best_cost * (1.0 - 1e-9):
-            best, best_cost = n, cost
-    return best
+    chosen = min(which, key=lambda n: candidates[n][2])
+    judged: set[int] = set()
+    start = 1.0
+    while chosen not in judged:
+        judged.add(chosen)
+        own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
+                         solver=solve, start=start)
+        start = own.s
+        fixed, _ = _calibrated_fixed(graph, own.s, priors)
+        best, best_cost = chosen, np.inf
+        for n in which:
+            w = np.asarray(candidates[n][1], dtype=float)
+            x = own.values if n == chosen else solve(_accepted(fixed, unit, w), candidates[n][0])
+            cost = fixed.error(x) + float(np.minimum([f.error(x) for f in unit], c).sum())
+            if cost < best_cost * (1.0 - 1e-9):
+                best, best_cost = n, cost
+        if best == chosen:
+            break
+        chosen = best
+    return chosen
 
 
 def _accepted(
@@ -275,36 +314,21 @@ def _recheck(
     w = (np.asarray(weights) > 0.5).astype(float)
     removed = np.zeros(len(w), dtype=bool)
     current, s = values, 1.0
-    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
     for _ in range(max_rounds):
-        kept = np.flatnonzero(w > 0.5)
-        if len(kept) == 0:
+        if not (w > 0.5).any():
             break
-        odometry = [graph.between_factor(Constraint(o.i, o.j, o.measurement, o.information / s))
-                    for o in graph.odometry]
-        fixed = gtsam.NonlinearFactorGraph()
-        for f in [*priors, *odometry]:
-            fixed.add(f)
-        accepted = _accepted(fixed, unit, w)
-        current = solve(accepted, current)
-        test = InnovationTest(accepted, current, keys, d)
-        gains = test.gains([unit[k] for k in kept])
-        step = odometry_variance_step(
-            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
-            np.trace(gains.M, axis1=1, axis2=2), d)
-        settled = (s * step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
-        s = float(np.clip(s * step, BOUNDS[0], 1.0))
-        if not settled:
-            continue
-        drop, _ = greedy_removal(gains, removal_gate(len(kept), d, probability))
+        cal = own_factor(graph, current, w, unit=unit, solver=solve, start=s)
+        s, current, fixed, kept = cal.s, cal.values, cal.fixed, cal.kept
+        assert cal.gains is not None
+        drop, _ = greedy_removal(cal.gains, removal_gate(len(kept), d, probability))
         changed = bool(drop)
         if drop:
             w[kept[drop]] = 0.0
             removed[kept[drop]] = True
             current = solve(_accepted(fixed, unit, w), current)
-            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
         offer = np.flatnonzero((w < 0.5) & ~removed)
         if len(offer):
+            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
             admitted, _ = greedy_admission(test.gains([unit[k] for k in offer]), c)
             if admitted:
                 w[offer[admitted]] = 1.0
