@@ -24,6 +24,7 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from functools import partial
 
 import gtsam
 import numpy as np
@@ -169,15 +170,17 @@ def optimize(
     if method == "gnc":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
         if gnc_start == "incremental":
+            factor: list[float] = []  # the chosen candidate's odometry factor, if any
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
-                choose=calibrated_choice if recheck else None,
+                choose=partial(calibrated_choice, factor=factor) if recheck else None,
             )
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"
             if recheck and len(graph.loops):
                 result, weights, solver = _rechecked(graph, factors, loop_index, result,
-                                                     weights, gnc_probability, solver)
+                                                     weights, gnc_probability, solver,
+                                                     factor[-1] if factor else 1.0)
         else:
             result, weights, iterations = gnc_warm(
                 graph, values, probability=gnc_probability, start=gnc_start
@@ -224,12 +227,13 @@ def optimize(
 
 def _rechecked(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
-    values: gtsam.Values, weights: Array, probability: float, solver: str,
+    values: gtsam.Values, weights: Array, probability: float, solver: str, start: float,
 ) -> tuple[gtsam.Values, Array, str]:
     """`slam.recheck.recheck_loops` on an admission; the stated graph re-solved with the
     re-checked loops when they differ (dogleg-QR, as `incremental_tls` polishes)."""
     unit = [factors.at(k) for k in loop_index]
-    new, _ = recheck_loops(graph, values, weights, probability=probability, unit=unit)
+    new, _ = recheck_loops(graph, values, weights, probability=probability, unit=unit,
+                           start=start)
     if np.array_equal(new > 0.5, np.asarray(weights) > 0.5):
         return values, weights, solver
     kept = gtsam.NonlinearFactorGraph()

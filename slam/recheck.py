@@ -208,7 +208,7 @@ def own_factor(
 def calibrated_choice(
     graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]], *,
     probability: float = 0.99, solver: StickySolver | None = None,
-    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None, factor: list[float] | None = None,
 ) -> int:
     """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
     the cheapest under the odometry calibrated by its own loops.
@@ -223,7 +223,8 @@ def calibrated_choice(
     supports a small ``s`` from little redundancy, which is why the factor is never the
     smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
     the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
-    odometry far stiffer than stated on a nearly noise-free graph).
+    odometry far stiffer than stated on a nearly noise-free graph).  `factor`, when given,
+    receives the winner's own variance factor (a start for `recheck_loops`).
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -235,16 +236,19 @@ def calibrated_choice(
     if len(distinct) == 1:
         return 0
     try:
-        return _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
+        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return -1
+    if factor is not None:
+        factor.append(s)
+    return chosen
 
 
 def _self_consistent(
     graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
     which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
-) -> int:
-    """`calibrated_choice` among the candidates `which`."""
+) -> tuple[int, float]:
+    """`calibrated_choice` among the candidates `which`, and the winner's own factor."""
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
     chosen = min(which, key=lambda n: candidates[n][2])
     judged: set[int] = set()
@@ -265,7 +269,7 @@ def _self_consistent(
         if best == chosen:
             break
         chosen = best
-    return chosen
+    return chosen, start
 
 
 def _accepted(
@@ -286,17 +290,18 @@ def recheck_loops(
     solver: StickySolver | None = None,
     unit: Sequence[gtsam.NonlinearFactor] | None = None,
     max_rounds: int = MAX_ROUNDS,
+    start: float = 1.0,
 ) -> tuple[Array, float]:
     """Re-checked loop weights of a TLS solution (`values`, `weights`) and the last
     odometry variance factor used (module docstring); `weights` unchanged (factor 1) when
     a calibrated solve fails (as in `calibrated_choice`).
 
     `unit`: the loops' Gaussian factors (computed when None); `solver`: the least-squares
-    solver for the calibrated solves.
+    solver for the calibrated solves; `start`: a first guess of the odometry factor.
     """
     try:
         return _recheck(graph, values, weights, probability, solver or StickySolver(),
-                        unit, max_rounds)
+                        unit, max_rounds, start)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return (np.asarray(weights) > 0.5).astype(float), 1.0
 
@@ -304,6 +309,7 @@ def recheck_loops(
 def _recheck(
     graph: PoseGraph, values: gtsam.Values, weights: Array, probability: float,
     solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor] | None, max_rounds: int,
+    start: float,
 ) -> tuple[Array, float]:
     """`recheck_loops`' rounds."""
     if unit is None:
@@ -313,7 +319,7 @@ def _recheck(
     keys = graph.keys
     w = (np.asarray(weights) > 0.5).astype(float)
     removed = np.zeros(len(w), dtype=bool)
-    current, s = values, 1.0
+    current, s = values, start
     for _ in range(max_rounds):
         if not (w > 0.5).any():
             break
