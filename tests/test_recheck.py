@@ -10,6 +10,7 @@ from evaluation.robustness import aligned_position_error
 from slam.consistency import InnovationTest, tls_threshold
 from slam.optimize import optimize
 from slam.recheck import (
+    calibrated_choice,
     greedy_removal,
     odometry_variance_step,
     recheck_loops,
@@ -114,3 +115,21 @@ def test_recheck_removes_a_false_loop_the_loose_odometry_absorbs() -> None:
     assert rechecked.loop_weights[:-1].all()
     plain = optimize(clean, "none", init="odometry").poses
     assert aligned_position_error(rechecked.poses, plain, 2) < 1e-6
+
+
+def test_calibrated_choice_prefers_the_candidate_without_the_absorbed_false_loop() -> None:
+    from slam.consistency import refine_tls, tls_cost
+
+    _, loose = _loose_square_with_false_loop()
+    start = loose.gtsam_values(optimize(loose, "none", init="odometry").poses)
+    candidates = []
+    for w in (np.ones(len(loose.loops)), np.r_[np.ones(len(loose.loops) - 1), 0.0]):
+        values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else [len(w) - 1])
+        candidates.append((values, weights, tls_cost(loose, values)))
+    assert candidates[0][1][-1] == 1.0 and candidates[1][1][-1] == 0.0
+    assert candidates[0][2] < candidates[1][2]  # the stated objective prefers the false loop
+    factor: list[float] = []
+    assert calibrated_choice(loose, candidates, factor=factor) == 1
+    assert factor[0] < 0.1
+    # The same loops twice: nothing to choose.
+    assert calibrated_choice(loose, [candidates[1], candidates[1]]) == 0
