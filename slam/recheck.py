@@ -157,7 +157,7 @@ class Calibrated:
         values: the solution.
         fixed: anchors and odometry with the information divided by `s`.
         gains: the accepted loops linearised at `values` (`InnovationTest.gains`), in
-            the order of `kept`; None without accepted loops.
+            the order of `kept`; None without accepted loops or when not asked for.
         kept: indices of the accepted loops.
     """
 
@@ -171,13 +171,14 @@ class Calibrated:
 def own_factor(
     graph: PoseGraph, values: gtsam.Values, weights: Array, *,
     unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, start: float = 1.0,
-    max_rounds: int = OWN_ROUNDS,
+    max_rounds: int = OWN_ROUNDS, with_gains: bool = True,
 ) -> Calibrated:
     """The odometry variance factor the loops of weight 1 support, from `start`, and the
     calibrated solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant
     steps on ``log step`` against ``log s`` (as `slam.variance_components`; a plain
     re-weighting step first and where the secant is flat), capped at 1, at most
-    `max_rounds` solves (the last one's factor is returned)."""
+    `max_rounds` solves (the last one's factor is returned).  `with_gains`: linearise the
+    accepted loops at the solution (`Calibrated.gains`, else None)."""
     d, keys = pose_dof(graph.dim), graph.keys
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
     w = np.asarray(weights) > 0.5
@@ -189,12 +190,13 @@ def own_factor(
         current = solver(accepted, current)
         if not w.any():
             return Calibrated(s, current, fixed, None, kept)
-        gains = InnovationTest(accepted, current, keys, d).gains([unit[k] for k in kept])
+        test = InnovationTest(accepted, current, keys, d)
         step = odometry_variance_step(
             sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
-            np.trace(gains.M, axis1=1, axis2=2), d)
+            test.traces([unit[k] for k in kept]), d)
         if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
                 or n == max_rounds - 1):
+            gains = test.gains([unit[k] for k in kept]) if with_gains else None
             return Calibrated(s, current, fixed, gains, kept)
         x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
         slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
@@ -256,7 +258,7 @@ def _self_consistent(
     while chosen not in judged:
         judged.add(chosen)
         own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
-                         solver=solve, start=start)
+                         solver=solve, start=start, with_gains=False)
         start = own.s
         fixed, _ = _calibrated_fixed(graph, own.s, priors)
         best, best_cost = chosen, np.inf
