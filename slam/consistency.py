@@ -185,25 +185,26 @@ class InnovationTest:
         """``H^-1 rhs`` for ``rhs`` of shape (n, d)."""
         return self._lu.solve(rhs)
 
-    def traces(self, candidates: Sequence[gtsam.NonlinearFactor]) -> Array:
-        """``tr M_q = tr(B_q H^-1 B_q^T)`` of every candidate (binary factors on poses of
-        `keys`): `gains`' ``M`` traces without its ``H^-1 B^T`` rows (one solve each)."""
-        d = self.dof
-        out = np.empty(len(candidates))
+    def blocks(self, candidates: Sequence[gtsam.NonlinearFactor]) -> tuple[Array, Array]:
+        """Whitened residuals ``b`` (m, d) and ``M = B H^-1 B^T`` (m, d, d) of every candidate
+        (binary factors on poses of `keys`): `gains`' ``b`` and ``M`` without its
+        ``H^-1 B^T`` rows, which take (m, r, d) memory (one solve each)."""
+        d, m = self.dof, len(candidates)
+        b, gram = np.empty((m, d)), np.empty((m, d, d))
         rhs = np.zeros((self.n, d))
         for q, factor in enumerate(candidates):
             linear = factor.linearize(self._values)
-            a, _ = linear.jacobian()
+            a, b[q] = linear.jacobian()
             k1, k2 = list(linear.keys())
-            ri, rj = slice(self._column[k1], self._column[k1] + d), slice(
-                self._column[k2], self._column[k2] + d)
+            ri = slice(self._column[k1], self._column[k1] + d)
+            rj = slice(self._column[k2], self._column[k2] + d)
             rhs[ri] += a[:, :d].T
             rhs[rj] += a[:, d:].T
             y = self.covariance(rhs)
-            out[q] = np.einsum("ab,ba->", a[:, :d], y[ri]) + np.einsum("ab,ba->", a[:, d:], y[rj])
+            gram[q] = a[:, :d] @ y[ri] + a[:, d:] @ y[rj]
             rhs[ri] = 0.0
             rhs[rj] = 0.0
-        return out
+        return b, gram
 
     def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
         """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""

@@ -29,8 +29,9 @@ true loops loses none with probability ``p``. Loops are removed greedily, larges
 ``M`` and ``H^-1 B^T`` are updated exactly for it by the rank-``dof`` Woodbury downdate
 ``H'^-1 = H^-1 + Y (I - M)^-1 Y^T`` (``Y = H^-1 B^T``) and the Gauss-Newton step it
 causes, ``dx = -Y (I - M)^-1 b``, so a false loop that props up another is judged after
-it is gone. Then the loops rejected earlier (and not removed here) are offered back by
-the innovation test of `slam.consistency` (`greedy_admission` at ``c``), ``s`` is re-
+it is gone. Then the loops rejected earlier (and not removed here) whose innovation alone
+is below ``c`` are offered back by the innovation test of `slam.consistency`
+(`greedy_admission` at ``c``), ``s`` is re-
 estimated with the new decisions, and the rounds repeat until no decision changes (at
 most `MAX_ROUNDS`). A loop removed by the re-check is never re-admitted by it, so the
 rounds end.
@@ -42,6 +43,11 @@ variance factor the winner's own loops support, found by starting from the state
 and moving to whichever candidate is cheapest there until the winner stays.  A stated
 winner whose false loops fold a loosely stated stretch then loses to a rung that
 rejected them.
+
+Cost: per round a calibrated solve, one sparse LU and one solve per accepted loop for
+``b`` and ``M`` (`InnovationTest.blocks`); the Woodbury updates' ``H^-1 B^T`` rows
+(`InnovationTest.gains`, memory of loops x touched rows x dof) are built only when some
+``rho`` exceeds the gate, and for the rejected loops admissible alone.
 
 The decisions returned are the re-checked ones; the caller solves the *stated* graph
 with them (without false loops, when the re-check changes nothing, that is the plain
@@ -78,8 +84,14 @@ OWN_ROUNDS = 5  # calibrated solves of `own_factor`
 def removal_costs(gains: _Gains) -> Array:
     """``rho_q = 0.5 b^T (I - M)^-1 b`` of every accepted loop (gtsam error units), with
     `gains` linearised at the solution of the graph that includes them."""
-    s = np.eye(gains.b.shape[1]) - gains.M
-    return 0.5 * np.einsum("ma,ma->m", gains.b, np.linalg.solve(s, gains.b[..., None])[..., 0])
+    return _quadratic(gains.b, -gains.M)
+
+
+def _quadratic(b: Array, m: Array) -> Array:
+    """``0.5 b^T (I + m)^-1 b`` per row: the admission cost for ``m = M``, the removal cost
+    for ``m = -M``."""
+    s = np.eye(b.shape[1]) + m
+    return 0.5 * np.einsum("ma,ma->m", b, np.linalg.solve(s, b[..., None])[..., 0])
 
 
 def greedy_removal(gains: _Gains, gate: float) -> tuple[list[int], Array]:
@@ -159,6 +171,8 @@ class Calibrated:
         gains: the accepted loops linearised at `values` (`InnovationTest.gains`), in
             the order of `kept`; None without accepted loops or when not asked for.
         kept: indices of the accepted loops.
+        test: the `InnovationTest` of the accepted graph at `values` (None without
+            accepted loops).
     """
 
     s: float
@@ -166,6 +180,7 @@ class Calibrated:
     fixed: gtsam.NonlinearFactorGraph
     gains: _Gains | None
     kept: NDArray[np.int64]
+    test: InnovationTest | None
 
 
 def own_factor(
@@ -189,15 +204,15 @@ def own_factor(
         accepted = _accepted(fixed, unit, w.astype(float))
         current = solver(accepted, current)
         if not w.any():
-            return Calibrated(s, current, fixed, None, kept)
+            return Calibrated(s, current, fixed, None, kept, None)
         test = InnovationTest(accepted, current, keys, d)
         step = odometry_variance_step(
             sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
-            test.traces([unit[k] for k in kept]), d)
+            np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2), d)
         if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
                 or n == max_rounds - 1):
             gains = test.gains([unit[k] for k in kept]) if with_gains else None
-            return Calibrated(s, current, fixed, gains, kept)
+            return Calibrated(s, current, fixed, gains, kept, test)
         x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
         slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
         last = (x, y)
@@ -325,18 +340,27 @@ def _recheck(
     for _ in range(max_rounds):
         if not (w > 0.5).any():
             break
-        cal = own_factor(graph, current, w, unit=unit, solver=solve, start=s)
+        cal = own_factor(graph, current, w, unit=unit, solver=solve, start=s,
+                         with_gains=False)
         s, current, fixed, kept = cal.s, cal.values, cal.fixed, cal.kept
-        assert cal.gains is not None
-        drop, _ = greedy_removal(cal.gains, removal_gate(len(kept), d, probability))
+        assert cal.test is not None
+        gate = removal_gate(len(kept), d, probability)
+        b, gram = cal.test.blocks([unit[k] for k in kept])
+        drop: list[int] = []
+        if (_quadratic(b, -gram) > gate).any():  # only then the (m, r, d) gains
+            drop, _ = greedy_removal(cal.test.gains([unit[k] for k in kept]), gate)
         changed = bool(drop)
+        test = cal.test
         if drop:
             w[kept[drop]] = 0.0
             removed[kept[drop]] = True
             current = solve(_accepted(fixed, unit, w), current)
+            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
         offer = np.flatnonzero((w < 0.5) & ~removed)
         if len(offer):
-            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
+            b, gram = test.blocks([unit[k] for k in offer])
+            offer = offer[_quadratic(b, gram) < c]  # admissible alone, before any other
+        if len(offer):
             admitted, _ = greedy_admission(test.gains([unit[k] for k in offer]), c)
             if admitted:
                 w[offer[admitted]] = 1.0
