@@ -24,7 +24,7 @@ Protocol (one run per outlier ratio p and kernel):
    act on loop factors under Levenberg-Marquardt.  ``gnc`` is the truncated-least-
    squares loss of GNC (Yang et al. 2020) with odometry as known inliers, solved by
    time-ordered admission (`slam.consistency`, ``optimize(..., method="gnc",
-   gnc_start="incremental")``, then re-checked under calibrated odometry,
+   gnc_start="incremental")``, its candidates compared under calibrated odometry,
    `slam.recheck`): graduated non-convexity itself folds M3500 once half
    its loops are false, from any start.  ``gnc-stated`` is the same admission deciding
    at the stated odometry information only (no odometry ladder), for comparison.

@@ -98,7 +98,7 @@ def _loose_square_with_false_loop():
 def test_recheck_keeps_every_loop_of_a_clean_graph() -> None:
     clean, _ = _loose_square_with_false_loop()
     solution = optimize(clean, "none", "gnc", init="odometry", gnc_start="incremental",
-                        recheck=False)
+                        calibrated=False)
     weights, factor = recheck_loops(clean, clean.gtsam_values(solution.poses),
                                     solution.loop_weights)
     assert weights.all()
@@ -108,9 +108,10 @@ def test_recheck_keeps_every_loop_of_a_clean_graph() -> None:
 def test_recheck_removes_a_false_loop_the_loose_odometry_absorbs() -> None:
     clean, loose = _loose_square_with_false_loop()
     stated = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental",
-                      recheck=False)
+                      calibrated=False)
     assert stated.loop_weights[-1] == 1.0  # the stated model admits it
-    rechecked = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental")
+    rechecked = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental",
+                         calibrated=False, recheck=True)
     assert rechecked.loop_weights[-1] == 0.0
     assert rechecked.loop_weights[:-1].all()
     plain = optimize(clean, "none", init="odometry").poses
@@ -145,3 +146,12 @@ def test_blocks_are_the_gains_without_their_rows() -> None:
     gains = test.gains(loops)
     np.testing.assert_allclose(b, gains.b, rtol=1e-12)
     np.testing.assert_allclose(gram, gains.M, rtol=1e-10, atol=1e-14)
+
+
+def test_the_calibrated_choice_alone_rejects_the_absorbed_false_loop() -> None:
+    clean, loose = _loose_square_with_false_loop()
+    chosen = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental")
+    assert chosen.loop_weights[-1] == 0.0
+    assert chosen.loop_weights[:-1].all()
+    plain = optimize(clean, "none", init="odometry").poses
+    assert aligned_position_error(chosen.poses, plain, 2) < 1e-6
