@@ -1,4 +1,4 @@
-"""A final re-check of a TLS solution's loop decisions under calibrated odometry.
+"""Loop decisions of a TLS solution judged under calibrated odometry.
 
 The time-ordered admission (`slam.consistency`) decides loops against the graph's
 *stated* covariances.  A false loop whose innovation against the rest of the graph is
@@ -9,56 +9,57 @@ the sequence, or any false loop on a graph whose odometry information is stated 
 a hundred times too small), such loops are common.  Judged against odometry whose
 information is what the data supports, most are many sigma off.
 
-The re-check: with the decided loops, estimate the odometry's variance factor ``s``
-(actual / stated variance), divide the odometry information by ``s`` and solve the
-accepted graph; ``s`` is the fixed point of `odometry_variance_step` (`own_factor`: the
-estimate of `slam.variance_components`, capped at 1: odometry is never made looser than
-stated), re-estimated every round from the last. At that solution ``x*``
-(whitened Jacobian ``A``, information ``H = A^T A`` *including* every accepted loop),
-removing an accepted loop ``k`` (whitened residual ``b``, Jacobian ``B``, ``M = B H^-1
-B^T``) lowers the least-squares cost, to first order, by the leave-one-out innovation::
+Calibration: with a set of decided loops, the odometry's variance factor ``s`` (actual
+/ stated variance) is the fixed point of `odometry_variance_step` (`own_factor`: the
+estimate of `slam.variance_components`, capped at 1, so odometry is never made looser
+than stated); the odometry information is divided by ``s`` and the accepted graph
+solved.
+
+`calibrated_choice` (used by `slam.optimize` by default) picks among the candidate
+solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
+ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
+at the variance factor the winner's own loops support, found by starting from the
+stated winner and moving to whichever candidate is cheapest there until the winner
+stays.  A stated winner whose false loops fold a loosely stated stretch then loses to a
+rung that rejected them.
+
+`recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
+one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
+``H = A^T A`` *including* every accepted loop), removing an accepted loop ``k``
+(whitened residual ``b``, Jacobian ``B``, ``M = B H^-1 B^T``) lowers the least-squares
+cost, to first order, by the leave-one-out innovation::
 
     rho_k = 0.5 b^T (I - M)^-1 b          (gtsam error units)
 
 (the innovation of ``k`` against the graph without it, written with the quantities of
-the graph with it). Keeping ``k`` is worth it under TLS iff ``rho_k < c``; since all
+the graph with it).  Keeping ``k`` is worth it under TLS iff ``rho_k < c``; since all
 ``n`` accepted loops are tested at once, a loop is removed only above the family-wise
 gate `removal_gate` (``c`` at the per-loop level ``p^(1/n)``, Sidak), so that a graph of
-true loops loses none with probability ``p``. Loops are removed greedily, largest
+true loops loses none with probability ``p``.  Loops are removed greedily, largest
 ``rho`` first while ``rho`` exceeds the gate; after each removal the others' ``b``,
 ``M`` and ``H^-1 B^T`` are updated exactly for it by the rank-``dof`` Woodbury downdate
 ``H'^-1 = H^-1 + Y (I - M)^-1 Y^T`` (``Y = H^-1 B^T``) and the Gauss-Newton step it
 causes, ``dx = -Y (I - M)^-1 b``, so a false loop that props up another is judged after
-it is gone. Then the loops rejected earlier (and not removed here) whose innovation alone
-is below ``c`` are offered back by the innovation test of `slam.consistency`
-(`greedy_admission` at ``c``), ``s`` is re-
-estimated with the new decisions, and the rounds repeat until no decision changes (at
-most `MAX_ROUNDS`). A loop removed by the re-check is never re-admitted by it, so the
-rounds end.
+it is gone.  Then the loops rejected earlier (and not removed here) whose innovation
+alone is below ``c`` are offered back (`slam.consistency.greedy_admission` at ``c``),
+``s`` is re-estimated with the new decisions, and the rounds repeat until no decision
+changes (at most `MAX_ROUNDS`).  A loop removed by the re-check is never re-admitted by
+it, so the rounds end.  The caller solves the *stated* graph with the decisions.
 
-Before the re-check, `calibrated_choice` picks among the candidate solutions of the
-time-ordered admission (`slam.consistency.incremental_tls`'s odometry ladder and
-gates) by their TLS cost under calibrated odometry instead of the stated one: at the
-variance factor the winner's own loops support, found by starting from the stated winner
-and moving to whichever candidate is cheapest there until the winner stays.  A stated
-winner whose false loops fold a loosely stated stretch then loses to a rung that
-rejected them.
-
-Cost: per round a calibrated solve, one sparse LU and one solve per accepted loop for
-``b`` and ``M`` (`InnovationTest.blocks`); the Woodbury updates' ``H^-1 B^T`` rows
-(`InnovationTest.gains`, memory of loops x touched rows x dof) are built only when some
-``rho`` exceeds the gate, and for the rejected loops admissible alone.
-
-The decisions returned are the re-checked ones; the caller solves the *stated* graph
-with them (without false loops, when the re-check changes nothing, that is the plain
-optimum).
+Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and one solve per
+accepted loop (`InnovationTest.blocks`); the choice runs it for one or two candidates,
+only when the candidates' loops differ.  The re-check runs it every round, even when
+nothing changes, which on large graphs costs many times the admission (off by default
+for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains`,
+memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
+and for the rejected loops admissible alone.
 
 Limits: one factor for all the odometry.  A graph whose odometry is noisier in some
 stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
-the family-wise gate from removing a false loop whose leave-one-out innovation is no
-larger than its worst true loop's; and the factor is estimated from the decided loops,
-so when the stated decisions admitted many false loops that agree with one another it
-is inflated and the re-check removes fewer of them.
+both the choice and the family-wise gate from rejecting a false loop whose calibrated
+innovation is no larger than its worst true loop's; a group of false loops that agree
+with one another can bend a loose stretch so that its own factor still makes it the
+cheapest candidate.
 """
 
 from __future__ import annotations
