@@ -24,7 +24,8 @@ Protocol (one run per outlier ratio p and kernel):
    act on loop factors under Levenberg-Marquardt.  ``gnc`` is the truncated-least-
    squares loss of GNC (Yang et al. 2020) with odometry as known inliers, solved by
    time-ordered admission (`slam.consistency`, ``optimize(..., method="gnc",
-   gnc_start="incremental")``): graduated non-convexity itself folds M3500 once half
+   gnc_start="incremental")``, its candidates compared under calibrated odometry,
+   `slam.recheck`): graduated non-convexity itself folds M3500 once half
    its loops are false, from any start.  ``gnc-stated`` is the same admission deciding
    at the stated odometry information only (no odometry ladder), for comparison.
 4. Reported: ATE of the result against the clean optimum (positions of all poses,
@@ -36,7 +37,14 @@ Protocol (one run per outlier ratio p and kernel):
    *better* TLS solution than the reference: the false loops it obeys are
    indistinguishable from true ones under the stated covariances at the chi-square
    99% level, and no exact TLS solver would reject them (the failure belongs to the
-   objective, not the solver).
+   objective, not the solver).  ``false_obeyed_consistent``: how many of the false loops
+   the result obeys are consistent with the outlier-free graph, i.e. their innovation
+   against it (the loops its optimum obeys, stated covariances, at that optimum:
+   `slam.consistency.admission_costs`) is below the TLS threshold ``c``: adding one to
+   the outlier-free graph lowers its TLS objective, the same chi-square 99% test the
+   true loops pass (on INTEL some true loops have leave-one-out innovations of 0.85 c).
+   No test of one loop against the others can tell such a loop from a true one; the ATE
+   bound judges what obeying it costs.
 """
 
 from __future__ import annotations
@@ -45,15 +53,29 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
 from evaluation.outlier_policies import POLICIES, inject_false_loops
 from evaluation.trajectory_error import umeyama
-from slam.consistency import ODOMETRY_LADDER, refine_tls, tls_cost
+from slam.consistency import (
+    ODOMETRY_LADDER,
+    InnovationTest,
+    admission_costs,
+    refine_tls,
+    tls_cost,
+    tls_threshold,
+)
 from slam.optimize import default_outlier_residual, optimize
-from slam.pose_graph import PoseGraph, poses_from_values, whitened_residual
+from slam.pose_graph import (
+    Constraint,
+    PoseGraph,
+    pose_dof,
+    poses_from_values,
+    whitened_residual,
+)
 from slam.variance_components import with_information_scaled
 
 Array = NDArray[np.float64]
@@ -80,6 +102,7 @@ class RobustnessResult:
     seed: int = 0
     odometry_scale: float = 1.0
     tls_gap: float = 0.0
+    false_obeyed_consistent: int = 0
 
     def to_json(self) -> dict[str, float | int | str]:
         return {
@@ -95,6 +118,7 @@ class RobustnessResult:
             "true_factors_rejected": self.true_factors_rejected,
             "seconds": self.seconds,
             "tls_gap": self.tls_gap,
+            "false_obeyed_consistent": self.false_obeyed_consistent,
         }
 
 
@@ -296,4 +320,29 @@ def _solve_cell(
         seed=seed,
         odometry_scale=odometry_scale,
         tls_gap=tls_cost(corrupted, corrupted.gtsam_values(solution.poses)) - reference_cost,
+        false_obeyed_consistent=consistent_with_clean(
+            graph, reference, [corrupted.loops[k] for k in np.flatnonzero(obeyed & is_false)]),
     )
+
+
+def consistent_with_clean(
+    graph: PoseGraph, reference: dict[int, Array], loops: Sequence[Constraint]
+) -> int:
+    """How many of `loops` have an innovation below the TLS threshold ``c`` against the
+    outlier-free `graph` (anchors, odometry and the given loops that `reference`, its
+    optimum, obeys), linearised at `reference` (module docstring, step 4)."""
+    if not loops:
+        return 0
+    threshold = default_outlier_residual(graph.dim)
+    factors = gtsam.NonlinearFactorGraph()
+    for k in graph.anchor_keys():
+        factors.add(graph.prior_factor(k))
+    for c in graph.odometry:
+        factors.add(graph.between_factor(c))
+    for c in graph.loops:
+        if whitened_residual(c, reference, graph.dim) <= threshold:
+            factors.add(graph.between_factor(c))
+    test = InnovationTest(factors, graph.gtsam_values(reference), graph.keys,
+                          pose_dof(graph.dim))
+    delta = admission_costs(test.gains([graph.between_factor(c) for c in loops]))
+    return int((delta < tls_threshold(graph.dim)).sum())

@@ -56,10 +56,12 @@ class BackendConfig:
         gnc_probability: chi-square quantile of the GNC inlier threshold.
         final_start: how that final GNC-TLS decides the loops: ``"incremental"``
             (time-ordered TLS admission from the odometry chain,
-            `slam.consistency.incremental_tls`: the back end `eval robustness` measures
-            as ``gnc``, which holds where most loops are false; seconds on thousands of
-            keyframes) or ``"given"`` (warm GNC from the mapper's iSAM2 estimate: fast,
-            and right when the accepted loops are nearly all true).
+            `slam.consistency.incremental_tls`, its candidates compared under
+            calibrated odometry by `slam.recheck`: the back end
+            `eval robustness` measures as ``gnc``, which holds where most loops are
+            false; seconds on thousands of keyframes) or ``"given"`` (warm GNC from
+            the mapper's iSAM2 estimate: fast, and right when the accepted loops are
+            nearly all true).
         odometry_floor: standard deviations added to each keyframe-to-keyframe odometry
             constraint (x [m], y [m], theta [deg]): scan-matching covariances ignore
             correlated errors, this keeps them honest.

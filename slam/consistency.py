@@ -91,7 +91,7 @@ odometry from an earlier one (the odometry spine of a mapper or a g2o file);
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -184,6 +184,27 @@ class InnovationTest:
     def covariance(self, rhs: Array) -> Array:
         """``H^-1 rhs`` for ``rhs`` of shape (n, d)."""
         return self._lu.solve(rhs)
+
+    def blocks(self, candidates: Sequence[gtsam.NonlinearFactor]) -> tuple[Array, Array]:
+        """Whitened residuals ``b`` (m, d) and ``M = B H^-1 B^T`` (m, d, d) of every candidate
+        (binary factors on poses of `keys`): `gains`' ``b`` and ``M`` without its
+        ``H^-1 B^T`` rows, which take (m, r, d) memory (one solve each)."""
+        d, m = self.dof, len(candidates)
+        b, gram = np.empty((m, d)), np.empty((m, d, d))
+        rhs = np.zeros((self.n, d))
+        for q, factor in enumerate(candidates):
+            linear = factor.linearize(self._values)
+            a, b[q] = linear.jacobian()
+            k1, k2 = list(linear.keys())
+            ri = slice(self._column[k1], self._column[k1] + d)
+            rj = slice(self._column[k2], self._column[k2] + d)
+            rhs[ri] += a[:, :d].T
+            rhs[rj] += a[:, d:].T
+            y = self.covariance(rhs)
+            gram[q] = a[:, :d] @ y[ri] + a[:, d:] @ y[rj]
+            rhs[ri] = 0.0
+            rhs[rj] = 0.0
+        return b, gram
 
     def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
         """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""
@@ -812,6 +833,7 @@ def incremental_tls(
     ladder: Sequence[float] = ODOMETRY_LADDER,
     tries: int = BAR_TRIES,
     prefix_solver: str = "auto",
+    choose: Callable[..., int] | None = None,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -834,6 +856,11 @@ def incremental_tls(
     part it has decided is still cheaper than the best finished run's on the same
     part.  The best run is then improved by `bar_search` with `tries` trials (0: none),
     which repeats the winning run's graph and gate.
+
+    `choose`: picks the winner among the refined runs instead of the lowest stated cost,
+    called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
+    solver=..., unit=...)`` and returning an index, or -1 to keep the lowest stated cost
+    (`slam.recheck.calibrated_choice`).
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -859,6 +886,7 @@ def incremental_tls(
             run.advance(until_fold=True)
             runs.append((label, decide, run))
     # Finished runs first, then the folded ones in ladder order, each only if still ahead.
+    finished: list[tuple[Admission, PoseGraph]] = []
     for label, decide, run in sorted(runs, key=lambda r: not r[2].done):
         if not _finish_unless_behind(run, best, stated, probability):
             continue
@@ -867,10 +895,16 @@ def incremental_tls(
             solved=decide is graph, factors=stated,
         )
         cost = tls_cost(graph, refined, probability, stated)
+        finished.append((Admission(refined, weights, cost, run.blocks, label), decide))
         if best is None or cost < best.tls_cost * (1.0 - 1e-9):
-            best = Admission(refined, weights, cost, run.blocks, label)
+            best = finished[-1][0]
             decided = decide
     assert best is not None and decided is not None
+    if choose is not None and len(finished) > 1:
+        pick = choose(graph, [(a.values, a.weights, a.tls_cost) for a, _ in finished],
+                      probability=probability, solver=solver, unit=unit)
+        if pick >= 0:
+            best, decided = finished[pick]
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,

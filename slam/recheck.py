@@ -1,0 +1,371 @@
+"""Loop decisions of a TLS solution judged under calibrated odometry.
+
+The time-ordered admission (`slam.consistency`) decides loops against the graph's
+*stated* covariances.  A false loop whose innovation against the rest of the graph is
+below the TLS threshold ``c`` under those covariances lowers the stated TLS objective,
+so every exact solver of that objective admits it; where the stated odometry is far
+looser than its residuals show (a short false loop between poses a few metres apart in
+the sequence, or any false loop on a graph whose odometry information is stated ten or
+a hundred times too small), such loops are common.  Judged against odometry whose
+information is what the data supports, most are many sigma off.
+
+Calibration: with a set of decided loops, the odometry's variance factor ``s`` (actual
+/ stated variance) is the fixed point of `odometry_variance_step` (`own_factor`: the
+estimate of `slam.variance_components`, capped at 1, so odometry is never made looser
+than stated); the odometry information is divided by ``s`` and the accepted graph
+solved.
+
+`calibrated_choice` (used by `slam.optimize` by default) picks among the candidate
+solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
+ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
+at the variance factor the winner's own loops support, found by starting from the
+stated winner and moving to whichever candidate is cheapest there until the winner
+stays.  A stated winner whose false loops fold a loosely stated stretch then loses to a
+rung that rejected them.
+
+`recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
+one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
+``H = A^T A`` *including* every accepted loop), removing an accepted loop ``k``
+(whitened residual ``b``, Jacobian ``B``, ``M = B H^-1 B^T``) lowers the least-squares
+cost, to first order, by the leave-one-out innovation::
+
+    rho_k = 0.5 b^T (I - M)^-1 b          (gtsam error units)
+
+(the innovation of ``k`` against the graph without it, written with the quantities of
+the graph with it).  Keeping ``k`` is worth it under TLS iff ``rho_k < c``; since all
+``n`` accepted loops are tested at once, a loop is removed only above the family-wise
+gate `removal_gate` (``c`` at the per-loop level ``p^(1/n)``, Sidak), so that a graph of
+true loops loses none with probability ``p``.  Loops are removed greedily, largest
+``rho`` first while ``rho`` exceeds the gate; after each removal the others' ``b``,
+``M`` and ``H^-1 B^T`` are updated exactly for it by the rank-``dof`` Woodbury downdate
+``H'^-1 = H^-1 + Y (I - M)^-1 Y^T`` (``Y = H^-1 B^T``) and the Gauss-Newton step it
+causes, ``dx = -Y (I - M)^-1 b``, so a false loop that props up another is judged after
+it is gone.  Then the loops rejected earlier (and not removed here) whose innovation
+alone is below ``c`` are offered back (`slam.consistency.greedy_admission` at ``c``),
+``s`` is re-estimated with the new decisions, and the rounds repeat until no decision
+changes (at most `MAX_ROUNDS`).  A loop removed by the re-check is never re-admitted by
+it, so the rounds end.  The caller solves the *stated* graph with the decisions.
+
+Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and one solve per
+accepted loop (`InnovationTest.blocks`); the choice runs it for one or two candidates,
+only when the candidates' loops differ.  The re-check runs it every round, even when
+nothing changes, which on large graphs costs many times the admission (off by default
+for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains`,
+memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
+and for the rejected loops admissible alone.
+
+Limits: one factor for all the odometry.  A graph whose odometry is noisier in some
+stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
+both the choice and the family-wise gate from rejecting a false loop whose calibrated
+innovation is no larger than its worst true loop's; a group of false loops that agree
+with one another can bend a loose stretch so that its own factor still makes it the
+cheapest candidate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from slam.consistency import InnovationTest, _Gains, greedy_admission, tls_threshold
+from slam.least_squares import StickySolver
+from slam.pose_graph import Constraint, PoseGraph, chi2_quantile, pose_dof
+from slam.variance_components import BOUNDS
+
+Array = NDArray[np.float64]
+MAX_ROUNDS = 20  # re-check rounds (each: a calibrated solve, a factor step, maybe decisions)
+FACTOR_TOLERANCE = 0.01  # decide once a round changes the odometry factor by less than this
+OWN_ROUNDS = 5  # calibrated solves of `own_factor`
+
+
+def removal_costs(gains: _Gains) -> Array:
+    """``rho_q = 0.5 b^T (I - M)^-1 b`` of every accepted loop (gtsam error units), with
+    `gains` linearised at the solution of the graph that includes them."""
+    return _quadratic(gains.b, -gains.M)
+
+
+def _quadratic(b: Array, m: Array) -> Array:
+    """``0.5 b^T (I + m)^-1 b`` per row: the admission cost for ``m = M``, the removal cost
+    for ``m = -M``."""
+    s = np.eye(b.shape[1]) + m
+    return 0.5 * np.einsum("ma,ma->m", b, np.linalg.solve(s, b[..., None])[..., 0])
+
+
+def greedy_removal(gains: _Gains, gate: float) -> tuple[list[int], Array]:
+    """Remove accepted loops largest ``rho`` first while ``rho > gate`` (module docstring).
+
+    Returns the removed indices in order and the final ``rho`` of every loop (of the
+    removed ones meaningless).  `gains` is consumed."""
+    m = len(gains.b)
+    open_ = np.ones(m, dtype=bool)
+    removed: list[int] = []
+    eye = np.eye(gains.b.shape[1])
+    while open_.any():
+        rho = removal_costs(gains)
+        rho[~open_] = -np.inf
+        k = int(np.argmax(rho))
+        if not rho[k] > gate:
+            break
+        removed.append(k)
+        open_[k] = False
+        gain = np.linalg.inv(eye - gains.M[k])
+        c = gains.cross(gains.Y[k])  # B_q H^-1 B_k^T
+        gains.b = gains.b + np.einsum("mab,bc,c->ma", c, gain, gains.b[k])
+        gains.M = gains.M + np.einsum("mab,bc,mdc->mad", c, gain, c)
+        gains.Y = gains.Y + np.einsum("nb,bc,mdc->mnd", gains.Y[k], gain, c)
+        # The removed loop's own rows are meaningless from here on; keep M_k off I.
+        gains.M[k] = 0.0
+    return removed, removal_costs(gains)
+
+
+def odometry_variance_step(
+    odometry_error: float, rows: int, unknowns: int, loop_traces: Array, dof: int
+) -> float:
+    """Variance factor of the odometry at a least-squares solution: ``2 E_o / r_o``.
+
+    ``E_o``: the odometry's gtsam error (``0.5 r^T I r``); the odometry's redundancy is
+    the total redundancy less the loops', ``r_o = (rows - unknowns) - sum_k (dof -
+    tr M_k)``, with ``M_k = B_k H^-1 B_k^T`` of every accepted loop (`_Gains.M`) and
+    `rows` counting every factor row (anchor priors too: their redundancy is 0).
+    Multiplying the odometry's stated variance by this step and re-solving converges
+    to the variance-component estimate (`slam.variance_components`).
+    """
+    r_loops = dof * len(loop_traces) - float(np.sum(loop_traces))
+    return 2.0 * odometry_error / max(rows - unknowns - r_loops, 1e-12)
+
+
+def removal_gate(n: int, dof: int, probability: float = 0.99) -> float:
+    """Error level above which one of `n` accepted loops is removed: ``0.5 chi2_dof^-1(p^(1/n))``.
+
+    The re-check tests all `n` accepted loops at once against "every one is an inlier";
+    at this per-loop level (Sidak) the chance of removing any true loop of a Gaussian
+    graph is ``1 - p``, as for one loop at the TLS threshold ``c`` (``n = 1``).
+    """
+    return 0.5 * chi2_quantile(probability ** (1.0 / max(n, 1)), dof)
+
+
+def _calibrated_fixed(
+    graph: PoseGraph, s: float, priors: Sequence[gtsam.NonlinearFactor]
+) -> tuple[gtsam.NonlinearFactorGraph, list[gtsam.NonlinearFactor]]:
+    """Anchors and odometry with the odometry information divided by `s`; and the
+    odometry factors alone."""
+    odometry = [graph.between_factor(Constraint(o.i, o.j, o.measurement, o.information / s))
+                for o in graph.odometry]
+    fixed = gtsam.NonlinearFactorGraph()
+    for f in [*priors, *odometry]:
+        fixed.add(f)
+    return fixed, odometry
+
+
+@dataclass(slots=True)
+class Calibrated:
+    """The accepted graph solved under calibrated odometry (`own_factor`).
+
+    Attributes:
+        s: the odometry variance factor of the solve (actual / stated variance).
+        values: the solution.
+        fixed: anchors and odometry with the information divided by `s`.
+        gains: the accepted loops linearised at `values` (`InnovationTest.gains`), in
+            the order of `kept`; None without accepted loops or when not asked for.
+        kept: indices of the accepted loops.
+        test: the `InnovationTest` of the accepted graph at `values` (None without
+            accepted loops).
+    """
+
+    s: float
+    values: gtsam.Values
+    fixed: gtsam.NonlinearFactorGraph
+    gains: _Gains | None
+    kept: NDArray[np.int64]
+    test: InnovationTest | None
+
+
+def own_factor(
+    graph: PoseGraph, values: gtsam.Values, weights: Array, *,
+    unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, start: float = 1.0,
+    max_rounds: int = OWN_ROUNDS, with_gains: bool = True,
+) -> Calibrated:
+    """The odometry variance factor the loops of weight 1 support, from `start`, and the
+    calibrated solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant
+    steps on ``log step`` against ``log s`` (as `slam.variance_components`; a plain
+    re-weighting step first and where the secant is flat), capped at 1, at most
+    `max_rounds` solves (the last one's factor is returned).  `with_gains`: linearise the
+    accepted loops at the solution (`Calibrated.gains`, else None)."""
+    d, keys = pose_dof(graph.dim), graph.keys
+    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
+    w = np.asarray(weights) > 0.5
+    kept = np.flatnonzero(w)
+    s, current, last = start, values, None
+    for n in range(max_rounds):
+        fixed, odometry = _calibrated_fixed(graph, s, priors)
+        accepted = _accepted(fixed, unit, w.astype(float))
+        current = solver(accepted, current)
+        if not w.any():
+            return Calibrated(s, current, fixed, None, kept, None)
+        test = InnovationTest(accepted, current, keys, d)
+        step = odometry_variance_step(
+            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
+            np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2), d)
+        if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
+                or n == max_rounds - 1):
+            gains = test.gains([unit[k] for k in kept]) if with_gains else None
+            return Calibrated(s, current, fixed, gains, kept, test)
+        x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
+        slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
+        last = (x, y)
+        if not -20.0 < slope < -0.05:
+            slope = -1.0
+        s = float(np.clip(np.exp(x - y / slope), BOUNDS[0], 1.0))
+    raise AssertionError("unreachable")
+
+
+def calibrated_choice(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]], *,
+    probability: float = 0.99, solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None, factor: list[float] | None = None,
+) -> int:
+    """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
+    the cheapest under the odometry calibrated by its own loops.
+
+    Start from the candidate of lowest stated cost; with the odometry information divided
+    by its own variance factor ``s`` (`own_factor`), re-solve every candidate with its
+    loops and take the cheapest by the calibrated odometry's error plus ``min(e_k, c)``
+    over every loop; repeat with the winner's own factor until the winner is the
+    candidate whose factor it was judged at (or a winner recurs).  A candidate whose
+    false loops bend the odometry shows a larger ``s`` than the outlier-free one, and loses
+    to it at the stiffer ``s`` that one supports; a candidate that rejected many true loops
+    supports a small ``s`` from little redundancy, which is why the factor is never the
+    smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
+    the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
+    odometry far stiffer than stated on a nearly noise-free graph).  `factor`, when given,
+    receives the winner's own variance factor (a start for `recheck_loops`).
+    """
+    solve = solver or StickySolver()
+    if unit is None:
+        unit = [graph.between_factor(lp) for lp in graph.loops]
+    c = tls_threshold(graph.dim, probability)
+    distinct: dict[bytes, int] = {}
+    for n, (_, w, _) in enumerate(candidates):
+        distinct.setdefault((np.asarray(w) > 0.5).tobytes(), n)
+    if len(distinct) == 1:
+        return 0
+    try:
+        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return -1
+    if factor is not None:
+        factor.append(s)
+    return chosen
+
+
+def _self_consistent(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
+    which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
+) -> tuple[int, float]:
+    """`calibrated_choice` among the candidates `which`, and the winner's own factor."""
+    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
+    chosen = min(which, key=lambda n: candidates[n][2])
+    judged: set[int] = set()
+    start = 1.0
+    while chosen not in judged:
+        judged.add(chosen)
+        own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
+                         solver=solve, start=start, with_gains=False)
+        start = own.s
+        fixed, _ = _calibrated_fixed(graph, own.s, priors)
+        best, best_cost = chosen, np.inf
+        for n in which:
+            w = np.asarray(candidates[n][1], dtype=float)
+            x = own.values if n == chosen else solve(_accepted(fixed, unit, w), candidates[n][0])
+            cost = fixed.error(x) + float(np.minimum([f.error(x) for f in unit], c).sum())
+            if cost < best_cost * (1.0 - 1e-9):
+                best, best_cost = n, cost
+        if best == chosen:
+            break
+        chosen = best
+    return chosen, start
+
+
+def _accepted(
+    fixed: gtsam.NonlinearFactorGraph, unit: Sequence[gtsam.NonlinearFactor], w: Array
+) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph(fixed)
+    for k in np.flatnonzero(w > 0.5):
+        graph.add(unit[k])
+    return graph
+
+
+def recheck_loops(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    weights: Array,
+    *,
+    probability: float = 0.99,
+    solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+    max_rounds: int = MAX_ROUNDS,
+    start: float = 1.0,
+) -> tuple[Array, float]:
+    """Re-checked loop weights of a TLS solution (`values`, `weights`) and the last
+    odometry variance factor used (module docstring); `weights` unchanged (factor 1) when
+    a calibrated solve fails (as in `calibrated_choice`).
+
+    `unit`: the loops' Gaussian factors (computed when None); `solver`: the least-squares
+    solver for the calibrated solves; `start`: a first guess of the odometry factor.
+    """
+    try:
+        return _recheck(graph, values, weights, probability, solver or StickySolver(),
+                        unit, max_rounds, start)
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return (np.asarray(weights) > 0.5).astype(float), 1.0
+
+
+def _recheck(
+    graph: PoseGraph, values: gtsam.Values, weights: Array, probability: float,
+    solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor] | None, max_rounds: int,
+    start: float,
+) -> tuple[Array, float]:
+    """`recheck_loops`' rounds."""
+    if unit is None:
+        unit = [graph.between_factor(lp) for lp in graph.loops]
+    c = tls_threshold(graph.dim, probability)
+    d = pose_dof(graph.dim)
+    keys = graph.keys
+    w = (np.asarray(weights) > 0.5).astype(float)
+    removed = np.zeros(len(w), dtype=bool)
+    current, s = values, start
+    for _ in range(max_rounds):
+        if not (w > 0.5).any():
+            break
+        cal = own_factor(graph, current, w, unit=unit, solver=solve, start=s,
+                         with_gains=False)
+        s, current, fixed, kept = cal.s, cal.values, cal.fixed, cal.kept
+        assert cal.test is not None
+        gate = removal_gate(len(kept), d, probability)
+        b, gram = cal.test.blocks([unit[k] for k in kept])
+        drop: list[int] = []
+        if (_quadratic(b, -gram) > gate).any():  # only then the (m, r, d) gains
+            drop, _ = greedy_removal(cal.test.gains([unit[k] for k in kept]), gate)
+        changed = bool(drop)
+        test = cal.test
+        if drop:
+            w[kept[drop]] = 0.0
+            removed[kept[drop]] = True
+            current = solve(_accepted(fixed, unit, w), current)
+            test = InnovationTest(_accepted(fixed, unit, w), current, keys, d)
+        offer = np.flatnonzero((w < 0.5) & ~removed)
+        if len(offer):
+            b, gram = test.blocks([unit[k] for k in offer])
+            offer = offer[_quadratic(b, gram) < c]  # admissible alone, before any other
+        if len(offer):
+            admitted, _ = greedy_admission(test.gains([unit[k] for k in offer]), c)
+            if admitted:
+                w[offer[admitted]] = 1.0
+                changed = True
+        if not changed:
+            break
+    return w, s
