@@ -185,29 +185,11 @@ class InnovationTest:
         """``H^-1 rhs`` for ``rhs`` of shape (n, d)."""
         return self._lu.solve(rhs)
 
-    def blocks(self, candidates: Sequence[gtsam.NonlinearFactor]) -> tuple[Array, Array]:
-        """Whitened residuals ``b`` (m, d) and ``M = B H^-1 B^T`` (m, d, d) of every candidate
-        (binary factors on poses of `keys`): `gains`' ``b`` and ``M`` without its
-        ``H^-1 B^T`` rows, which take (m, r, d) memory (one solve each)."""
-        d, m = self.dof, len(candidates)
-        b, gram = np.empty((m, d)), np.empty((m, d, d))
-        rhs = np.zeros((self.n, d))
-        for q, factor in enumerate(candidates):
-            linear = factor.linearize(self._values)
-            a, b[q] = linear.jacobian()
-            k1, k2 = list(linear.keys())
-            ri = slice(self._column[k1], self._column[k1] + d)
-            rj = slice(self._column[k2], self._column[k2] + d)
-            rhs[ri] += a[:, :d].T
-            rhs[rj] += a[:, d:].T
-            y = self.covariance(rhs)
-            gram[q] = a[:, :d] @ y[ri] + a[:, d:] @ y[rj]
-            rhs[ri] = 0.0
-            rhs[rj] = 0.0
-        return b, gram
-
-    def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
-        """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""
+    def _linearised(
+        self, candidates: Sequence[gtsam.NonlinearFactor]
+    ) -> tuple[Array, Array, Array, NDArray[np.int64], NDArray[np.int64]]:
+        """Whitened residuals ``b`` (m, d), Jacobian blocks ``B_i``, ``B_j`` (m, d, d)
+        and the first rows in ``H`` of both poses of every candidate, at the solution."""
         d, m = self.dof, len(candidates)
         b = np.empty((m, d))
         bi, bj = np.empty((m, d, d)), np.empty((m, d, d))
@@ -218,6 +200,30 @@ class InnovationTest:
             k1, k2 = list(linear.keys())
             bi[q], bj[q] = a[:, :d], a[:, d:]
             ci[q], cj[q] = self._column[k1], self._column[k2]
+        return b, bi, bj, ci, cj
+
+    def blocks(self, candidates: Sequence[gtsam.NonlinearFactor]) -> tuple[Array, Array]:
+        """Whitened residuals ``b`` (m, d) and ``M = B H^-1 B^T`` (m, d, d) of every candidate
+        (binary factors on poses of `keys`): `gains`' ``b`` and ``M`` without its
+        ``H^-1 B^T`` rows, which take (m, r, d) memory (one solve each)."""
+        d = self.dof
+        b, bi, bj, ci, cj = self._linearised(candidates)
+        gram = np.empty((len(b), d, d))
+        rhs = np.zeros((self.n, d))
+        for q in range(len(b)):
+            ri, rj = slice(ci[q], ci[q] + d), slice(cj[q], cj[q] + d)
+            rhs[ri] += bi[q].T
+            rhs[rj] += bj[q].T
+            y = self.covariance(rhs)
+            gram[q] = bi[q] @ y[ri] + bj[q] @ y[rj]
+            rhs[ri] = 0.0
+            rhs[rj] = 0.0
+        return b, gram
+
+    def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
+        """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""
+        d, m = self.dof, len(candidates)
+        b, bi, bj, ci, cj = self._linearised(candidates)
         span = np.arange(d)
         ri, rj = ci[:, None] + span, cj[:, None] + span  # (m, d) rows of H
         touched, where = np.unique(np.concatenate([ri, rj], axis=1), return_inverse=True)
