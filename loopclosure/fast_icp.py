@@ -39,6 +39,8 @@ occurrence, the same summation order).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -496,9 +498,12 @@ def _wrap(a):
 def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam, x_prior,
          has_prior,
          max_iterations, gate0, min_gate, gate_sigmas, kernel, kconst, min_scale, clutter_weight,
-         t_tol, r_tol, min_corr):
+         t_tol, r_tol, min_corr, joins, join_t, join_r):
     """Gauss-Newton ICP; returns (x, iterations, converged, ok, gate, rows, lines, points,
-    sel, jdx) with the correspondences to evaluate (empty-matched when not converged)."""
+    sel, jdx, joined) with the correspondences to evaluate (empty-matched when not
+    converged).  ``joined`` is the row of `joins` (``(K, 3)`` poses where earlier runs
+    of the same problem ended) that an iterate came within `join_t` [m] and `join_r`
+    [rad] of, the run stopping there; -1 when none did."""
     n = src.shape[0]
     sel = np.empty(2 * n, dtype=np.int64)
     jdx = np.empty(2 * n, dtype=np.int64)
@@ -517,7 +522,7 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam,
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
                                      sel, jdx, dist)
         if points < min_corr:
-            return x0.copy(), iterations, False, False, gate, rows, lines, points, sel, jdx
+            return x0.copy(), iterations, False, False, gate, rows, lines, points, sel, jdx, -1
         _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm)
         s = max(min_scale, _MAD * _upper_median_abs(r, rows))
         _weights(r, rows, lines, points, s, kernel, kconst, clutter_weight, w)
@@ -545,10 +550,14 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam,
         if small and settled:
             converged = True
             break
+        for m in range(joins.shape[0]):
+            if (np.hypot(x[0] - joins[m, 0], x[1] - joins[m, 1]) < join_t
+                    and abs(_wrap(x[2] - joins[m, 2])) < join_r):
+                return x, iterations, False, True, gate, rows, lines, points, sel, jdx, m
     if not converged:
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
                                      sel, jdx, dist)
-    return x, iterations, converged, True, gate, rows, lines, points, sel, jdx
+    return x, iterations, converged, True, gate, rows, lines, points, sel, jdx, -1
 
 
 @numba.njit(cache=True)
@@ -598,6 +607,23 @@ def register_fast(
     """`loopclosure.registration.register` of `source` (``(N, 2)`` [m], source frame)
     onto a `GridTarget`; same arguments (poses ``(x, y, theta)`` of the source frame in
     the target frame, prior covariance additive in the target frame) and result."""
+    result = _register_grid(source, target, initial, config, prior, prior_covariance,
+                            _NO_JOINS, 0.0, 0.0)
+    assert isinstance(result, IcpResult)
+    return result
+
+
+_NO_JOINS = np.zeros((0, 3))
+
+
+def _register_grid(
+    source: ArrayLike, target: GridTarget, initial: ArrayLike, config: IcpConfig | None,
+    prior: ArrayLike | None, prior_covariance: ArrayLike | None, joins: Array,
+    join_t: float, join_r: float,
+) -> IcpResult | tuple[int, int]:
+    """`register_fast`, or ``(row of joins, iterations)`` when the run came within
+    (`join_t` [m], `join_r` [rad]) of one of the poses `joins` (``(K, 3)``) and
+    stopped there (`register_target`)."""
     cfg = config or target.config
     src = np.ascontiguousarray(as_points(source, "source points"))
     x0 = np.asarray(initial, dtype=float).reshape(3).copy()
@@ -616,12 +642,15 @@ def register_fast(
     nx, ny = target.shape
     grid = (float(target.origin[0]), float(target.origin[1]), target.cell, nx, ny,
             target.start, target.points)
-    x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx = _icp(
+    x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx, joined = _icp(
         src, x0, *grid, target.anchors, target.normals, target.kind, lam, x_prior,
         prior is not None,
         cfg.max_iterations, cfg.max_correspondence_distance, cfg.min_correspondence_distance,
         cfg.gate_sigmas, kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight,
-        cfg.translation_tolerance, cfg.rotation_tolerance, cfg.min_correspondences)
+        cfg.translation_tolerance, cfg.rotation_tolerance, cfg.min_correspondences,
+        joins, join_t, join_r)
+    if joined >= 0:
+        return int(joined), int(iterations)
     if not ok or points < cfg.min_correspondences:
         return _failed(x0, iterations, points, prior_cov)
     h_data, wsum, wr2, inliers, rms, fitness = _figures(
@@ -649,18 +678,46 @@ def register_fast(
 #: check's submap resolution, and a 1 m gate visits 5 x 5 cells.
 TARGET_GRID_CELL = 0.5
 
+#: `register_target` stops a run whose iterate comes within this translation [m] and
+#: rotation [rad] of where an earlier run ended: from there it follows the earlier
+#: run's path to the same fixed point.  Well below the loop constraints' covariance
+#: floor (2 cm, 0.5 degrees), and below the geometric check's ambiguity radius
+#: (runs that end this close are one answer).
+JOIN_TRANSLATION = 0.005
+JOIN_ROTATION = float(np.radians(0.05))
+
 
 def register_target(source: ArrayLike, target: RegistrationTarget, initials: ArrayLike, *,
-                    config: IcpConfig | None = None) -> list[IcpResult]:
+                    config: IcpConfig | None = None, join: bool = True) -> list[IcpResult]:
     """`loopclosure.registration.register` of `source` onto a prepared target from
     each of `initials` (``(K, 3)``), by the compiled kernel on one grid of the
     target (its points and normals, `GridTarget.from_target`) made for these runs
     and dropped after them: a grid per cached target would cost the loop detector's
-    target cache tens of MB."""
+    target cache tens of MB.
+
+    With `join`, a run that comes within `JOIN_TRANSLATION` and `JOIN_ROTATION` of
+    the end of an earlier run stops there and returns that run's result (its own
+    `IcpResult.initial` and iterations): several guesses of a multi-start search
+    mostly fall into one basin, and the iterations after they meet repeat the
+    earlier run's."""
     grid = GridTarget.from_target(target, TARGET_GRID_CELL)
-    return [register_fast(source, grid, x0, config=config)
-            for x0 in np.asarray(initials, dtype=float).reshape(-1, 3)]
+    results: list[IcpResult] = []
+    ends = np.zeros((0, 3))
+    owners: list[int] = []
+    for x0 in np.asarray(initials, dtype=float).reshape(-1, 3):
+        joins = ends if join else _NO_JOINS
+        out = _register_grid(source, grid, x0, config, None, None, joins, JOIN_TRANSLATION,
+                             JOIN_ROTATION)
+        if isinstance(out, tuple):
+            row, iterations = out
+            out = dataclasses.replace(results[owners[row]], initial=x0.copy(),
+                                      iterations=iterations)
+        elif out.ok:
+            ends = np.vstack([ends, out.pose])
+            owners.append(len(results))
+        results.append(out)
+    return results
 
 
-__all__ = ["ANCHORS", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "TARGET_GRID_CELL",
+__all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "TARGET_GRID_CELL",
            "GridTarget", "register_fast", "register_target", "voxel_downsample_fast"]

@@ -39,7 +39,12 @@ candidates (a wide pose gate outdoors, where the submaps of keyframes tens of
 metres apart share nothing) made most of the checks of a log and most of its loop
 detection time.  The score is measured at ICP's own gate, not at a tighter
 tolerance, because a prior from drifting wheel odometry can be off by more than
-the guesses' offsets, and ICP still converges from there.
+the guesses' offsets, and ICP still converges from there.  The bar is half the
+gated fitness threshold: a fit of fitness F has at least F of the query's points
+within ``fitness_tolerance`` of a wall; at a guess ``d`` from the fit each of them
+is within about ``d`` of that wall and scores at least ``1 - (d / g)^2``, above
+0.8 for a guess within the offsets' spacing (0.5 m, g = 1 m) of the fit, so a fit
+that could pass scores well above F / 2 at its best guess.
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
@@ -124,8 +129,7 @@ class GeometricCheckConfig:
         min_prior_overlap: a pose-gated check whose best initial guess has a coarse
             overlap score (`loopclosure.multi_start.overlap_scores` at ICP's
             correspondence gate) below this runs no ICP and is rejected (module
-            docstring); well below what the accepted loops of every log measured
-            score.  0 turns the screen off.
+            docstring: half of `min_fitness_gated`).  0 turns the screen off.
         method: the check without a prior: ``"correlative"`` (lattice search, then
             ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
             heading hypotheses at the given translation and at 0).
@@ -162,7 +166,7 @@ class GeometricCheckConfig:
     origin_guesses: bool = True
     source_voxel: float = 0.1
     keep: int = 6
-    min_prior_overlap: float = 0.05
+    min_prior_overlap: float = 0.15
     method: str = "correlative"
     min_fitness_partial: float = 0.2
     min_consistency: float = 0.92

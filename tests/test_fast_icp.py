@@ -12,6 +12,8 @@ from scipy.spatial import cKDTree
 from data import se2
 from data.errors import UserError
 from loopclosure.fast_icp import (
+    JOIN_ROTATION,
+    JOIN_TRANSLATION,
     KIND_CLUTTER,
     KIND_LINE,
     GridTarget,
@@ -148,12 +150,38 @@ def test_register_target_is_register_from_every_start() -> None:
     start = pose + np.array([0.3, -0.2, 0.1])
     starts = np.array([start, pose + np.array([-0.2, 0.3, -0.05])])
     for ref, got in zip([register(src, target, s) for s in starts],
-                        register_target(src, target, starts), strict=True):
+                        register_target(src, target, starts, join=False), strict=True):
         np.testing.assert_allclose(got.pose, ref.pose, atol=1e-12)
         np.testing.assert_allclose(got.pose, pose, atol=1e-6)
         assert got.fitness == pytest.approx(ref.fitness, rel=1e-9)
         assert got.iterations == ref.iterations
     assert not target.derived  # the grid is not kept
+
+
+def test_a_run_that_meets_an_earlier_one_stops_with_its_result() -> None:
+    """With `join` (the default) the second start, which converges to the same pose,
+    stops once within `JOIN_TRANSLATION` / `JOIN_ROTATION` of where the first ended and
+    returns the first's result with its own start and fewer iterations; a start that
+    ends elsewhere runs to its own end."""
+    target = RegistrationTarget(room(), IcpConfig(max_correspondence_distance=1.0))
+    pose = np.array([0.8, -0.4, 0.6])
+    src = se2.transform_points(se2.inverse(pose), room()[::2])
+    starts = np.array([pose + [0.3, -0.2, 0.1], pose + [-0.2, 0.3, -0.05]])
+    alone = register_target(src, target, starts, join=False)
+    first, second = register_target(src, target, starts)
+    np.testing.assert_array_equal(first.pose, alone[0].pose)
+    np.testing.assert_array_equal(second.pose, first.pose)
+    np.testing.assert_array_equal(second.initial, starts[1])
+    assert second.fitness == first.fitness
+    assert 0 < second.iterations < alone[1].iterations
+    moved = se2.between(alone[1].pose, first.pose)
+    assert np.hypot(*moved[:2]) < JOIN_TRANSLATION and abs(moved[2]) < JOIN_ROTATION
+    # A failed first run (no overlap) is no place to stop at.
+    far = np.array([[50.0, 50.0, 0.0], starts[1]])
+    failed, own = register_target(src, target, far)
+    assert not failed.ok
+    np.testing.assert_allclose(own.pose, alone[1].pose, atol=1e-12)
+    assert own.iterations == alone[1].iterations
 
 
 def test_the_check_decides_alike_with_either_icp() -> None:
