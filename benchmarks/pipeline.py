@@ -143,7 +143,7 @@ def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Traj
         return scans, read_relations(data / "carmen" / "intel.relations"), None
     if name not in CORRECTED:
         sys.exit(f"unknown log {name!r}: intel or one of {', '.join(CORRECTED)}")
-    log = data / "carmen-corrected" / f"{name}-corrected.log.gz"
+    log = data / "carmen-corrected" / f"{name.removesuffix('-corrected')}-corrected.log.gz"
     if not log.exists():
         sys.exit(f"{log} not found: pass --data with the shared data folder")
     loaded = load_input(log, odometry_noise=0)

@@ -327,7 +327,11 @@ def verify(
     if prior is None and translation is not None and cfg.origin_guesses:
         at_origin = initial_guesses(np.zeros(3), headings, _offset_grid(step))
         guesses = np.vstack([guesses, at_origin])
-    source = voxel_downsample(np.asarray(query_points, dtype=float), cfg.source_voxel)
+    if cfg.compiled_icp:
+        from loopclosure.fast_icp import voxel_downsample_fast as voxel  # numba on first use
+    else:
+        voxel = voxel_downsample
+    source = voxel(np.asarray(query_points, dtype=float), cfg.source_voxel)
     if prior is not None and cfg.min_prior_overlap > 0:
         gate = cfg.icp.max_correspondence_distance
         overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))

@@ -53,7 +53,6 @@ from data.errors import UserError
 from data.types import PointCloud, Scan
 from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
-from loopclosure.registration import voxel_downsample
 from loopclosure.warm_up import warm_up
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
@@ -513,13 +512,16 @@ class Mapper:
 
     def _local_points(self, key: int, first: int, last: int) -> Array:
         """Keyframes ``first .. last`` in `key`'s sensor frame (front-end poses), points
-        beyond ``submap.max_range`` dropped, voxelised by ``submap.voxel`` [m]."""
+        beyond ``submap.max_range`` dropped, voxelised by ``submap.voxel`` [m] (the
+        compiled `loopclosure.registration.voxel_downsample`)."""
         centre = self._keyframe(key).odom_pose
         parts = [se2.transform_points(se2.between(centre, kf.odom_pose), kf.points)
                  for kf in map(self._keyframe, range(first, last + 1))]
         pts = np.vstack(parts) if parts else np.zeros((0, 2))
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
-        return voxel_downsample(pts, self.config.submap.voxel)
+        from loopclosure.fast_icp import voxel_downsample_fast  # numba loads on first use
+
+        return voxel_downsample_fast(pts, self.config.submap.voxel)
 
     # -- the end ----------------------------------------------------------------------
 
