@@ -153,9 +153,9 @@ def compare(path: Path, variants: list[str]) -> None:
             first = configs[0][0]
             for name, _ in configs:
                 differ = sum(a.accepted != b.accepted
-                             for a, b in zip(verdicts[first], verdicts[name]))
+                             for a, b in zip(verdicts[first], verdicts[name], strict=True))
                 dt = dr = 0.0
-                for a, b in zip(verdicts[first], verdicts[name]):
+                for a, b in zip(verdicts[first], verdicts[name], strict=True):
                     if a.accepted and b.accepted:
                         d = se2.between(a.relative, b.relative)
                         dt = max(dt, float(np.hypot(d[0], d[1])))

@@ -719,5 +719,6 @@ def register_target(source: ArrayLike, target: RegistrationTarget, initials: Arr
     return results
 
 
-__all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE", "KIND_NONE", "TARGET_GRID_CELL",
-           "GridTarget", "register_fast", "register_target", "voxel_downsample_fast"]
+__all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE",
+           "KIND_NONE", "TARGET_GRID_CELL", "GridTarget", "register_fast", "register_target",
+           "voxel_downsample_fast"]

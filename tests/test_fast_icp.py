@@ -166,7 +166,7 @@ def test_a_run_that_meets_an_earlier_one_stops_with_its_result() -> None:
     target = RegistrationTarget(room(), IcpConfig(max_correspondence_distance=1.0))
     pose = np.array([0.8, -0.4, 0.6])
     src = se2.transform_points(se2.inverse(pose), room()[::2])
-    starts = np.array([pose + [0.3, -0.2, 0.1], pose + [-0.2, 0.3, -0.05]])
+    starts = pose + np.array([[0.3, -0.2, 0.1], [-0.2, 0.3, -0.05]])
     alone = register_target(src, target, starts, join=False)
     first, second = register_target(src, target, starts)
     np.testing.assert_array_equal(first.pose, alone[0].pose)

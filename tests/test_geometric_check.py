@@ -90,6 +90,27 @@ def test_a_prior_where_the_submaps_do_not_overlap_runs_no_icp() -> None:
     assert wide.hypotheses > 0 and wide.accepted, wide.reason
 
 
+def test_the_screen_skips_only_fits_that_could_not_pass() -> None:
+    """A query that shares a few of its points with the candidate scores under the
+    screen's bar (half of `min_fitness_gated`) at the prior, and is rejected without
+    ICP; ICP from every guess (screen off) would not reach `min_fitness_gated`
+    either: the same verdict."""
+    a = np.array([1.0, 1.0, 0.0])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    shared = _seen_from(ROOM, a)
+    elsewhere = _seen_from(ROOM, a) + np.array([30.0, 0.0])
+    query = np.vstack([shared[::30], elsewhere])
+    cov = np.diag([0.1, 0.1, 0.02]) ** 2
+    cfg = GeometricCheckConfig()
+    assert cfg.min_prior_overlap == cfg.min_fitness_gated / 2
+    screened = verify(query, target, prior=np.zeros(3), prior_covariance=cov)
+    assert screened.hypotheses == 0 and screened.reason.startswith("no overlap at the prior")
+    full = verify(query, target, prior=np.zeros(3), prior_covariance=cov,
+                  config=GeometricCheckConfig(min_prior_overlap=0.0))
+    assert full.hypotheses > 0 and not full.accepted
+    assert full.fitness < cfg.min_fitness_gated
+
+
 def test_rejects_a_corridor_as_degenerate() -> None:
     corridor = _walls([((-10, 0), (10, 0)), ((-10, 2), (10, 2))])
     a, b = np.array([0.0, 1.0, 0.0]), np.array([0.5, 1.0, 0.0])
