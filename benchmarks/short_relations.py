@@ -1,0 +1,97 @@
+"""How close can any registration come to a log's short reference relations?
+
+Run from the repository root, after mapping the log::
+
+    loopclosure run ../shared/data/carmen/intel.clf.bz2 --out intel
+    python benchmarks/short_relations.py ../shared/data/carmen/intel.clf.bz2 \
+        ../shared/data/carmen/intel.relations intel/trajectory.tum [--max-dt 5] [--every 3]
+
+The relations metric (Kümmerle et al. 2009, `evaluation.relations_metric`) on the
+relations whose two scans are less than ``--max-dt`` seconds apart measures the
+registration of nearby scans, not drift.  For each such relation (every
+``--every``-th) this script prints the mean error of three estimates of the
+relative pose of the two scans (laser poses, scan ``t2`` in the frame of scan
+``t1``):
+
+- the trajectory's (the mapper's per-scan poses);
+- a careful point-to-line ICP of the two raw scans (`loopclosure.registration.register`,
+  60 iterations, residual floor 2 mm), started from the trajectory's relative pose;
+- the same ICP started from the reference relation itself.
+
+When the ICP started at the reference moves away from it by about as much as the
+trajectory disagrees with it, the scans themselves do not support the reference
+more precisely than that: the error floor of these relations for a scan matcher
+(the reference's own noise, or a laser model it used that the log does not state).
+Errors as the metric computes them: translation [m] and rotation [deg] of
+``delta_est * delta_ref^-1``, mean and median.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from data import se2  # noqa: E402
+from data.carmen import CarmenLog  # noqa: E402
+from data.relations import read_relations  # noqa: E402
+from data.trajectory_io import read_tum  # noqa: E402
+from loopclosure.registration import IcpConfig, RegistrationTarget, register  # noqa: E402
+
+
+def _xytheta(m: np.ndarray) -> np.ndarray:
+    return np.array([m[0, 3], m[1, 3], np.arctan2(m[1, 0], m[0, 0])])
+
+
+def _error(estimate: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    d = se2.compose(estimate, se2.inverse(reference))
+    return float(np.hypot(d[0], d[1])), float(abs(np.degrees(se2.wrap_angle(d[2]))))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("log", type=Path)
+    parser.add_argument("relations", type=Path)
+    parser.add_argument("trajectory", type=Path, help="TUM file of the mapper's scan poses")
+    parser.add_argument("--max-dt", type=float, default=5.0, help="relations shorter than [s]")
+    parser.add_argument("--every", type=int, default=3, help="every n-th short relation")
+    args = parser.parse_args()
+    scans = list(CarmenLog(args.log))
+    scan_stamps = np.array([s.stamp for s in scans])
+    traj = read_tum(args.trajectory)
+    cfg = IcpConfig(min_residual_scale=0.002, max_iterations=60)
+    short = [r for r in read_relations(args.relations) if abs(r.t2 - r.t1) < args.max_dt]
+    rows = []
+    for rel in short[:: max(args.every, 1)]:
+        ti = np.abs(traj.stamps - rel.t1).argmin(), np.abs(traj.stamps - rel.t2).argmin()
+        si = np.abs(scan_stamps - rel.t1).argmin(), np.abs(scan_stamps - rel.t2).argmin()
+        if (abs(traj.stamps[ti[0]] - rel.t1) > 1e-3 or abs(traj.stamps[ti[1]] - rel.t2) > 1e-3
+                or abs(scan_stamps[si[0]] - rel.t1) > 1e-3):
+            continue
+        reference = _xytheta(rel.delta)
+        ours = se2.between(_xytheta(traj.poses[ti[0]]), _xytheta(traj.poses[ti[1]]))
+        target = RegistrationTarget(scans[si[0]].points(), cfg)
+        source = scans[si[1]].points()
+        from_ours = register(source, target, ours, config=cfg).pose
+        from_reference = register(source, target, reference, config=cfg).pose
+        rows.append([*_error(ours, reference), *_error(from_ours, reference),
+                     *_error(from_reference, reference)])
+    if not rows:
+        sys.exit("no short relation matched both the trajectory and the log (stamps within 1 ms)")
+    e = np.array(rows)
+    print(f"{len(e)} relations under {args.max_dt:g} s (every {args.every}) of {len(short)}")
+    print(f"{'estimate':34s} {'trans mean':>10s} {'median':>8s} {'rot mean':>9s} {'median':>8s}")
+    for k, name in enumerate(("trajectory", "pairwise ICP from the trajectory",
+                              "pairwise ICP from the reference")):
+        t, r = e[:, 2 * k], e[:, 2 * k + 1]
+        print(f"{name:34s} {t.mean():10.4f} {np.median(t):8.4f} {r.mean():9.3f} "
+              f"{np.median(r):8.3f}")
+
+
+if __name__ == "__main__":
+    main()
