@@ -42,9 +42,9 @@ tolerance, because a prior from drifting wheel odometry can be off by more than
 the guesses' offsets, and ICP still converges from there.  The bar is half the
 gated fitness threshold: a fit of fitness F has at least F of the query's points
 within ``fitness_tolerance`` of a wall; at a guess ``d`` from the fit each of them
-is within about ``d`` of that wall and scores at least ``1 - (d / g)^2``, above
-0.8 for a guess within the offsets' spacing (0.5 m, g = 1 m) of the fit, so a fit
-that could pass scores well above F / 2 at its best guess.
+is within about ``d`` of that wall and scores at least ``1 - (d / g)^2``: at
+least 0.75 for a fit within the offsets' spacing (0.5 m, g = 1 m) of a guess, so
+a fit that could pass scores well above F / 2 at its best guess.
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
