@@ -48,6 +48,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -130,32 +131,43 @@ def surface_points(
     return np.column_stack([cols * dx, rows * dy, z[rows, cols]])
 
 
+@lru_cache(maxsize=4)
+def _pairs(n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Index arrays ``(i, m)`` of the pairs ``i < m`` of ``n`` points (cached: one size
+    serves every object with `SurfaceConfig.points` points)."""
+    i, m = np.triu_indices(n, k=1)
+    return i, m
+
+
 def surface_histogram(points: ArrayLike, config: SurfaceConfig | None = None) -> Array:
     """The joint histogram of ``(log(r / median r), elevation)`` over all pairs of `points`
     ``(P, 3)`` [m, z up] (module docstring), ``(distance_bins, elevation_bins)``, sum 1.
 
     Fewer than two distinct points: all mass in the bin of the median distance and
-    zero elevation.
+    zero elevation.  Vectorised over the pairs, one coordinate at a time.
     """
     cfg = config or SurfaceConfig()
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     out = np.zeros((cfg.distance_bins, cfg.elevation_bins))
-    i, m = np.triu_indices(len(p), k=1)
-    v = p[i] - p[m]
-    horizontal = np.hypot(v[:, 0], v[:, 1])
-    vertical = np.abs(v[:, 2])
-    r = np.hypot(horizontal, vertical)
-    ok = r > 0
+    i, m = _pairs(len(p))
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    dx, dy = x[i] - x[m], y[i] - y[m]
+    vertical = np.abs(z[i] - z[m])
+    h2 = dx * dx + dy * dy
+    r2 = h2 + vertical * vertical
+    ok = r2 > 0
     lo, hi = cfg.log_range
     if not ok.any():
         out[int(np.clip(-lo / (hi - lo) * cfg.distance_bins, 0, cfg.distance_bins - 1)), 0] = 1
         return out
-    r, horizontal, vertical = r[ok], horizontal[ok], vertical[ok]
+    if not ok.all():
+        r2, h2, vertical = r2[ok], h2[ok], vertical[ok]
+    r = np.sqrt(r2)
     lr = np.log(r / np.median(r))
-    bd = np.clip(((lr - lo) / (hi - lo) * cfg.distance_bins).astype(np.int64), 0,
+    bd = np.clip(((lr - lo) * (cfg.distance_bins / (hi - lo))).astype(np.int64), 0,
                  cfg.distance_bins - 1)
-    be = np.minimum((np.arctan2(vertical, horizontal) / (np.pi / 2)
-                     * cfg.elevation_bins).astype(np.int64), cfg.elevation_bins - 1)
+    be = np.minimum((np.arctan2(vertical, np.sqrt(h2)) * (2.0 / np.pi * cfg.elevation_bins))
+                    .astype(np.int64), cfg.elevation_bins - 1)
     counts = np.bincount(bd * cfg.elevation_bins + be,
                          minlength=cfg.distance_bins * cfg.elevation_bins)
     return (counts / counts.sum()).reshape(out.shape)
