@@ -26,7 +26,17 @@ distances divided by their per-query median, then averaged, `loopclosure.stripes
 - ``relief`` (`loopclosure.stripes.relief`, the ``relief`` row of ``bench stripes``)
   and ``fused-relief`` (profile + relief + ``shape-context-50``, the ``fused-relief``
   row); ``fuse(p,relief)``, ``fuse(relief,sc50)``, ``fuse(p,relief,mrm)``: the relief
-  with other partners.
+  with other partners;
+- ``surface`` (`loopclosure.stripes.surface`, the surface context), ``fused-stripes``
+  (profile + relief + surface: nothing but the stripes) and ``fused`` (those three and
+  ``shape-context-50``: the default matcher), the rows of ``bench stripes``;
+  ``fuse(p,fft,ring)`` is the earlier default (profile + FFT + ring projection);
+- ``fused+aspect``: ``fused`` with a fifth part, the aspect ratio of the 3D extent
+  ``log(top height / r_eq)`` (metres from the scanner's calibration; ``r_eq`` the
+  radius of the disc of the footprint's area), median-normalised like the others;
+- ``stripes n=32``: the paper's descriptor and Eq. 4-6 with every object described by
+  32 evenly spaced stripes (``DescriptorConfig(stripe_count=32)``, ``bench stripes
+  --stripe-count 32``): the sweep density the paper leaves to the arm's speed.
 
 Time (column ``s/100``): seconds of representation + matching of 100 objects (every
 descriptor and the full distance matrix), one wall-clock measurement per method on
@@ -60,10 +70,16 @@ from evaluation.stripes_benchmark import (  # noqa: E402
     relief_distances,
     run_stripes_benchmark,
     stripes_distances,
+    surface_distances,
 )
 from evaluation.stripes_objects import mesh_folder_objects, silhouette_polygon  # noqa: E402
 from loopclosure.matchers import get_matcher  # noqa: E402
-from loopclosure.stripes import SC_VERIFIERS, describe_profiles, fuse  # noqa: E402
+from loopclosure.stripes import (  # noqa: E402
+    SC_VERIFIERS,
+    DescriptorConfig,
+    describe_profiles,
+    fuse,
+)
 from loopclosure.stripes.profile import _median_scale  # noqa: E402
 
 OTHER_LABELS = ROOT / "benchmarks" / "stripes_ycb_other_labels.csv"
@@ -86,6 +102,19 @@ def elongation(vertices: np.ndarray) -> float:
     ixy = ((x * y1 + 2 * x * y + 2 * x1 * y1 + x1 * y) * a).sum() / (24 * area) - cx * cy
     w = np.linalg.eigvalsh(np.array([[ixx, ixy], [ixy, iyy]]))
     return float(0.5 * np.log(w[1] / max(w[0], 1e-12)))
+
+
+def aspect(scan, scanner: ScannerConfig) -> float:
+    """``log(top / r_eq)``: the 98th-percentile height [m] over the radius [m] of the disc
+    of the seen footprint's area (`StripeScan.height_map`)."""
+    z, (dy, dx) = scan.height_map(scanner)
+    h = z[np.isfinite(z)]
+    return float(np.log(np.percentile(h, 98.0) / np.sqrt(len(h) * dx * dy / np.pi)))
+
+
+def scalar_distances(values: np.ndarray) -> np.ndarray:
+    """``|a_i - a_j|`` of one scalar per object."""
+    return np.abs(values[:, None] - values[None])
 
 
 def profile_plus(stripes: list, extra: np.ndarray) -> np.ndarray:
@@ -135,7 +164,6 @@ def prof_elong(stripes: list, polys: list) -> np.ndarray:
 #: Methods of every variant (module docstring; "fuse" = the fusion step).
 P_SC = ("profile", "shape-context", "fuse")
 PARTS: dict[str, tuple[str, ...]] = {
-    "fused": ("profile", "fft", "ring", "fuse"),
     "fused-sc": ("profile", *SC_VERIFIERS, "fuse"),
     "fuse(pel,fft,ring)": ("prof+elong", "fft", "ring", "fuse"),
     "fuse(p,sc)": P_SC, "fuse(pel,sc)": ("prof+elong", "shape-context", "fuse"),
@@ -148,6 +176,10 @@ PARTS: dict[str, tuple[str, ...]] = {
     "fuse(p,relief)": ("profile", "relief", "fuse"),
     "fuse(relief,sc50)": ("relief", "shape-context-50", "fuse"),
     "fuse(p,relief,mrm)": ("profile", "relief", "mrm", "fuse"),
+    "fused-stripes": ("profile", "relief", "surface", "fuse"),
+    "fused": ("profile", "relief", "surface", *SC_VERIFIERS, "fuse"),
+    "fuse(p,fft,ring)": ("profile", "fft", "ring", "fuse"),
+    "fused+aspect": ("profile", "relief", "surface", *SC_VERIFIERS, "aspect", "fuse"),
     "p>sc top2": P_SC, "p>sc top3": P_SC, "p>sc top5": P_SC, "rank(p+sc)": P_SC,
 }
 
@@ -157,6 +189,11 @@ def method_seconds(scans: list, polys: list) -> dict[str, float]:
     out = {"stripes": stripes_distances(scans)[1]}
     p, out["profile"] = profile_distances(scans)
     out["relief"] = relief_distances(scans, ScannerConfig())[1]
+    out["surface"] = surface_distances(scans, ScannerConfig())[1]
+    out["stripes n=32"] = stripes_distances(scans, DescriptorConfig(stripe_count=32))[1]
+    t0 = time.perf_counter()
+    scalar_distances(np.array([aspect(s, ScannerConfig()) for s in scans]))
+    out["aspect"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     prof_elong([s.stripes for s in scans], polys)
     out["prof+elong"] = time.perf_counter() - t0
@@ -203,6 +240,10 @@ def variants(r, scanner: ScannerConfig) -> dict[str, np.ndarray]:
     v["fuse(p,relief)"] = fuse([p, rel])
     v["fuse(relief,sc50)"] = fuse([rel, sc50])
     v["fuse(p,relief,mrm)"] = fuse([p, rel, m["mrm"]])
+    v["fuse(p,fft,ring)"] = fuse([p, m["fft"], m["ring"]])
+    asp = scalar_distances(np.array([aspect(s, scanner) for s in r.scanned.scans]))
+    v["fused+aspect"] = fuse([p, rel, m["surface"], sc50, asp])
+    v["stripes n=32"] = stripes_distances(r.scanned.scans, DescriptorConfig(stripe_count=32))[0]
     return v
 
 

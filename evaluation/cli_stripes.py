@@ -85,9 +85,10 @@ def stripes(
     ] = "shape-context,mrm,fft",
     fused: Annotated[
         str,
-        typer.Option("--fused", help="Silhouette verifiers of the fused matcher ('none': "
-                     "no fused row)."),
-    ] = "fft,ring",
+        typer.Option("--fused", help="Silhouette verifiers of the fused matcher, the "
+                     "default: profile, relief, surface context and these ('none': no "
+                     "fused row; fft,ring: the microsecond verifiers)."),
+    ] = "shape-context-50",
     fused_sc: Annotated[
         str,
         typer.Option("--fused-sc", help="Silhouette verifiers of the fused-sc row, the "

@@ -24,10 +24,16 @@ Methods on the same scans:
   resampled to 32 positions along the sweep, scale-free, order kept; see
   `loopclosure.stripes.profile`) and `ProfileDatabase`: the stripe matcher for object
   classes whose members differ in size.
-- ``fused``: the stripe profile distance and silhouette verifiers (default FFT and
-  ring projection) combined by `loopclosure.stripes.fuse` (each method's distances
-  divided by their per-query median, equal weights); its time is the profile's plus
-  the verifiers'.
+- ``surface``: the same stripes' heights as 3D surface points in metres and
+  `loopclosure.stripes.SurfaceDatabase`: the joint histogram of the distances
+  (scale-free) and elevations of pairs of surface points, Eq. 1-2 over the whole
+  object instead of within one stripe.
+- ``fused-stripes``: profile, relief and surface context combined by
+  `loopclosure.stripes.fuse` (each method's distances divided by their per-query
+  median, equal weights): the matcher that reads nothing but the stripes.
+- ``fused``: the default matcher (`loopclosure.stripes.FusedObjectDatabase`):
+  ``fused-stripes``'s three parts and the silhouette verifiers (default
+  ``shape-context-50``), same rule; its time is the parts' times plus the fusion.
 - ``fused-sc``: the same rule with shape context as the one verifier (the profile's
   distance and shape context's, each divided by its per-query median, equal
   weights); by default the ``shape-context-50`` preset of
@@ -97,9 +103,12 @@ from loopclosure.stripes import (
     ReliefConfig,
     ReliefDatabase,
     StripeDatabase,
+    SurfaceConfig,
+    SurfaceDatabase,
     describe_many,
     describe_profiles,
     describe_relief,
+    describe_surface,
     fuse,
 )
 from loopclosure.stripes.fusion import VERIFIER_PRESETS, verifier_options
@@ -157,6 +166,17 @@ def relief_distances(
     t0 = time.perf_counter()
     reliefs = [describe_relief(*s.height_map(scanner), config, s.name) for s in scans]
     d = ReliefDatabase(reliefs).pairwise()
+    return d, time.perf_counter() - t0
+
+
+def surface_distances(
+    scans: Sequence[StripeScan], scanner: ScannerConfig, config: SurfaceConfig | None = None
+) -> tuple[Array, float]:
+    """Surface contexts of every scan (heights from `StripeScan.height_map` with the
+    `scanner` that made them) and the full distance matrix; wall time [s]."""
+    t0 = time.perf_counter()
+    surfaces = [describe_surface(*s.height_map(scanner), config, s.name) for s in scans]
+    d = SurfaceDatabase(surfaces).pairwise()
     return d, time.perf_counter() - t0
 
 
@@ -218,11 +238,14 @@ class StripesBenchmarkConfig:
         descriptor: stripe descriptor parameters.
         silhouette_smooth: contour smoothing of the silhouettes [px].
         profile: stripe profile parameters (the ``profile`` row and the fused matcher).
-        fused: silhouette verifiers of the fused matcher (empty: no fused row).
+        fused: silhouette verifiers of the ``fused`` row (profile, relief, surface
+            context and these; empty: no fused row).
         fused_sc: silhouette verifiers of the ``fused-sc`` row (empty: no such row).
         relief: relief parameters (the ``relief`` row and the ``fused-relief`` row).
         fused_relief: silhouette verifiers of the ``fused-relief`` row, the profile and
             the relief verified by them (empty: no such row).
+        surface: surface-context parameters (the ``surface`` row, ``fused-stripes``
+            and ``fused``).
     """
 
     seed: int = 0
@@ -237,6 +260,7 @@ class StripesBenchmarkConfig:
     fused_sc: tuple[str, ...] = SC_VERIFIERS
     relief: ReliefConfig = field(default_factory=ReliefConfig)
     fused_relief: tuple[str, ...] = SC_VERIFIERS
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -254,6 +278,7 @@ class StripesBenchmarkConfig:
             "fused_sc": list(self.fused_sc),
             "relief": asdict(self.relief),
             "fused_relief": list(self.fused_relief),
+            "surface": asdict(self.surface),
         }
 
 
@@ -274,6 +299,8 @@ class StripesBenchmarkResult:
     fused_sc: MethodResult | None = None
     relief: MethodResult | None = None
     fused_relief: MethodResult | None = None
+    surface: MethodResult | None = None
+    fused_stripes: MethodResult | None = None
 
     @property
     def classes(self) -> list[str]:
@@ -286,10 +313,11 @@ class StripesBenchmarkResult:
                 for c in self.classes}
 
     def methods(self) -> dict[str, MethodResult]:
-        """Every method's figures: stripes, profile, relief, fused, fused-sc and
-        fused-relief (when run), then the baselines."""
+        """Every method's figures: stripes, profile, relief, surface, fused-stripes,
+        fused, fused-sc and fused-relief (when run), then the baselines."""
         out = {"stripes": self.stripes, "profile": self.profile}
-        for name, res in (("relief", self.relief), ("fused", self.fused),
+        for name, res in (("relief", self.relief), ("surface", self.surface),
+                          ("fused-stripes", self.fused_stripes), ("fused", self.fused),
                           ("fused-sc", self.fused_sc), ("fused-relief", self.fused_relief)):
             if res is not None:
                 out[name] = res
@@ -326,6 +354,8 @@ class StripesBenchmarkResult:
             "fused_sc": None if self.fused_sc is None else self.fused_sc.to_json(),
             "relief": None if self.relief is None else self.relief.to_json(),
             "fused_relief": None if self.fused_relief is None else self.fused_relief.to_json(),
+            "surface": None if self.surface is None else self.surface.to_json(),
+            "fused_stripes": None if self.fused_stripes is None else self.fused_stripes.to_json(),
             "different_pose": s.different_pose,
             "dataset": self.dataset,
             "scans": len(self.scanned.scans),
@@ -439,6 +469,9 @@ def matcher_task(task: MatcherTask) -> MatcherRows:
         return MatcherRows("profile", *profile_distances(scanned.scans, cfg.profile))
     if task.method == "relief":
         return MatcherRows("relief", *relief_distances(scanned.scans, cfg.scanner, cfg.relief))
+    if task.method == "surface":
+        return MatcherRows("surface", *surface_distances(scanned.scans, cfg.scanner,
+                                                         cfg.surface))
     key = _scan_key(task.source, cfg)
     if key not in _SILHOUETTES:
         t0 = time.perf_counter()
@@ -484,7 +517,7 @@ def run_stripes_benchmark(
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
     key: StripesSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
     tasks = [MatcherTask(key, cfg, m)
-             for m in ("stripes", "profile", "relief", *available, *verifiers)]
+             for m in ("stripes", "profile", "relief", "surface", *available, *verifiers)]
     _SCANNED[_scan_key(key, cfg)] = (scanned, progress)
     try:
         rows = {}
@@ -499,18 +532,23 @@ def run_stripes_benchmark(
     relief_rows = rows.pop("relief")
     relief = evaluate("relief", relief_rows.distances, scanned.labels, scanned.objects,
                       relief_rows.seconds, cfg.k, asdict(cfg.relief))
+    surface_rows = rows.pop("surface")
+    surface = evaluate("surface", surface_rows.distances, scanned.labels, scanned.objects,
+                       surface_rows.seconds, cfg.k, asdict(cfg.surface))
     ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
                           r.options) for n, r in rows.items()}
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
-    fused = _fused(scanned, profile, ranked, cfg, cfg.fused) if cfg.fused else None
-    fused_sc = (_fused(scanned, profile, ranked, cfg, cfg.fused_sc, "fused-sc")
+    three = [profile, relief, surface]
+    fused_stripes = _fused(scanned, three, ranked, cfg, (), "fused-stripes")
+    fused = _fused(scanned, three, ranked, cfg, cfg.fused) if cfg.fused else None
+    fused_sc = (_fused(scanned, [profile], ranked, cfg, cfg.fused_sc, "fused-sc")
                 if cfg.fused_sc else None)
-    fused_relief = (_fused(scanned, profile, ranked, cfg, cfg.fused_relief, "fused-relief",
-                           relief) if cfg.fused_relief else None)
+    fused_relief = (_fused(scanned, [profile, relief], ranked, cfg, cfg.fused_relief,
+                           "fused-relief") if cfg.fused_relief else None)
     baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
                                   baselines, fused, skipped, silhouette_seconds, fused_sc,
-                                  relief, fused_relief)
+                                  relief, fused_relief, surface, fused_stripes)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -553,18 +591,16 @@ def _rank_with_profile(
 
 
 def _fused(
-    scanned: ScannedSet, profile: MethodResult, ranked: dict[str, MethodResult],
+    scanned: ScannedSet, stripe_side: Sequence[MethodResult], ranked: dict[str, MethodResult],
     cfg: StripesBenchmarkConfig, verifiers: Sequence[str], name: str = "fused",
-    relief: MethodResult | None = None,
 ) -> MethodResult:
-    """A fused matcher's figures from the profile's (and the `relief`'s, when given) and
-    the `verifiers`' matrices."""
+    """A fused matcher's figures from the matrices of its stripe-side parts (the profile,
+    and the relief and surface context when given) and of the `verifiers`."""
     t0 = time.perf_counter()
-    stripe_side = [profile] if relief is None else [profile, relief]
     d = fuse([*(r.distances for r in stripe_side), *(ranked[n].distances for n in verifiers)])
     secs = (sum(r.seconds for r in stripe_side) + sum(ranked[n].seconds for n in verifiers)
             + time.perf_counter() - t0)
     return evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
                     {"verifiers": list(verifiers), "normalisation": "per-query median",
-                     "stripes": "profile" if relief is None else "profile + relief",
+                     "stripes": " + ".join(r.name for r in stripe_side),
                      "samples": cfg.profile.samples})

@@ -226,8 +226,10 @@ def test_cli_json_keys_on_a_tiny_daily_set(monkeypatch, capsys, tmp_path):
     assert 0 <= js["bullseye"] <= 100 and js["seconds"] > 0
     assert set(js["baselines"]) == {"fft", "shape-context"}
     assert len(js["fused"]["top10_counts"]) == 10 and js["fused"]["options"]["verifiers"] == [
-        "fft", "ring"]
-    assert js["fused"]["options"]["stripes"] == "profile"
+        "shape-context-50"]
+    assert js["fused"]["options"]["stripes"] == "profile + relief + surface"
+    assert js["fused_stripes"]["options"]["verifiers"] == []
+    assert len(js["surface"]["top10_counts"]) == 10
     assert len(js["profile"]["top10_counts"]) == 10 and js["profile"]["top10_counts"][0] == 4
     assert set(js["profile_wins_and_losses"]) == {"fft", "shape-context"}
     assert js["different_pose"] == {}  # one scan per object: no different-pose figures

@@ -103,10 +103,14 @@ def test_fused_database_finds_the_matching_object():
     db = FusedObjectDatabase(descs, [circle, square, ellipse])
     order, dist = db.query(descs[1], square, k=3)
     assert order[0] == 1 and dist[0] == pytest.approx(0.0, abs=1e-9)
-    assert len(db.method_distances(descs[0], circle)) == 3
+    # Default verifier: shape context on 50 points; stripes + verifier = two parts.
+    assert db.verifier_names == ("shape-context-50",)
+    assert len(db.method_distances(descs[0], circle)) == 2
+    fast = FusedObjectDatabase(descs, [circle, square, ellipse], verifiers=("fft", "ring"))
+    assert len(fast.method_distances(descs[0], circle)) == 3
     with pytest.raises(UserError, match="one polygon per object"):
         FusedObjectDatabase(descs, [circle])
-    with pytest.raises(UserError, match="weights need 3"):
+    with pytest.raises(UserError, match="weights need 2"):
         FusedObjectDatabase(descs, [circle, square, ellipse], weights=[1.0])
 
 

@@ -131,7 +131,7 @@ def test_fused_database_with_reliefs_is_the_three_part_fusion():
         db.distances(profiles[2], polys[2])
     with pytest.raises(UserError, match="weights need 3"):
         FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs, weights=[1, 1])
-    with pytest.raises(UserError, match="one relief per object"):
+    with pytest.raises(UserError, match="reliefs must hold one per object"):
         FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs[:2])
     plain = FusedObjectDatabase(profiles, polys, verifiers=("fft",))
     with pytest.raises(UserError, match="no reliefs"):

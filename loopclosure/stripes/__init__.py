@@ -9,8 +9,9 @@ one vectorised pass.  `profile` keeps the stripes in scan order instead: a fixed
 scale-free sequence of ``[l, d, e]`` per object (`profile.ProfileDatabase`), for object
 classes whose members differ in size; `relief` reads the stripes' heights as one top
 view (how far the surface lies below the object's top, ring by ring about its centre:
-`relief.ReliefDatabase`); `fusion.FusedObjectDatabase` verifies the stripe distance
-with silhouette matchers.
+`relief.ReliefDatabase`); `surface` takes Eq. 1-2's pair distances and directions over
+the whole object's 3D surface (`surface.SurfaceDatabase`); `fusion.FusedObjectDatabase`
+fuses profile, relief and surface context with silhouette matchers.
 """
 
 from loopclosure.stripes.database import StripeDatabase
@@ -31,6 +32,7 @@ from loopclosure.stripes.extraction import (
 )
 from loopclosure.stripes.fusion import (
     DEFAULT_VERIFIERS,
+    FAST_VERIFIERS,
     FUSED_DESCRIPTOR,
     SC_VERIFIERS,
     FusedObjectDatabase,
@@ -62,9 +64,18 @@ from loopclosure.stripes.relief import (
     StripeRelief,
     describe_relief,
 )
+from loopclosure.stripes.surface import (
+    StripeSurface,
+    SurfaceConfig,
+    SurfaceDatabase,
+    describe_surface,
+    surface_histogram,
+    surface_points,
+)
 
 __all__ = [
     "DEFAULT_VERIFIERS",
+    "FAST_VERIFIERS",
     "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
     "PROFILE_SAMPLES",
@@ -79,6 +90,9 @@ __all__ = [
     "StripeDescriptor",
     "StripeProfile",
     "StripeRelief",
+    "StripeSurface",
+    "SurfaceConfig",
+    "SurfaceDatabase",
     "bhattacharyya",
     "chain_pixels",
     "describe_many",
@@ -86,6 +100,7 @@ __all__ = [
     "describe_profiles",
     "describe_relief",
     "describe_stripes",
+    "describe_surface",
     "feature_distances",
     "fuse",
     "normalised",
@@ -99,6 +114,8 @@ __all__ = [
     "stripe_shape",
     "stripes_from_laser_images",
     "stripes_from_points",
+    "surface_histogram",
+    "surface_points",
     "thin",
     "trim_range",
 ]

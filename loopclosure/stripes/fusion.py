@@ -24,16 +24,24 @@ stripe counts.
 
 `FusedObjectDatabase` holds one `ProfileDatabase` (or `StripeDatabase`), optionally
 a `relief.ReliefDatabase` (the objects' reliefs: depth below the top, ring by ring,
-read from the same stripes as heights), and, per verifier, the silhouette
-descriptors of the same objects; a query is the object's stripe profile (or
-descriptor), its relief when the database holds reliefs, and its silhouette polygon
-(the scanned footprint in the table plane, millimetres).  Profile, relief and
-shape context (`SC_VERIFIERS`) together are the ``fused-relief`` matcher of
-``bench stripes``: the relief says how deep the surface falls below the top, which
-neither the profile (each stripe in units of its own width) nor the outline sees.  The
-default verifiers are FFT and ring projection (`loopclosure.matchers`), scale
-invariant: both cost microseconds per pair, so the fused matcher keeps the stripes'
-speed.
+read from the same stripes as heights) and a `surface.SurfaceDatabase` (the surface
+context: distances and elevations of pairs of the object's 3D surface points, Eq.
+1-2 over the whole object), and, per verifier, the silhouette descriptors of the same
+objects; a query is the object's stripe profile (or descriptor), its relief and
+surface context when the database holds them, and its silhouette polygon (the
+scanned footprint in the table plane, millimetres).
+
+The default matcher (``fused`` in ``bench stripes``) is all four parts: profile,
+relief, surface context and shape context on 50 points (`DEFAULT_VERIFIERS`), each
+divided by its per-query median, equal weights.  Each part reads what the others
+miss: the profile where along its length the object is tall, round or flat (blind
+to the outline once resampled); the relief how deep the surface falls below the top
+(flat box tops against studded bricks, lids, domes and hollows); the surface context
+how the parts lie relative to each other in 3D (a cup's rim over its bottom, a
+bottle's cap over its shoulders); shape context the footprint's outline (blind to
+height).  Give `reliefs` and `surfaces` for it; without them the fusion is the
+profile and the verifiers.  FFT and ring projection (`FAST_VERIFIERS`) are the
+microsecond alternative to shape context.
 """
 
 from __future__ import annotations
@@ -51,11 +59,10 @@ from loopclosure.stripes.database import StripeDatabase
 from loopclosure.stripes.descriptor import DescriptorConfig, StripeDescriptor
 from loopclosure.stripes.profile import ProfileDatabase, StripeProfile
 from loopclosure.stripes.relief import ReliefDatabase, StripeRelief
+from loopclosure.stripes.surface import StripeSurface, SurfaceDatabase
 
 Array = NDArray[np.float64]
 
-#: Silhouette matchers fused with the stripes by default.
-DEFAULT_VERIFIERS: tuple[str, ...] = ("fft", "ring")
 #: Verifier names that stand for a matcher with options: name -> (matcher, options).
 #: ``shape-context-50``: shape context on 50 boundary points (instead of 100) with the
 #: compiled kernel (`loopclosure.matchers.shape_context_kernel`); the assignment is
@@ -66,6 +73,10 @@ VERIFIER_PRESETS: dict[str, tuple[str, dict[str, Any]]] = {
 #: The shape-context verifier: the profile's complement (the footprint's outline, which
 #: the resampled profile drops), at shape context's all-pairs point-matching cost.
 SC_VERIFIERS: tuple[str, ...] = ("shape-context-50",)
+#: Silhouette matchers fused with the stripes by default (module docstring).
+DEFAULT_VERIFIERS: tuple[str, ...] = SC_VERIFIERS
+#: The cheap verifiers: global summaries of the outline at microseconds per pair.
+FAST_VERIFIERS: tuple[str, ...] = ("fft", "ring")
 #: Stripes per object when the fusion's stripe side is the paper's descriptor.
 FUSED_STRIPE_COUNT = 32
 #: Descriptor parameters for `StripeDescriptor`s in the fusion (module docstring).
@@ -134,11 +145,14 @@ class FusedObjectDatabase:
             `StripeDescriptor` (made with `FUSED_DESCRIPTOR`); queries must be
             described the same way.
         silhouettes: one silhouette `Polygon` per object (same order).
-        verifiers: silhouette matcher names (`loopclosure.matchers`).
+        verifiers: silhouette matcher names (`loopclosure.matchers`, or a preset of
+            `VERIFIER_PRESETS`); default shape context on 50 points.
         weights: fusion weights, stripes first, then the relief (when `reliefs` is
-            given), then each verifier (None: equal).
+            given), the surface context (when `surfaces` is given), then each
+            verifier (None: equal).
         stripe_weights: Eq. 5 weights of the stripe distance (`StripeDescriptor`s only).
         reliefs: one `StripeRelief` per object (same order), or None: no relief part.
+        surfaces: one `StripeSurface` per object (same order), or None: no surface part.
     """
 
     def __init__(
@@ -149,18 +163,21 @@ class FusedObjectDatabase:
         weights: Sequence[float] | None = None,
         stripe_weights: Sequence[float] | None = None,
         reliefs: Sequence[StripeRelief] | None = None,
+        surfaces: Sequence[StripeSurface] | None = None,
     ) -> None:
         if len(descriptors) != len(silhouettes):
             raise UserError(f"silhouettes must hold one polygon per object: {len(silhouettes)} "
                             f"for {len(descriptors)} descriptors")
-        if reliefs is not None and len(reliefs) != len(descriptors):
-            raise UserError(f"reliefs must hold one relief per object: {len(reliefs)} "
-                            f"for {len(descriptors)} descriptors")
-        parts = 1 + (reliefs is not None) + len(verifiers)
+        for what, items in (("reliefs", reliefs), ("surfaces", surfaces)):
+            if items is not None and len(items) != len(descriptors):
+                raise UserError(f"{what} must hold one per object: {len(items)} "
+                                f"for {len(descriptors)} descriptors")
+        parts = 1 + (reliefs is not None) + (surfaces is not None) + len(verifiers)
         if weights is not None and len(weights) != parts:
             raise UserError(f"weights need {parts} values (stripes, "
-                            f"{'the relief, ' if reliefs is not None else ''}then each "
-                            f"verifier), got {len(weights)}")
+                            f"{'the relief, ' if reliefs is not None else ''}"
+                            f"{'the surface context, ' if surfaces is not None else ''}then "
+                            f"each verifier), got {len(weights)}")
         self.stripes: ProfileDatabase | StripeDatabase
         if descriptors and all(isinstance(d, StripeProfile) for d in descriptors):
             if stripe_weights is not None:
@@ -171,6 +188,7 @@ class FusedObjectDatabase:
                             else StripeDatabase(descriptors, stripe_weights))  # type: ignore[arg-type]
         self.weights = None if weights is None else tuple(float(w) for w in weights)
         self.reliefs = None if reliefs is None else ReliefDatabase(reliefs)
+        self.surfaces = None if surfaces is None else SurfaceDatabase(surfaces)
         self.matchers = [verifier(n) for n in verifiers]
         self.verifier_names = tuple(verifiers)
         self.stacks = [m.stack([m.describe(p) for p in silhouettes]) for m in self.matchers]
@@ -180,34 +198,39 @@ class FusedObjectDatabase:
 
     def method_distances(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
-        relief: StripeRelief | None = None,
+        relief: StripeRelief | None = None, surface: StripeSurface | None = None,
     ) -> list[Array]:
-        """``(K,)`` distances of the stripes, the relief (when the database holds
-        reliefs: then the query's `relief` is required), then each verifier, to every
-        object."""
-        if (relief is None) != (self.reliefs is None):
-            raise UserError("give the query's relief exactly when the database holds "
-                            "reliefs" if self.reliefs is not None else
-                            "this database holds no reliefs; query without a relief")
+        """``(K,)`` distances of the stripes, the relief, the surface context (each when
+        the database holds them: then the query's is required), then each verifier, to
+        every object."""
+        for what, mine, theirs in (("relief", relief, self.reliefs),
+                                   ("surface context", surface, self.surfaces)):
+            if (mine is None) != (theirs is None):
+                raise UserError(f"give the query's {what} exactly when the database holds "
+                                f"{what}s" if theirs is not None else
+                                f"this database holds no {what}s; query without one")
         out = [self.stripes.distances(descriptor)]  # type: ignore[arg-type]
         if self.reliefs is not None and relief is not None:
             out.append(self.reliefs.distances(relief))
+        if self.surfaces is not None and surface is not None:
+            out.append(self.surfaces.distances(surface))
         for m, st in zip(self.matchers, self.stacks, strict=True):
             out.append(np.asarray(m.distances(m.describe(silhouette), st), dtype=float))
         return out
 
     def distances(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
-        relief: StripeRelief | None = None,
+        relief: StripeRelief | None = None, surface: StripeSurface | None = None,
     ) -> Array:
         """``(K,)`` fused distances of the query to every object (module docstring)."""
-        return fuse(self.method_distances(descriptor, silhouette, relief), self.weights)
+        return fuse(self.method_distances(descriptor, silhouette, relief, surface),
+                    self.weights)
 
     def query(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10,
-        relief: StripeRelief | None = None,
+        relief: StripeRelief | None = None, surface: StripeSurface | None = None,
     ) -> tuple[NDArray[np.int64], Array]:
         """Indices and fused distances of the `k` nearest objects, nearest first."""
-        d = self.distances(descriptor, silhouette, relief)
+        d = self.distances(descriptor, silhouette, relief, surface)
         order = np.argsort(d, kind="stable")[:k]
         return order, d[order]
