@@ -555,10 +555,19 @@ class AdmissionPass:
         self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
         self._step = 0
         self.folded = False  # the iSAM2 prefix stopped converging (batch solves from then on)
+        self._released = False  # the iSAM2 prefix dropped by `release_prefix` (not folded)
 
     @property
     def done(self) -> bool:
         return self._step == len(self._ends)
+
+    def release_prefix(self) -> None:
+        """Drop the iSAM2 of the solved prefix (memory: one per pass, and
+        `incremental_tls` keeps several passes until it chooses among them); only for a
+        pass that will not `advance` again."""
+        if self._isam is not None:
+            self._isam = None
+            self._released = True
 
     def advance(self, until_fold: bool = False, blocks: int | None = None) -> None:
         """Add blocks to the end, or until the block that folded (`until_fold`), or
@@ -670,7 +679,7 @@ class AdmissionPass:
         cost = self._fixed.error(self.current) - errors[w > 0.5].sum() + np.minimum(
             errors, self._c).sum()
         prefix = self.prefix_solver
-        if prefix == "isam2" and self._isam is None:
+        if prefix == "isam2" and self._isam is None and not self._released:
             prefix = "isam2-then-batch"
         return Admission(self.current, w, float(cost), self.blocks, self.gate, prefix)
 
@@ -890,11 +899,15 @@ def incremental_tls(
                                 gate=gate, solver=solver, prefix_solver=prefix_solver,
                                 unit=unit)
             run.advance(until_fold=True)
+            if run.done:
+                run.release_prefix()
             runs.append((label, decide, run))
     # Finished runs first, then the folded ones in ladder order, each only if still ahead.
     finished: list[tuple[Admission, PoseGraph]] = []
     for label, decide, run in sorted(runs, key=lambda r: not r[2].done):
-        if not _finish_unless_behind(run, best, stated, probability):
+        finishes = _finish_unless_behind(run, best, stated, probability)
+        run.release_prefix()  # decided: the pass is never advanced again
+        if not finishes:
             continue
         refined, weights = refine_tls(
             graph, run.current, run.weights, probability=probability, solver=solver,
