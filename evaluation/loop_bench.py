@@ -429,6 +429,21 @@ def _mapping(
     return _MAPPED[key]
 
 
+def mapped_input(
+    source: LoopSource, config: PipelineConfig, progress: Progress = _no_progress
+) -> tuple[Mapper, MappingResult, Array]:
+    """`source` read and mapped as the benchmark maps it (protocol step 1: the loop
+    searches off), for diagnoses of single queries.
+
+    Returns the mapper (its ``detector`` holds every keyframe's description and submap;
+    ``query_submaps[k]`` is keyframe k's submap as it was when k was the newest), the
+    mapping, and the reference poses of its keyframes ``(n, 3)`` (NaN rows: none)."""
+    inp, _ = _input_of(source)
+    mapper, result, _ = _mapping(source, inp, config, progress)
+    ref = np.asarray(inp.reference(result), float).reshape(len(result.keyframes), 3)
+    return mapper, result, ref
+
+
 def loop_task(task: LoopTask) -> LoopBlock:
     """One stage block (`LoopTask`): the input mapped (once per process), its queries
     and their truth; a `LoopBlock`."""
