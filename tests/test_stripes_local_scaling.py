@@ -115,3 +115,29 @@ def test_fused_database_local_and_median():
         FusedObjectDatabase(profiles, polys, scaling="rank")
     with pytest.raises(UserError, match="neighbour"):
         FusedObjectDatabase(profiles, polys, neighbour=0)
+
+
+def test_diagnosis_blocks_and_figures_by_hand():
+    from benchmarks.stripes_diagnosis import Column, hit_rate, pose_figures, profile_block
+
+    profiles, _ = _objects()
+    stack = np.stack([p.profile for p in profiles])
+    everything = np.arange(len(profiles))
+    np.testing.assert_allclose(profile_block(stack, everything, everything),
+                               ProfileDatabase(profiles).pairwise())
+    # A query block against part of the database: that database's medians.
+    rows, cols = np.array([0, 5]), np.array([1, 2, 3, 6])
+    sub = ProfileDatabase([profiles[i] for i in cols])
+    np.testing.assert_allclose(profile_block(stack, rows, cols),
+                               [sub.distances(profiles[i]) for i in rows])
+    # Two queries (objects 0, 1; classes a, b) against scans of objects 0, 1, 2.
+    col = Column(0, 1, np.array(["a", "b"]), np.array(["a", "b", "a"]), np.array([0, 1]),
+                 np.array([0, 1, 2]), ["x", "y"], ["x", "y", "z"], np.zeros(2))
+    d = np.array([[0.1, 0.5, 0.9], [0.2, 0.3, 0.1]])
+    # Own objects are no answers: query 0 -> object 1 (b, miss), query 1 -> 2 (a, miss).
+    assert hit_rate(d, col) == 0.0
+    assert hit_rate(np.array([[0.1, 0.9, 0.5], [0.2, 0.3, 0.1]]), col) == 0.5
+    own, ratio = pose_figures(d, col)
+    # Own scan nearest for query 0 only; ratios: 0.1 / 0.5, 0.3 / median(0.2, 0.1).
+    assert own == 0.5
+    np.testing.assert_allclose(ratio, [0.2, 0.3 / 0.15])
