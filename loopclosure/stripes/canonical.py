@@ -15,8 +15,9 @@ Definition.  Input: heights ``z`` [m] on a top-view grid (rows along the sweep, 
 (column * column_m, row * row_m)`` [m] in the table plane:
 
 1. Footprint frame: ``c`` the mean of the points, ``e_u`` the eigenvector of the
-   largest eigenvalue of their 2 x 2 covariance (the long, principal axis), ``e_v``
-   perpendicular; ``u = (p - c) . e_u``, ``v = (p - c) . e_v`` [m].
+   largest eigenvalue of their 2 x 2 covariance (the long, principal axis; in closed
+   form, `footprint_frame`), ``e_v`` perpendicular; ``u = (p - c) . e_u``,
+   ``v = (p - c) . e_v`` [m].
 2. Length: ``[u_lo, u_hi]`` the `CanonicalConfig.trim` and ``100 - trim`` percentiles
    of ``u`` (a few stray cells do not stretch it), ``L = u_hi - u_lo``; virtual stripe
    ``k = floor(K (u - u_lo) / L)`` clipped to ``0 .. K-1`` (``K`` =
@@ -113,14 +114,23 @@ class CanonicalProfile:
     name: str | None = None
 
 
-def footprint_frame(points: ArrayLike) -> tuple[Array, Array]:
-    """``(u, v)`` [m]: the points ``(N, 2)`` [m] in the frame of their principal axes,
-    centred on their mean, ``u`` along the long axis (module docstring, step 1)."""
-    p = np.asarray(points, dtype=float)
-    q = p - p.mean(axis=0)
-    cov = q.T @ q / max(len(q), 1)
-    _, vecs = np.linalg.eigh(cov)  # eigenvalues ascending: the last is the long axis
-    return q @ vecs[:, 1], q @ vecs[:, 0]
+def footprint_frame(x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
+    """``(u, v)`` [m]: the points ``(x, y)`` [m] (each ``(N,)``) in the frame of their
+    principal axes, centred on their mean, ``u`` along the long axis (module docstring,
+    step 1).
+
+    The long axis is at the angle ``theta = atan2(2 s_xy, s_xx - s_yy) / 2`` from x, with
+    ``s`` the central second moments of the points (the eigenvector of the largest
+    eigenvalue of their covariance, in closed form):
+    ``u = dx cos(theta) + dy sin(theta)``, ``v = -dx sin(theta) + dy cos(theta)``.
+    """
+    dx = np.asarray(x, dtype=float)
+    dy = np.asarray(y, dtype=float)
+    dx = dx - dx.mean()
+    dy = dy - dy.mean()
+    theta = 0.5 * np.arctan2(2.0 * (dx @ dy), dx @ dx - dy @ dy)
+    c, s = np.cos(theta), np.sin(theta)
+    return dx * c + dy * s, dy * c - dx * s
 
 
 def cut_profile(
@@ -185,7 +195,7 @@ def describe_canonical(
     rows, cols = np.nonzero(np.isfinite(z))
     if len(rows) == 0:
         raise DataError(name, "no height seen: the object has no canonical profile")
-    u, v = footprint_frame(np.column_stack([cols * dx, rows * dy]))
+    u, v = footprint_frame(cols * dx, rows * dy)
     profile, length, width = cut_profile(u, v, z[rows, cols], dx * dy, config)
     return CanonicalProfile(profile, length, width, name)
 
