@@ -72,7 +72,7 @@ def test_box_and_cylinder_differ_and_are_found():
     np.testing.assert_allclose(b.profile[:, 1], 1.0, atol=0.02)
     np.testing.assert_allclose(c.profile[1:-1, 1], np.pi / 4, atol=0.05)
     # The bent bar's virtual stripes lie off its long axis; the box's do not.
-    assert bent.profile[:, 3].max() > 0.3 and b.profile[:, 3].max() < 0.02
+    assert bent.profile[:, 2].max() > 0.3 and b.profile[:, 2].max() < 0.02
     db = CanonicalDatabase([b, c, bent])
     for shape, want in ((box, 0), (lying_cylinder, 1), (banana, 2)):
         q = describe_canonical(height_map(shape, 1.0, ACROSS), ACROSS)
@@ -88,7 +88,7 @@ def test_scale_free_and_errors():
                                         half=0.18), SWEEP)
     assert _gap(small, big) < 0.08
     assert big.length == pytest.approx(2 * small.length, rel=0.03)
-    assert small.profile.shape == (CanonicalConfig().samples, 4)
+    assert small.profile.shape == (CanonicalConfig().samples, 3)
     with pytest.raises(DataError, match="no height"):
         describe_canonical(np.full((4, 4), np.nan), SWEEP)
     with pytest.raises(UserError, match="cell spacing"):

@@ -28,14 +28,16 @@ Definition.  Input: heights ``z`` [m] on a top-view grid (rows along the sweep, 
 
    - ``w_k = n_k / mean_k n_k``: its width relative to the object's mean width (the
      virtual counterpart of Eq. 3's ``l``);
-   - ``h_k = mean z / top``: its mean height relative to the object's top;
-   - ``m_k = max z / top``: its highest point relative to the top;
+   - ``h_k = mean z / top``: its mean height relative to the object's top (1 for a
+     box's flat top, pi/4 across a lying cylinder);
    - ``o_k = |mean v| / W``: how far its centre lies off the long axis, in mean
      widths (a banana's bend; 0 for a box or a can);
 
-   every feature is 0 in a virtual stripe without cells.
+   every feature is 0 in a virtual stripe without cells.  (Each stripe's highest
+   point over the top was tried as a fourth feature on the YCB sets and dropped: it
+   repeats ``h`` and carries stray cells.)
 
-The profile is the ``(K, 4)`` array ``[w, h, m, o]``: unitless, so free of the
+The profile is the ``(K, 3)`` array ``[w, h, o]``: unitless, so free of the
 object's size; free of its yaw and of the sweep direction (the frame is the
 footprint's own), of a mirror (``|mean v|``) and, up to the sign of ``e_u``, which
 the distance takes both ways, of the object being turned round.  Footprints with
@@ -70,7 +72,7 @@ CANONICAL_TRIM = 0.5
 #: Percentile of the heights taken as the object's top [%] (as the relief's).
 CANONICAL_TOP = 98.0
 #: Names of the profile's features, in column order.
-CANONICAL_FEATURES: tuple[str, str, str, str] = ("w", "h", "m", "o")
+CANONICAL_FEATURES: tuple[str, str, str] = ("w", "h", "o")
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +103,7 @@ class CanonicalProfile:
     """One object's canonical profile.
 
     Attributes:
-        profile: ``(K, 4)`` float64, row k = ``[w, h, m, o]`` of virtual stripe k
+        profile: ``(K, 3)`` float64, row k = ``[w, h, o]`` of virtual stripe k
             (unitless, module docstring).
         length: the footprint's length ``L`` along its long axis [m].
         width: its mean width ``W = A / L`` [m].
@@ -138,7 +140,7 @@ def cut_profile(
     config: CanonicalConfig | None = None,
 ) -> tuple[Array, float, float]:
     """The virtual stripes of points in the footprint frame (module docstring, steps
-    2-3): ``(profile (K, 4), L [m], W [m])``.
+    2-3): ``(profile (K, 3), L [m], W [m])``.
 
     `u`, `v` [m] from `footprint_frame`, `z` [m] the heights; all ``(N,)``, one entry
     per seen cell of area `cell_area` [m^2].  One `numpy.bincount` pass per feature
@@ -155,18 +157,14 @@ def cut_profile(
         k = np.zeros(len(u), dtype=np.int64)
         length = float(np.sqrt(cell_area))
     n = np.bincount(k, minlength=count).astype(float)
-    seen = n > 0
     safe = np.maximum(n, 1.0)
     top = float(np.percentile(z, cfg.top_percentile))
     top = top if top > 0 else (float(np.max(np.abs(z))) or 1.0)
-    zmax = np.full(count, -np.inf)
-    np.maximum.at(zmax, k, z)
     width = len(u) * cell_area / length
     w = n / n.mean()
     h = np.bincount(k, weights=z, minlength=count) / safe / top
-    m = np.where(seen, zmax, 0.0) / top
     o = np.abs(np.bincount(k, weights=v, minlength=count) / safe) / width
-    return np.column_stack([w, h, m, o]), length, width
+    return np.column_stack([w, h, o]), length, width
 
 
 def describe_canonical(
