@@ -57,8 +57,16 @@ height).  Give `reliefs` and `surfaces` for it; without them the fusion is the
 profile and the verifiers.  FFT and ring projection (`FAST_VERIFIERS`) are the
 microsecond alternative to shape context.  `canonical.CanonicalDatabase` (the
 canonical profile: the height map cut into virtual stripes along the footprint's
-long axis, independent of the scan direction) is a further stripe-side part
-(``canonicals``).
+long axis, independent of the scan direction, which the stripe profile is not) is a
+further stripe-side part (``canonicals``).  The matcher that reads nothing but the
+stripes (``fused-stripes`` in ``bench stripes``) is profile, relief, surface context
+and canonical profile, locally scaled, without verifiers (``verifiers=()``).
+
+Why local scaling: one median per query treats every database object alike, so a
+part whose distances are small for a whole crowd of look-alikes (boxes under the
+relief, round fruit under the outline) outvotes the others there; dividing by both
+objects' own neighbour distances makes each part's "near" relative to the density
+of its space around the two objects, as self-tuning spectral clustering does.
 
 Local scaling needs each database object's own ``s_k(j)``: `FusedObjectDatabase`
 computes every part's distances among its objects once, when it is built (all pairs:
