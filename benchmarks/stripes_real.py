@@ -17,7 +17,7 @@ labelled mesh folder (default: the YCB multi-instance classes of
   *other* object's scan is of the query's class (``--scans-per-object 2 --yaw-range
   180``, the "different pose: other" figure).
 
-It prints one row per method (stripes, profile, relief, surface, fused-stripes,
+It prints one row per method (stripes, profile, relief, surface, canonical, fused-stripes,
 fused, fused-sc, fused-relief, the silhouette baselines) and the seconds of representation +
 matching of the same-pose set.  With
 ``--without-class C`` it also prints the figures over the queries of every class but

@@ -27,9 +27,11 @@ distances divided by their per-query median, then averaged, `loopclosure.stripes
   and ``fused-relief`` (profile + relief + ``shape-context-50``, the ``fused-relief``
   row); ``fuse(p,relief)``, ``fuse(relief,sc50)``, ``fuse(p,relief,mrm)``: the relief
   with other partners;
-- ``surface`` (`loopclosure.stripes.surface`, the surface context), ``fused-stripes``
-  (profile + relief + surface: nothing but the stripes) and ``fused`` (those three and
-  ``shape-context-50``: the default matcher), the rows of ``bench stripes``;
+- ``surface`` (`loopclosure.stripes.surface`, the surface context), ``canonical``
+  (`loopclosure.stripes.canonical`), ``fused-stripes`` (profile + relief + surface +
+  canonical, locally scaled: nothing but the stripes) and ``fused`` (profile, relief,
+  surface and ``shape-context-50``, locally scaled: the default matcher), the rows of
+  ``bench stripes``;
   ``fuse(p,fft,ring)`` is the earlier default (profile + FFT + ring projection);
 - ``fused+aspect``: ``fused`` with a fifth part, the aspect ratio of the 3D extent
   ``log(top height / r_eq)`` (metres from the scanner's calibration; ``r_eq`` the
@@ -66,6 +68,7 @@ from data.stripe_scanner import ScannerConfig  # noqa: E402
 from evaluation.stripes_benchmark import (  # noqa: E402
     StripesBenchmarkConfig,
     baseline_distances,
+    canonical_distances,
     profile_distances,
     relief_distances,
     run_stripes_benchmark,
@@ -176,7 +179,7 @@ PARTS: dict[str, tuple[str, ...]] = {
     "fuse(p,relief)": ("profile", "relief", "fuse"),
     "fuse(relief,sc50)": ("relief", "shape-context-50", "fuse"),
     "fuse(p,relief,mrm)": ("profile", "relief", "mrm", "fuse"),
-    "fused-stripes": ("profile", "relief", "surface", "fuse"),
+    "fused-stripes": ("profile", "relief", "surface", "canonical", "fuse"),
     "fused": ("profile", "relief", "surface", *SC_VERIFIERS, "fuse"),
     "fuse(p,fft,ring)": ("profile", "fft", "ring", "fuse"),
     "fused+aspect": ("profile", "relief", "surface", *SC_VERIFIERS, "aspect", "fuse"),
@@ -190,6 +193,7 @@ def method_seconds(scans: list, polys: list) -> dict[str, float]:
     p, out["profile"] = profile_distances(scans)
     out["relief"] = relief_distances(scans, ScannerConfig())[1]
     out["surface"] = surface_distances(scans, ScannerConfig())[1]
+    out["canonical"] = canonical_distances(scans, ScannerConfig())[1]
     out["stripes n=32"] = stripes_distances(scans, DescriptorConfig(stripe_count=32))[1]
     t0 = time.perf_counter()
     scalar_distances(np.array([aspect(s, ScannerConfig()) for s in scans]))

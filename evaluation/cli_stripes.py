@@ -102,6 +102,16 @@ def stripes(
                      "the profile and the relief (depth below the top, ring by ring) "
                      "verified by them ('none': no fused-relief row)."),
     ] = "shape-context-50",
+    scaling: Annotated[
+        str,
+        typer.Option("--scaling", help="How the fused and fused-stripes rows make each "
+                     "part unitless: local (each distance over sqrt(s_q s_j), s the "
+                     "distance to the --neighbour-th nearest other object) or median "
+                     "(over its per-query median)."),
+    ] = "local",
+    neighbour: Annotated[
+        int, typer.Option("--neighbour", help="Neighbour rank of --scaling local.")
+    ] = 5,
     stripe_count: Annotated[
         int | None,
         typer.Option("--stripe-count", help="Describe each object by at most N evenly "
@@ -180,6 +190,8 @@ def stripes(
         fused=verifiers,
         fused_sc=sc_verifiers,
         fused_relief=relief_verifiers,
+        scaling=scaling,
+        neighbour=neighbour,
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)

@@ -28,11 +28,16 @@ Methods on the same scans:
   `loopclosure.stripes.SurfaceDatabase`: the joint histogram of the distances
   (scale-free) and elevations of pairs of surface points, Eq. 1-2 over the whole
   object instead of within one stripe.
-- ``fused-stripes``: profile, relief and surface context combined by
-  `loopclosure.stripes.fuse` (each method's distances divided by their per-query
-  median, equal weights): the matcher that reads nothing but the stripes.
-- ``fused``: the default matcher (`loopclosure.stripes.FusedObjectDatabase`):
-  ``fused-stripes``'s three parts and the silhouette verifiers (default
+- ``canonical``: the same stripes' heights cut into virtual stripes along the
+  footprint's long axis (`loopclosure.stripes.CanonicalDatabase`): a profile free of
+  the scan direction and of the object's yaw.
+- ``fused-stripes``: profile, relief, surface context and canonical profile combined
+  by `loopclosure.stripes.fuse` (each method's distances locally scaled,
+  ``D(q, j) / sqrt(s(q) s(j))`` with ``s`` the distance to the 5th nearest other
+  object, `StripesBenchmarkConfig.scaling`; equal weights): the matcher that reads
+  nothing but the stripes.
+- ``fused``: the default matcher (`loopclosure.stripes.FusedObjectDatabase`): profile,
+  relief, surface context and the silhouette verifiers (default
   ``shape-context-50``), same rule; its time is the parts' times plus the fusion.
 - ``fused-sc``: the same rule with shape context as the one verifier (the profile's
   distance and shape context's, each divided by its per-query median, equal
@@ -97,6 +102,8 @@ from loopclosure.polygon import Polygon
 from loopclosure.stripes import (
     DEFAULT_VERIFIERS,
     SC_VERIFIERS,
+    CanonicalConfig,
+    CanonicalDatabase,
     DescriptorConfig,
     ProfileConfig,
     ProfileDatabase,
@@ -105,13 +112,20 @@ from loopclosure.stripes import (
     StripeDatabase,
     SurfaceConfig,
     SurfaceDatabase,
+    describe_canonical,
     describe_many,
     describe_profiles,
     describe_relief,
     describe_surface,
     fuse,
 )
-from loopclosure.stripes.fusion import VERIFIER_PRESETS, verifier_options
+from loopclosure.stripes.fusion import (
+    DEFAULT_SCALING,
+    LOCAL_NEIGHBOUR,
+    SCALINGS,
+    VERIFIER_PRESETS,
+    verifier_options,
+)
 
 Array = NDArray[np.float64]
 Progress = Callable[[str, int, int], None]
@@ -177,6 +191,17 @@ def surface_distances(
     t0 = time.perf_counter()
     surfaces = [describe_surface(*s.height_map(scanner), config, s.name) for s in scans]
     d = SurfaceDatabase(surfaces).pairwise()
+    return d, time.perf_counter() - t0
+
+
+def canonical_distances(
+    scans: Sequence[StripeScan], scanner: ScannerConfig, config: CanonicalConfig | None = None
+) -> tuple[Array, float]:
+    """Canonical profiles of every scan (heights from `StripeScan.height_map` with the
+    `scanner` that made them) and the full distance matrix; wall time [s]."""
+    t0 = time.perf_counter()
+    profiles = [describe_canonical(*s.height_map(scanner), config, s.name) for s in scans]
+    d = CanonicalDatabase(profiles).pairwise()
     return d, time.perf_counter() - t0
 
 
@@ -246,6 +271,12 @@ class StripesBenchmarkConfig:
             the relief verified by them (empty: no such row).
         surface: surface-context parameters (the ``surface`` row, ``fused-stripes``
             and ``fused``).
+        canonical: canonical-profile parameters (the ``canonical`` row and
+            ``fused-stripes``).
+        scaling: how ``fused-stripes`` and ``fused`` make each part unitless:
+            ``"local"`` (local scaling) or ``"median"`` (per-query median); the
+            ``fused-sc`` and ``fused-relief`` rows keep the median.
+        neighbour: neighbour rank of local scaling.
     """
 
     seed: int = 0
@@ -261,6 +292,15 @@ class StripesBenchmarkConfig:
     relief: ReliefConfig = field(default_factory=ReliefConfig)
     fused_relief: tuple[str, ...] = SC_VERIFIERS
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    canonical: CanonicalConfig = field(default_factory=CanonicalConfig)
+    scaling: str = DEFAULT_SCALING
+    neighbour: int = LOCAL_NEIGHBOUR
+
+    def __post_init__(self) -> None:
+        if self.scaling not in SCALINGS:
+            raise UserError(f"unknown scaling {self.scaling!r}; known: {', '.join(SCALINGS)}")
+        if self.neighbour < 1:
+            raise UserError(f"--neighbour must be at least 1, got {self.neighbour}")
 
     def to_json(self) -> dict[str, Any]:
         """Plain dict of every parameter."""
@@ -279,6 +319,9 @@ class StripesBenchmarkConfig:
             "relief": asdict(self.relief),
             "fused_relief": list(self.fused_relief),
             "surface": asdict(self.surface),
+            "canonical": asdict(self.canonical),
+            "scaling": self.scaling,
+            "neighbour": self.neighbour,
         }
 
 
@@ -301,6 +344,7 @@ class StripesBenchmarkResult:
     fused_relief: MethodResult | None = None
     surface: MethodResult | None = None
     fused_stripes: MethodResult | None = None
+    canonical: MethodResult | None = None
 
     @property
     def classes(self) -> list[str]:
@@ -313,10 +357,11 @@ class StripesBenchmarkResult:
                 for c in self.classes}
 
     def methods(self) -> dict[str, MethodResult]:
-        """Every method's figures: stripes, profile, relief, surface, fused-stripes,
-        fused, fused-sc and fused-relief (when run), then the baselines."""
+        """Every method's figures: stripes, profile, relief, surface, canonical,
+        fused-stripes, fused, fused-sc and fused-relief (when run), then the baselines."""
         out = {"stripes": self.stripes, "profile": self.profile}
         for name, res in (("relief", self.relief), ("surface", self.surface),
+                          ("canonical", self.canonical),
                           ("fused-stripes", self.fused_stripes), ("fused", self.fused),
                           ("fused-sc", self.fused_sc), ("fused-relief", self.fused_relief)):
             if res is not None:
@@ -356,6 +401,7 @@ class StripesBenchmarkResult:
             "fused_relief": None if self.fused_relief is None else self.fused_relief.to_json(),
             "surface": None if self.surface is None else self.surface.to_json(),
             "fused_stripes": None if self.fused_stripes is None else self.fused_stripes.to_json(),
+            "canonical": None if self.canonical is None else self.canonical.to_json(),
             "different_pose": s.different_pose,
             "dataset": self.dataset,
             "scans": len(self.scanned.scans),
@@ -472,6 +518,9 @@ def matcher_task(task: MatcherTask) -> MatcherRows:
     if task.method == "surface":
         return MatcherRows("surface", *surface_distances(scanned.scans, cfg.scanner,
                                                          cfg.surface))
+    if task.method == "canonical":
+        return MatcherRows("canonical", *canonical_distances(scanned.scans, cfg.scanner,
+                                                             cfg.canonical))
     key = _scan_key(task.source, cfg)
     if key not in _SILHOUETTES:
         t0 = time.perf_counter()
@@ -517,7 +566,8 @@ def run_stripes_benchmark(
         baseline_matcher(name)  # unknown verifier names fail before any silhouette work
     key: StripesSource | str = source if source is not None else f"memory-{uuid.uuid4().hex}"
     tasks = [MatcherTask(key, cfg, m)
-             for m in ("stripes", "profile", "relief", "surface", *available, *verifiers)]
+             for m in ("stripes", "profile", "relief", "surface", "canonical", *available,
+                       *verifiers)]
     _SCANNED[_scan_key(key, cfg)] = (scanned, progress)
     try:
         rows = {}
@@ -535,12 +585,17 @@ def run_stripes_benchmark(
     surface_rows = rows.pop("surface")
     surface = evaluate("surface", surface_rows.distances, scanned.labels, scanned.objects,
                        surface_rows.seconds, cfg.k, asdict(cfg.surface))
+    canonical_rows = rows.pop("canonical")
+    canonical = evaluate("canonical", canonical_rows.distances, scanned.labels,
+                         scanned.objects, canonical_rows.seconds, cfg.k, asdict(cfg.canonical))
     ranked = {n: evaluate(n, r.distances, scanned.labels, scanned.objects, r.seconds, cfg.k,
                           r.options) for n, r in rows.items()}
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
     three = [profile, relief, surface]
-    fused_stripes = _fused(scanned, three, ranked, cfg, (), "fused-stripes")
-    fused = _fused(scanned, three, ranked, cfg, cfg.fused) if cfg.fused else None
+    fused_stripes = _fused(scanned, [*three, canonical], ranked, cfg, (), "fused-stripes",
+                           cfg.scaling)
+    fused = (_fused(scanned, three, ranked, cfg, cfg.fused, "fused", cfg.scaling)
+             if cfg.fused else None)
     fused_sc = (_fused(scanned, [profile], ranked, cfg, cfg.fused_sc, "fused-sc")
                 if cfg.fused_sc else None)
     fused_relief = (_fused(scanned, [profile, relief], ranked, cfg, cfg.fused_relief,
@@ -548,7 +603,7 @@ def run_stripes_benchmark(
     baselines = {n: r for n, r in ranked.items() if n in available}
     return StripesBenchmarkResult(objects.name, cfg, objects, scanned, stripes, profile,
                                   baselines, fused, skipped, silhouette_seconds, fused_sc,
-                                  relief, fused_relief, surface, fused_stripes)
+                                  relief, fused_relief, surface, fused_stripes, canonical)
 
 
 def _available_baselines(names: Sequence[str]) -> tuple[list[str], dict[str, str]]:
@@ -593,14 +648,20 @@ def _rank_with_profile(
 def _fused(
     scanned: ScannedSet, stripe_side: Sequence[MethodResult], ranked: dict[str, MethodResult],
     cfg: StripesBenchmarkConfig, verifiers: Sequence[str], name: str = "fused",
+    scaling: str = "median",
 ) -> MethodResult:
     """A fused matcher's figures from the matrices of its stripe-side parts (the profile,
-    and the relief and surface context when given) and of the `verifiers`."""
+    and the relief, surface context and canonical profile when given) and of the
+    `verifiers`, each made unitless by `scaling` (`loopclosure.stripes.fuse`)."""
     t0 = time.perf_counter()
-    d = fuse([*(r.distances for r in stripe_side), *(ranked[n].distances for n in verifiers)])
+    d = fuse([*(r.distances for r in stripe_side), *(ranked[n].distances for n in verifiers)],
+             scaling=scaling, neighbour=cfg.neighbour)
     secs = (sum(r.seconds for r in stripe_side) + sum(ranked[n].seconds for n in verifiers)
             + time.perf_counter() - t0)
     return evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
-                    {"verifiers": list(verifiers), "normalisation": "per-query median",
+                    {"verifiers": list(verifiers),
+                     "normalisation": ("local scaling, neighbour "
+                                       f"{cfg.neighbour}" if scaling == "local"
+                                       else "per-query median"),
                      "stripes": " + ".join(r.name for r in stripe_side),
                      "samples": cfg.profile.samples})

@@ -86,6 +86,7 @@ def test_fused_database_with_reliefs_and_surfaces_is_the_four_part_fusion():
     from loopclosure.stripes import (
         FusedObjectDatabase,
         ProfileDatabase,
+        ReliefDatabase,
         describe_profiles,
         describe_relief,
         fuse,
@@ -109,8 +110,16 @@ def test_fused_database_with_reliefs_and_surfaces_is_the_four_part_fusion():
     assert len(parts) == 4
     np.testing.assert_allclose(parts[0], ProfileDatabase(profiles).distances(profiles[1]))
     np.testing.assert_allclose(parts[2], SurfaceDatabase(surfaces).distances(surfaces[1]))
+    # Default: each part locally scaled by the database's own distances.
+    own = [ProfileDatabase(profiles).pairwise(), ReliefDatabase(reliefs).pairwise(),
+           SurfaceDatabase(surfaces).pairwise(), db.matchers[0].pairwise(
+               [db.matchers[0].describe(p) for p in polys])]
     np.testing.assert_allclose(db.distances(profiles[1], polys[1], reliefs[1], surfaces[1]),
-                               fuse(parts))
+                               fuse(parts, scaling="local", databases=own))
+    median = FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs,
+                                 surfaces=surfaces, scaling="median")
+    np.testing.assert_allclose(
+        median.distances(profiles[1], polys[1], reliefs[1], surfaces[1]), fuse(parts))
     assert db.query(profiles[1], polys[1], k=1, relief=reliefs[1],
                     surface=surfaces[1])[0][0] == 1
     with pytest.raises(UserError, match="surface context exactly"):
@@ -141,15 +150,21 @@ def test_fused_row_is_profile_relief_surface_and_shape_context():
                                  scanner=scanner)
     res = run_stripes_benchmark(objs, cfg)
     m = res.methods()
-    assert list(m)[:6] == ["stripes", "profile", "relief", "surface", "fused-stripes", "fused"]
+    assert list(m)[:7] == ["stripes", "profile", "relief", "surface", "canonical",
+                           "fused-stripes", "fused"]
     surface, _ = surface_distances(res.scanned.scans, scanner)
     np.testing.assert_allclose(res.surface.distances, surface)
     three = [res.profile.distances, res.relief.distances, surface]
-    np.testing.assert_allclose(res.fused_stripes.distances, fuse(three))
-    # The fused row adds shape context on 50 points to the three, same rule.
+    # fused-stripes: the three and the canonical profile, each locally scaled.
+    np.testing.assert_allclose(res.fused_stripes.distances,
+                               fuse([*three, res.canonical.distances], scaling="local"))
+    # The fused row: the three and shape context on 50 points, same rule.
     polys = [silhouette_polygon(x, scanner) for x in res.scanned.scans]
     sc = baseline_distances("shape-context-50", polys)[0]
-    np.testing.assert_allclose(res.fused.distances, fuse([*three, sc]))
+    np.testing.assert_allclose(res.fused.distances, fuse([*three, sc], scaling="local"))
+    # The median rule is the earlier one.
+    old = run_stripes_benchmark(objs, replace(cfg, scaling="median"))
+    np.testing.assert_allclose(old.fused.distances, fuse([*three, sc]))
     js = res.to_json()
     assert js["fused"]["options"]["verifiers"] == ["shape-context-50"]
     assert js["fused"]["top10_counts"][0] == 4 and js["fused_stripes"]["top10_counts"][0] == 4

@@ -10,10 +10,19 @@ scale-free sequence of ``[l, d, e]`` per object (`profile.ProfileDatabase`), for
 classes whose members differ in size; `relief` reads the stripes' heights as one top
 view (how far the surface lies below the object's top, ring by ring about its centre:
 `relief.ReliefDatabase`); `surface` takes Eq. 1-2's pair distances and directions over
-the whole object's 3D surface (`surface.SurfaceDatabase`); `fusion.FusedObjectDatabase`
-fuses profile, relief and surface context with silhouette matchers.
+the whole object's 3D surface (`surface.SurfaceDatabase`); `canonical` cuts the same
+heights into virtual stripes along the footprint's long axis, free of the scan
+direction (`canonical.CanonicalDatabase`); `fusion.FusedObjectDatabase` fuses profile,
+relief, surface context (and the canonical profile) with silhouette matchers, each
+part locally scaled (`fusion.local_scaled`).
 """
 
+from loopclosure.stripes.canonical import (
+    CanonicalConfig,
+    CanonicalDatabase,
+    CanonicalProfile,
+    describe_canonical,
+)
 from loopclosure.stripes.database import StripeDatabase
 from loopclosure.stripes.descriptor import (
     DescriptorConfig,
@@ -31,12 +40,18 @@ from loopclosure.stripes.extraction import (
     thin,
 )
 from loopclosure.stripes.fusion import (
+    DEFAULT_SCALING,
     DEFAULT_VERIFIERS,
     FAST_VERIFIERS,
     FUSED_DESCRIPTOR,
+    LOCAL_NEIGHBOUR,
     SC_VERIFIERS,
+    SCALINGS,
     FusedObjectDatabase,
+    database_scales,
     fuse,
+    local_scaled,
+    neighbour_scale,
     normalised,
 )
 from loopclosure.stripes.matching import (
@@ -74,12 +89,18 @@ from loopclosure.stripes.surface import (
 )
 
 __all__ = [
+    "DEFAULT_SCALING",
     "DEFAULT_VERIFIERS",
     "FAST_VERIFIERS",
     "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
+    "LOCAL_NEIGHBOUR",
     "PROFILE_SAMPLES",
+    "SCALINGS",
     "SC_VERIFIERS",
+    "CanonicalConfig",
+    "CanonicalDatabase",
+    "CanonicalProfile",
     "DescriptorConfig",
     "FusedObjectDatabase",
     "ProfileConfig",
@@ -95,6 +116,8 @@ __all__ = [
     "SurfaceDatabase",
     "bhattacharyya",
     "chain_pixels",
+    "database_scales",
+    "describe_canonical",
     "describe_many",
     "describe_profile",
     "describe_profiles",
@@ -103,6 +126,8 @@ __all__ = [
     "describe_surface",
     "feature_distances",
     "fuse",
+    "local_scaled",
+    "neighbour_scale",
     "normalised",
     "resample_profile",
     "resample_stripes",

@@ -7,9 +7,23 @@ place cascade's idea without learnt weights, which keeps it free of any data set
 
 - every method ``k`` gives, for one query, distances ``D_k(j)`` to the database
   objects ``j`` (the stripes' Eq. 5, a silhouette matcher's own distance);
-- each is divided by its median over the database, ``D_k(j) / median_j D_k(j)``:
-  a unitless score where 1 is a typical object for this query and method, so
-  methods with different units and spreads add up (`normalised`);
+- each is made unitless, so methods with different units and spreads add up, by one
+  of two rules (`fuse`'s ``scaling``):
+
+  - ``"local"`` (local scaling, the self-tuning affinity of Zelnik-Manor & Perona,
+    "Self-Tuning Spectral Clustering", NIPS 2004): ``D_k(q, j) / sqrt(s_k(q)
+    s_k(j))``, where ``s_k(x)`` is object ``x``'s distance to its ``n``-th nearest
+    neighbour in the database under method ``k`` (``n`` = `LOCAL_NEIGHBOUR`, 5;
+    zero distances, i.e. the object itself when it is in the database, are not
+    neighbours; `neighbour_scale`).  A score of 1 means "as far as the two objects'
+    own typical near neighbours": an object in a dense part of a method's space
+    (many look-alikes) needs a smaller distance to count as near than one in a
+    sparse part, so no method's crowded regions dominate the sum (`local_scaled`);
+  - ``"median"``: ``D_k(q, j) / median_j D_k(q, j)``, 1 being a typical object for
+    this query and method (`normalised`); one scale per query, none per database
+    object;
+
+  both are invariant to multiplying one method's distances by a constant;
 - the fused distance is the weighted mean of the scores (`fuse`), equal weights by
   default.
 
@@ -33,7 +47,7 @@ scanned footprint in the table plane, millimetres).
 
 The default matcher (``fused`` in ``bench stripes``) is all four parts: profile,
 relief, surface context and shape context on 50 points (`DEFAULT_VERIFIERS`), each
-divided by its per-query median, equal weights.  Each part reads what the others
+locally scaled, equal weights.  Each part reads what the others
 miss: the profile where along its length the object is tall, round or flat (blind
 to the outline once resampled); the relief how deep the surface falls below the top
 (flat box tops against studded bricks, lids, domes and hollows); the surface context
@@ -41,7 +55,22 @@ how the parts lie relative to each other in 3D (a cup's rim over its bottom, a
 bottle's cap over its shoulders); shape context the footprint's outline (blind to
 height).  Give `reliefs` and `surfaces` for it; without them the fusion is the
 profile and the verifiers.  FFT and ring projection (`FAST_VERIFIERS`) are the
-microsecond alternative to shape context.
+microsecond alternative to shape context.  `canonical.CanonicalDatabase` (the
+canonical profile: the height map cut into virtual stripes along the footprint's
+long axis, independent of the scan direction, which the stripe profile is not) is a
+further stripe-side part (``canonicals``).  The matcher that reads nothing but the
+stripes (``fused-stripes`` in ``bench stripes``) is profile, relief, surface context
+and canonical profile, locally scaled, without verifiers (``verifiers=()``).
+
+Why local scaling: one median per query treats every database object alike, so a
+part whose distances are small for a whole crowd of look-alikes (boxes under the
+relief, round fruit under the outline) outvotes the others there; dividing by both
+objects' own neighbour distances makes each part's "near" relative to the density
+of its space around the two objects, as self-tuning spectral clustering does.
+
+Local scaling needs each database object's own ``s_k(j)``: `FusedObjectDatabase`
+computes every part's distances among its objects once, when it is built (all pairs:
+quadratic in the database, the cost of one full distance matrix per part).
 """
 
 from __future__ import annotations
@@ -55,6 +84,7 @@ from numpy.typing import ArrayLike, NDArray
 from data.errors import UserError
 from loopclosure.matchers import get_matcher
 from loopclosure.polygon import Polygon
+from loopclosure.stripes.canonical import CanonicalDatabase, CanonicalProfile
 from loopclosure.stripes.database import StripeDatabase
 from loopclosure.stripes.descriptor import DescriptorConfig, StripeDescriptor
 from loopclosure.stripes.profile import ProfileDatabase, StripeProfile
@@ -81,6 +111,15 @@ FAST_VERIFIERS: tuple[str, ...] = ("fft", "ring")
 FUSED_STRIPE_COUNT = 32
 #: Descriptor parameters for `StripeDescriptor`s in the fusion (module docstring).
 FUSED_DESCRIPTOR = DescriptorConfig(stripe_count=FUSED_STRIPE_COUNT)
+#: Rules that make each part's distances unitless before the fusion (module docstring).
+SCALINGS: tuple[str, ...] = ("local", "median")
+#: The fused matcher's rule.
+DEFAULT_SCALING = "local"
+#: Neighbour rank ``n`` of local scaling: ``s(x)`` is the distance to the n-th nearest.
+LOCAL_NEIGHBOUR = 5
+#: A distance at most this fraction of its row's largest finite distance is zero (the
+#: object itself; float noise of a matcher that compares an outline with itself).
+ZERO_FRACTION = 1e-9
 
 
 def normalised(distances: ArrayLike) -> Array:
@@ -106,19 +145,127 @@ def normalised(distances: ArrayLike) -> Array:
     return np.where(np.isfinite(out), out, 2.0 * top)
 
 
-def fuse(parts: Sequence[ArrayLike], weights: Sequence[float] | None = None) -> Array:
-    """Weighted mean of the `normalised` distances of several methods (same shape each)."""
+def _finite_or_twice_top(d: Array) -> Array:
+    """Infinite (or NaN) entries -> twice the largest finite value of their row (1 if none)."""
+    top = np.max(np.where(np.isfinite(d), d, -np.inf), axis=-1, keepdims=True)
+    top = np.where(np.isfinite(top), top, 1.0)
+    return np.where(np.isfinite(d), d, 2.0 * top)
+
+
+def neighbour_scale(distances: ArrayLike, neighbour: int = LOCAL_NEIGHBOUR) -> Array:
+    """``s``: each row's distance to its `neighbour`-th nearest neighbour (local scaling).
+
+    `distances` ``(..., M)``: one row per object (a query against the database, or a
+    database object against all of them), in the method's own unit; ``s`` has the
+    row's unit, shape ``(...,)``.  Distances of at most `ZERO_FRACTION` times the row's
+    largest finite distance (the object itself when it is in the database) and
+    infinite ones are not neighbours; when fewer than `neighbour` remain, the largest
+    of them; when none remain, 1.
+
+    Raises:
+        UserError: `neighbour` below 1, a negative distance, no distance at all.
+    """
+    if neighbour < 1:
+        raise UserError(f"local scaling's neighbour must be at least 1, got {neighbour}")
+    d = np.array(distances, dtype=float)
+    if d.ndim == 0 or d.shape[-1] == 0:
+        raise UserError("neighbour_scale needs at least one distance per object")
+    if np.any(d < 0):
+        raise UserError("distances must be non-negative")
+    finite = np.isfinite(d)
+    top = np.max(np.where(finite, d, 0.0), axis=-1, keepdims=True)
+    ok = finite & (d > ZERO_FRACTION * top)
+    cand = np.where(ok, d, np.inf)
+    k = min(neighbour, d.shape[-1]) - 1
+    s = np.partition(cand, k, axis=-1)[..., k]
+    largest = np.max(np.where(ok, d, -np.inf), axis=-1)
+    s = np.where(np.isfinite(s), s, largest)
+    return np.where(np.isfinite(s) & (s > 0), s, 1.0)
+
+
+def database_scales(pairwise: ArrayLike, neighbour: int = LOCAL_NEIGHBOUR) -> Array:
+    """``(M,)`` `neighbour_scale` of every database object from the database's ``(M, M)``
+    distances (row j = object j against all; the diagonal, j itself, is skipped)."""
+    d = np.array(pairwise, dtype=float)
+    if d.ndim != 2 or d.shape[0] != d.shape[1]:
+        raise UserError(f"a database's own distances must be square, got shape {d.shape}")
+    np.fill_diagonal(d, 0.0)
+    return neighbour_scale(d, neighbour)
+
+
+def local_scaled(
+    distances: ArrayLike, database_scale: ArrayLike, neighbour: int = LOCAL_NEIGHBOUR
+) -> Array:
+    """``D(q, j) / sqrt(s(q) s(j))`` (module docstring), unitless, >= 0, finite.
+
+    Args:
+        distances: ``(M,)`` one query's, or ``(R, M)`` R queries', distances to the M
+            database objects, in the method's unit.
+        database_scale: ``(M,)`` the database objects' ``s(j)`` (`database_scales`).
+        neighbour: ``n`` of ``s(q)`` (`neighbour_scale` of each query's row).
+
+    Infinite distances become twice the row's largest finite score.
+    """
+    d = np.array(distances, dtype=float)
+    sj = np.asarray(database_scale, dtype=float)
+    if d.ndim == 0 or d.shape[-1] != sj.shape[-1] or sj.ndim != 1:
+        raise UserError(f"distances of shape {d.shape} do not fit {sj.shape} database scales")
+    sq = neighbour_scale(d, neighbour)
+    return _finite_or_twice_top(d / np.sqrt(sq[..., None] * sj))
+
+
+def scaled(
+    distances: ArrayLike, scaling: str = "median", database: ArrayLike | None = None,
+    neighbour: int = LOCAL_NEIGHBOUR,
+) -> Array:
+    """One method's distances made unitless by `scaling` (``"local"`` or ``"median"``).
+
+    For ``"local"``, `database` is the database's own ``(M, M)`` distances under the
+    same method (the scales ``s(j)``); None when `distances` is that matrix itself
+    (every database object as a query: the benchmark's all-pairs case).
+    """
+    if scaling == "median":
+        return normalised(distances)
+    if scaling != "local":
+        raise UserError(f"unknown scaling {scaling!r}; known: {', '.join(SCALINGS)}")
+    d = np.asarray(distances, dtype=float)
+    own = d if database is None else np.asarray(database, dtype=float)
+    if own.ndim != 2 or own.shape[0] != own.shape[1]:
+        raise UserError("local scaling needs the database's own (M, M) distances")
+    return local_scaled(d, database_scales(own, neighbour), neighbour)
+
+
+def fuse(
+    parts: Sequence[ArrayLike], weights: Sequence[float] | None = None,
+    scaling: str = "median", databases: Sequence[ArrayLike | None] | None = None,
+    neighbour: int = LOCAL_NEIGHBOUR,
+) -> Array:
+    """Weighted mean of several methods' distances (same shape each), each made unitless
+    by `scaling` (`scaled`; ``"median"``: `normalised`; ``"local"``: `local_scaled`, with
+    `databases` the database's own distances per method, or None when the parts are
+    the database's all-pairs matrices themselves)."""
     if not parts:
         raise UserError("fuse needs at least one method's distances")
-    arrays = [normalised(p) for p in parts]
-    shape = arrays[0].shape
-    if any(a.shape != shape for a in arrays):
-        raise UserError(f"every method's distances must have one shape, got "
-                        f"{[a.shape for a in arrays]}")
-    w = np.ones(len(arrays)) if weights is None else np.asarray(weights, dtype=float)
-    if w.shape != (len(arrays),) or np.any(w < 0) or not w.sum() > 0:
-        raise UserError(f"weights must be {len(arrays)} non-negative values, not all zero")
-    return sum(wi * a for wi, a in zip(w / w.sum(), arrays, strict=True))
+    if scaling not in SCALINGS:
+        raise UserError(f"unknown scaling {scaling!r}; known: {', '.join(SCALINGS)}")
+    shapes = [np.shape(p) for p in parts]
+    if any(sh != shapes[0] for sh in shapes):
+        raise UserError(f"every method's distances must have one shape, got {shapes}")
+    own = [None] * len(parts) if databases is None else list(databases)
+    if len(own) != len(parts):
+        raise UserError(f"databases must hold one matrix per method: {len(own)} for "
+                        f"{len(parts)}")
+    arrays = [scaled(p, scaling, o, neighbour) for p, o in zip(parts, own, strict=True)]
+    w = _fusion_weights(weights, len(arrays))
+    return sum(wi * a for wi, a in zip(w, arrays, strict=True))
+
+
+def _fusion_weights(weights: Sequence[float] | None, parts: int) -> Array:
+    """`weights` (None: equal) checked and divided by their sum."""
+    w = np.ones(parts) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (parts,) or np.any(w < 0) or not w.sum() > 0:
+        raise UserError(f"weights must be {parts} non-negative values, not all zero")
+    return w / w.sum()
 
 
 def verifier_options(name: str) -> tuple[str, dict[str, Any]]:
@@ -148,11 +295,18 @@ class FusedObjectDatabase:
         verifiers: silhouette matcher names (`loopclosure.matchers`, or a preset of
             `VERIFIER_PRESETS`); default shape context on 50 points.
         weights: fusion weights, stripes first, then the relief (when `reliefs` is
-            given), the surface context (when `surfaces` is given), then each
-            verifier (None: equal).
+            given), the surface context (when `surfaces` is given), the canonical
+            profile (when `canonicals` is given), then each verifier (None: equal).
         stripe_weights: Eq. 5 weights of the stripe distance (`StripeDescriptor`s only).
         reliefs: one `StripeRelief` per object (same order), or None: no relief part.
         surfaces: one `StripeSurface` per object (same order), or None: no surface part.
+        canonicals: one `CanonicalProfile` per object (same order), or None: no
+            canonical-profile part.
+        scaling: ``"local"`` (default) or ``"median"`` (module docstring).
+        neighbour: ``n`` of local scaling (`LOCAL_NEIGHBOUR`).
+
+    With ``scaling="local"`` the constructor computes every part's distances among the
+    objects (all pairs, once) for the database scales ``s_k(j)``.
     """
 
     def __init__(
@@ -164,20 +318,30 @@ class FusedObjectDatabase:
         stripe_weights: Sequence[float] | None = None,
         reliefs: Sequence[StripeRelief] | None = None,
         surfaces: Sequence[StripeSurface] | None = None,
+        canonicals: Sequence[CanonicalProfile] | None = None,
+        scaling: str = DEFAULT_SCALING,
+        neighbour: int = LOCAL_NEIGHBOUR,
     ) -> None:
         if len(descriptors) != len(silhouettes):
             raise UserError(f"silhouettes must hold one polygon per object: {len(silhouettes)} "
                             f"for {len(descriptors)} descriptors")
-        for what, items in (("reliefs", reliefs), ("surfaces", surfaces)):
+        for what, items in (("reliefs", reliefs), ("surfaces", surfaces),
+                            ("canonicals", canonicals)):
             if items is not None and len(items) != len(descriptors):
                 raise UserError(f"{what} must hold one per object: {len(items)} "
                                 f"for {len(descriptors)} descriptors")
-        parts = 1 + (reliefs is not None) + (surfaces is not None) + len(verifiers)
+        if scaling not in SCALINGS:
+            raise UserError(f"unknown scaling {scaling!r}; known: {', '.join(SCALINGS)}")
+        if neighbour < 1:
+            raise UserError(f"local scaling's neighbour must be at least 1, got {neighbour}")
+        parts = (1 + (reliefs is not None) + (surfaces is not None) + (canonicals is not None)
+                 + len(verifiers))
         if weights is not None and len(weights) != parts:
             raise UserError(f"weights need {parts} values (stripes, "
                             f"{'the relief, ' if reliefs is not None else ''}"
-                            f"{'the surface context, ' if surfaces is not None else ''}then "
-                            f"each verifier), got {len(weights)}")
+                            f"{'the surface context, ' if surfaces is not None else ''}"
+                            f"{'the canonical profile, ' if canonicals is not None else ''}"
+                            f"then each verifier), got {len(weights)}")
         self.stripes: ProfileDatabase | StripeDatabase
         if descriptors and all(isinstance(d, StripeProfile) for d in descriptors):
             if stripe_weights is not None:
@@ -187,11 +351,25 @@ class FusedObjectDatabase:
             self.stripes = (StripeDatabase(descriptors) if stripe_weights is None  # type: ignore[arg-type]
                             else StripeDatabase(descriptors, stripe_weights))  # type: ignore[arg-type]
         self.weights = None if weights is None else tuple(float(w) for w in weights)
+        self._w = _fusion_weights(weights, parts)
         self.reliefs = None if reliefs is None else ReliefDatabase(reliefs)
         self.surfaces = None if surfaces is None else SurfaceDatabase(surfaces)
+        self.canonicals = None if canonicals is None else CanonicalDatabase(canonicals)
         self.matchers = [verifier(n) for n in verifiers]
         self.verifier_names = tuple(verifiers)
-        self.stacks = [m.stack([m.describe(p) for p in silhouettes]) for m in self.matchers]
+        self.scaling = scaling
+        self.neighbour = int(neighbour)
+        described = [[m.describe(p) for p in silhouettes] for m in self.matchers]
+        self.stacks = [m.stack(ds) for m, ds in zip(self.matchers, described, strict=True)]
+        #: ``s_k(j)`` per part (module docstring), None with median scaling.
+        self.scales: list[Array] | None = None
+        if scaling == "local" and len(self) > 0:
+            own = [self.stripes.pairwise()]
+            own += [db.pairwise() for db in (self.reliefs, self.surfaces, self.canonicals)
+                    if db is not None]
+            own += [np.asarray(m.pairwise(ds), dtype=float)
+                    for m, ds in zip(self.matchers, described, strict=True)]
+            self.scales = [database_scales(d, self.neighbour) for d in own]
 
     def __len__(self) -> int:
         return len(self.stripes)
@@ -199,12 +377,14 @@ class FusedObjectDatabase:
     def method_distances(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
         relief: StripeRelief | None = None, surface: StripeSurface | None = None,
+        canonical: CanonicalProfile | None = None,
     ) -> list[Array]:
-        """``(K,)`` distances of the stripes, the relief, the surface context (each when
-        the database holds them: then the query's is required), then each verifier, to
-        every object."""
+        """``(K,)`` distances of the stripes, the relief, the surface context, the
+        canonical profile (each when the database holds them: then the query's is
+        required), then each verifier, to every object; each in its method's unit."""
         for what, mine, theirs in (("relief", relief, self.reliefs),
-                                   ("surface context", surface, self.surfaces)):
+                                   ("surface context", surface, self.surfaces),
+                                   ("canonical profile", canonical, self.canonicals)):
             if (mine is None) != (theirs is None):
                 raise UserError(f"give the query's {what} exactly when the database holds "
                                 f"{what}s" if theirs is not None else
@@ -214,23 +394,40 @@ class FusedObjectDatabase:
             out.append(self.reliefs.distances(relief))
         if self.surfaces is not None and surface is not None:
             out.append(self.surfaces.distances(surface))
+        if self.canonicals is not None and canonical is not None:
+            out.append(self.canonicals.distances(canonical))
         for m, st in zip(self.matchers, self.stacks, strict=True):
             out.append(np.asarray(m.distances(m.describe(silhouette), st), dtype=float))
         return out
 
+    def scaled_distances(
+        self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
+        relief: StripeRelief | None = None, surface: StripeSurface | None = None,
+        canonical: CanonicalProfile | None = None,
+    ) -> list[Array]:
+        """`method_distances` made unitless by the database's `scaling` (module
+        docstring): the parts the fusion averages."""
+        parts = self.method_distances(descriptor, silhouette, relief, surface, canonical)
+        if self.scales is None:
+            return [normalised(p) for p in parts]
+        return [local_scaled(p, s, self.neighbour)
+                for p, s in zip(parts, self.scales, strict=True)]
+
     def distances(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon,
         relief: StripeRelief | None = None, surface: StripeSurface | None = None,
+        canonical: CanonicalProfile | None = None,
     ) -> Array:
         """``(K,)`` fused distances of the query to every object (module docstring)."""
-        return fuse(self.method_distances(descriptor, silhouette, relief, surface),
-                    self.weights)
+        parts = self.scaled_distances(descriptor, silhouette, relief, surface, canonical)
+        return sum(wi * p for wi, p in zip(self._w, parts, strict=True))
 
     def query(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10,
         relief: StripeRelief | None = None, surface: StripeSurface | None = None,
+        canonical: CanonicalProfile | None = None,
     ) -> tuple[NDArray[np.int64], Array]:
         """Indices and fused distances of the `k` nearest objects, nearest first."""
-        d = self.distances(descriptor, silhouette, relief, surface)
+        d = self.distances(descriptor, silhouette, relief, surface, canonical)
         order = np.argsort(d, kind="stable")[:k]
         return order, d[order]
