@@ -67,7 +67,11 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
   (more than `ambiguity_distance` m or `ambiguity_angle_deg` away) by at least
-  `min_fitness_margin`: a symmetric room that fits two ways is ambiguous;
+  `min_fitness_margin`: a symmetric room that fits two ways is ambiguous.  A weak
+  best fit needs a margin of only `min_relative_margin` times its own fitness (the
+  runner-up fits at most half as well, by default): outdoors, or where two passes
+  see a place from different sides, the overlap fraction of true revisits is often
+  0.05-0.2, and a margin in absolute fitness units would reject every such fit;
 - a loop closure is a revisit: when the caller gives `max_distance` (the loop
   detector's `LoopClosureConfig.max_distance`), a relative pose longer than that
   is rejected, "not a revisit (D m apart)": the two keyframes see overlapping but
@@ -117,6 +121,9 @@ class GeometricCheckConfig:
         min_degeneracy: smallest normalised translational information, 0..0.5.
         max_prior_mahalanobis: gate around a prior relative pose (local searches).
         min_fitness_margin: best minus best-at-another-pose fitness.
+        min_relative_margin: a best fit below ``min_fitness_margin /
+            min_relative_margin`` needs a margin of only ``min_relative_margin`` times
+            its own fitness (module docstring).
         ambiguity_distance: hypotheses closer than this are the same answer [m].
         ambiguity_angle_deg: ... or closer than this in heading [deg].
         offsets: translation offsets tried around each heading [m].
@@ -134,7 +141,9 @@ class GeometricCheckConfig:
             ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
             heading hypotheses at the given translation and at 0).
         min_fitness_partial: fitness threshold of the correlative check (no prior),
-            which judges partial overlap by its free-space consistency instead.
+            which judges partial overlap by its free-space consistency instead: the
+            floor only refuses fits of a few stray points (true revisits outdoors
+            overlap by 0.05-0.2 of the query's points).
         min_consistency: free-space consistency the correlative check needs, in [0, 1]
             (`loopclosure.free_space`).  A look-alike place (a room of the same
             shape elsewhere, a corridor seen the other way) fits a partial overlap
@@ -160,6 +169,7 @@ class GeometricCheckConfig:
     min_degeneracy: float = 0.04
     max_prior_mahalanobis: float = 5.0
     min_fitness_margin: float = 0.1
+    min_relative_margin: float = 0.5
     ambiguity_distance: float = 0.5
     ambiguity_angle_deg: float = 10.0
     offsets: float = 0.5
@@ -168,7 +178,7 @@ class GeometricCheckConfig:
     keep: int = 6
     min_prior_overlap: float = 0.15
     method: str = "correlative"
-    min_fitness_partial: float = 0.2
+    min_fitness_partial: float = 0.05
     min_consistency: float = 0.92
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -228,6 +238,12 @@ def _floored(cov: Array, floor: tuple[float, float, float]) -> Array:
     return floored + np.diag(sig**2)
 
 
+def required_margin(fitness: float, cfg: GeometricCheckConfig) -> float:
+    """The fitness margin a best fit of `fitness` needs over a runner-up at another
+    pose: ``min(min_fitness_margin, min_relative_margin * fitness)``."""
+    return min(cfg.min_fitness_margin, cfg.min_relative_margin * fitness)
+
+
 def _different(a: Array, b: Array, cfg: GeometricCheckConfig) -> bool:
     d = se2.between(a, b)
     return bool(
@@ -272,7 +288,7 @@ def _verify_correlative(
     elif partial and best.degeneracy < cfg.min_degeneracy_partial:
         reason = (f"partial overlap {best.fitness:.2f} and degenerate "
                   f"(corridor-like, {best.degeneracy:.3f})")
-    elif margin < cfg.min_fitness_margin:
+    elif margin < required_margin(best.fitness, cfg):
         reason = f"ambiguous (fitness margin {margin:.2f})"
     elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
         reason = f"{NOT_A_REVISIT} ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
@@ -365,7 +381,7 @@ def verify(
     elif best.fitness < cfg.min_fitness and best.degeneracy < cfg.min_degeneracy_partial:
         reason = (f"partial overlap {best.fitness:.2f} and degenerate "
                   f"(corridor-like, {best.degeneracy:.3f})")
-    elif margin < cfg.min_fitness_margin:
+    elif margin < required_margin(best.fitness, cfg):
         reason = f"ambiguous (fitness margin {margin:.2f})"
     elif gated:
         d = se2.between(base, best.pose)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from data import se2
-from loopclosure.geometric_check import GeometricCheckConfig, verify
+from loopclosure.geometric_check import GeometricCheckConfig, required_margin, verify
 from loopclosure.registration import RegistrationTarget
 
 
@@ -197,3 +197,15 @@ def test_origin_guesses_rescue_a_bad_centroid_translation() -> None:
     lost = verify(_seen_from(ROOM, b), target, headings=[truth[2] + 0.03], translation=wrong,
                   config=off)
     assert not (lost.accepted and np.allclose(lost.relative[:2], truth[:2], atol=0.05))
+
+
+@pytest.mark.parametrize(
+    ("fitness", "expected"),
+    [(0.8, 0.1), (0.2, 0.1), (0.1, 0.05), (0.06, 0.03), (0.0, 0.0)],
+)
+def test_required_margin_is_absolute_for_good_fits_and_relative_for_weak_ones(
+    fitness: float, expected: float
+) -> None:
+    # min(0.1, 0.5 * fitness): a runner-up must fit at most half as well as a weak best.
+    cfg = GeometricCheckConfig(min_fitness_margin=0.1, min_relative_margin=0.5)
+    assert required_margin(fitness, cfg) == pytest.approx(expected)
