@@ -108,10 +108,10 @@ def test_recheck_keeps_every_loop_of_a_clean_graph() -> None:
 def test_recheck_removes_a_false_loop_the_loose_odometry_absorbs() -> None:
     clean, loose = _loose_square_with_false_loop()
     stated = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental",
-                      calibrated=False)
+                      calibrated=False, segments=False)
     assert stated.loop_weights[-1] == 1.0  # the stated model admits it
     rechecked = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental",
-                         calibrated=False, recheck=True)
+                         calibrated=False, recheck=True, segments=False)
     assert rechecked.loop_weights[-1] == 0.0
     assert rechecked.loop_weights[:-1].all()
     plain = optimize(clean, "none", init="odometry").poses
@@ -150,7 +150,8 @@ def test_blocks_are_the_gains_without_their_rows() -> None:
 
 def test_the_calibrated_choice_alone_rejects_the_absorbed_false_loop() -> None:
     clean, loose = _loose_square_with_false_loop()
-    chosen = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental")
+    chosen = optimize(loose, "none", "gnc", init="odometry", gnc_start="incremental",
+                      segments=False)
     assert chosen.loop_weights[-1] == 0.0
     assert chosen.loop_weights[:-1].all()
     plain = optimize(clean, "none", init="odometry").poses
