@@ -417,14 +417,16 @@ def segment_recheck(
     poses) and the accepted graph re-solved; at that solution every accepted loop's
     leave-one-out innovation ``rho_k = 0.5 b^T (I - M)^-1 b`` is computed (module
     docstring).  The `suspects` largest above the TLS threshold ``c`` are each tested,
-    as a new loop, against the calibrated graph re-solved without all of them::
+    as a new loop, against the graph without all of them, its segment factors
+    re-estimated without them and re-solved under those::
 
         delta_k = 0.5 b'^T (I + M')^-1 b'
 
     (``b'``, ``M'`` at that solution), so a false loop is judged without the bending it
-    caused and without the other suspects'.  A suspect is removed when ``delta_k``
-    exceeds the family-wise gate ``0.5 chi2_dof^-1(p^(1/n))`` (`removal_gate`, ``n``
-    accepted loops).  `unit`: the loops' Gaussian factors (computed when None).
+    caused (which inflates its own segment's factor) and without the other suspects'.
+    A suspect is removed when ``delta_k`` exceeds the family-wise gate
+    ``0.5 chi2_dof^-1(p^(1/n))`` (`removal_gate`, ``n`` accepted loops).  `unit`: the
+    loops' Gaussian factors (computed when None).
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -435,7 +437,7 @@ def segment_recheck(
     none = SegmentRecheck([], [], np.zeros(0), np.zeros(0), gate, None)
     if not len(kept):
         return none
-    factors = segment_factors(graph, values, weights, length=length, solver=solve)
+    factors = segment_factors(graph, values, weights, length=length)
     accepted = _segment_calibrated(graph, factors, unit, weights)
     current = solve(accepted, values)
     b, gram = InnovationTest(accepted, current, keys, d).blocks([unit[k] for k in kept])
@@ -448,25 +450,14 @@ def segment_recheck(
     tested = kept[order]
     rest = np.asarray(weights, dtype=float).copy()
     rest[tested] = 0.0
-    # The graph without the suspects: its stated solution, its own segment factors.
-    stated = solve(_accepted(_fixed_stated(graph), unit, rest), values)
-    own = segment_factors(graph, stated, rest, length=length, solver=solve)
+    # The graph without the suspects, with its own segment factors.
+    own = segment_factors(graph, values, rest, length=length)
     without = _segment_calibrated(graph, own, unit, rest)
-    b, gram = InnovationTest(without, solve(without, stated), keys, d).blocks(
+    b, gram = InnovationTest(without, solve(without, current), keys, d).blocks(
         [unit[k] for k in tested])
     delta = _quadratic(b, gram)
     removed = [int(k) for k in tested[delta > gate]]
     return SegmentRecheck(removed, [int(k) for k in tested], rho[order], delta, gate, factors)
-
-
-def _fixed_stated(graph: PoseGraph) -> gtsam.NonlinearFactorGraph:
-    """Anchors and odometry at the stated information."""
-    fixed = gtsam.NonlinearFactorGraph()
-    for k in graph.anchor_keys():
-        fixed.add(graph.prior_factor(k))
-    for o in graph.odometry:
-        fixed.add(graph.between_factor(o))
-    return fixed
 
 
 def _segment_calibrated(

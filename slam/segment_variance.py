@@ -37,15 +37,15 @@ calibrated graph divides each odometry information matrix by its segment's facto
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix, diags
+from scipy.sparse.linalg import SuperLU
 
-from slam.least_squares import StickySolver, factor_information
+from slam.least_squares import factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
 
 Array = NDArray[np.float64]
@@ -90,7 +90,7 @@ def odometry_segments(graph: PoseGraph, length: int = SEGMENT) -> NDArray[np.int
 
 def _jacobian(
     factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int
-) -> tuple[coo_matrix, Array]:
+) -> tuple[csr_matrix, Array]:
     """Whitened Jacobian (rows, n) of `factors` at `values` and the whitened right-hand
     side per row (minus the whitened residual)."""
     triplets = factors.linearize(values).sparseJacobian_()
@@ -103,12 +103,16 @@ def _jacobian(
     return jac, rhs
 
 
-def hat_diagonal(jac: coo_matrix, probes: int = PROBES, seed: int = 0) -> Array:
+def hat_diagonal(
+    jac: csr_matrix, probes: int = PROBES, seed: int = 0, lu: SuperLU | None = None
+) -> Array:
     """Hutchinson estimate of ``diag(A N^-1 A^T)`` (``N = A^T A``) for a whitened Jacobian
-    ``A`` (rows, n): ``mean_z z * (A N^-1 A^T z)`` over `probes` Rademacher vectors."""
+    ``A`` (rows, n): ``mean_z z * (A N^-1 A^T z)`` over `probes` Rademacher vectors.
+    `lu`: the factorisation of ``N`` (`slam.least_squares.factor_information`), when
+    the caller has it."""
     rng = np.random.default_rng(seed)
     z = rng.choice(np.array([-1.0, 1.0]), size=(jac.shape[0], probes))
-    lu = factor_information(jac)
+    lu = lu or factor_information(jac)
     y = jac @ lu.solve(np.asarray(jac.T @ z))
     return np.mean(z * y, axis=1)
 
@@ -124,58 +128,64 @@ def segment_factors(
     seed: int = 0,
     iterations: int = ITERATIONS,
     tolerance: float = TOLERANCE,
-    solver: Callable[[gtsam.NonlinearFactorGraph, gtsam.Values], gtsam.Values] | None = None,
 ) -> SegmentFactors:
     """Odometry variance factors per segment of `length` poses (module docstring).
 
+    The accepted graph is linearised once at `values` (whitened Jacobian ``A``,
+    right-hand side ``b``); an iteration divides the odometry rows of segment ``k`` by
+    ``sqrt(s_k)`` (``D A``, ``D b``), solves the Gauss-Newton step
+    ``dx = (A^T D^2 A)^-1 A^T D^2 b``, takes the residuals ``D (b - A dx)`` and the
+    redundancies of that weighting, and re-estimates every ``s_k`` (``r_k^T W_k r_k``
+    in stated units: the calibrated value times the last ``s_k``).  The first iteration
+    (``D = I``) is the estimate at the stated covariances.
+
     Args:
         graph: the pose graph with its stated information.
-        values: a least-squares solution of the anchors, the odometry and the loops with
-            ``weights > 0.5`` (stated covariances).
+        values: the linearisation point: a least-squares solution (or close to one) of the
+            anchors, the odometry and the loops with ``weights > 0.5`` (stated covariances).
         weights: weight per loop of `graph.loops` (above 0.5: accepted).
         length: poses per segment.
         probes: Rademacher probes of the trace estimate.
         prior_dof: weight, in degrees of freedom, of the pooled factor in each segment's.
         seed: seed of the probes (the estimate is deterministic for a seed).
-        iterations: at most this many Helmert iterations; after the first, the graph is
-            re-solved with the odometry calibrated by the last factors (by `solver`) and
-            each factor re-estimated there, ``r_k^T W_k r_k`` taken in stated units (the
-            calibrated value times the last factor).  1: the estimate at `values`.
+        iterations: at most this many Helmert iterations (1: the estimate at the stated
+            covariances).
         tolerance: the iterations end once no factor changes by more than this fraction.
-        solver: least-squares solver ``solver(factors, start) -> values``
-            (`slam.least_squares.StickySolver` when None).
     """
     d = pose_dof(graph.dim)
     segment = odometry_segments(graph, length)
     n_seg = int(segment.max()) + 1 if len(segment) else 0
     anchors = graph.anchor_keys()
     kept = np.flatnonzero(np.asarray(weights) > 0.5)
+    factors = gtsam.NonlinearFactorGraph()
+    for k in anchors:
+        factors.add(graph.prior_factor(k))
+    for o in graph.odometry:
+        factors.add(graph.between_factor(o))
+    for k in kept:
+        factors.add(graph.between_factor(graph.loops[k]))
+    n = len(graph.keys) * d
+    jac0, rhs0 = _jacobian(factors, values, n)
     # Group of every factor: anchors n_seg + 1, segments 0..n_seg-1, loops n_seg.
     group = np.concatenate([np.full(len(anchors), n_seg + 1), segment,
                             np.full(len(kept), n_seg)]).astype(np.int64)
     rows = np.repeat(group, d)
-    n = len(graph.keys) * d
-    solve = solver or StickySolver()
+    odometry_rows = rows < n_seg
     scale = np.ones(n_seg)  # the factors the odometry information is divided by
     result = None
     for it in range(iterations):
-        factors = gtsam.NonlinearFactorGraph()
-        for k in anchors:
-            factors.add(graph.prior_factor(k))
-        for o, s in zip(graph.odometry, scale[segment], strict=True):
-            factors.add(graph.between_factor(Constraint(o.i, o.j, o.measurement,
-                                                        o.information / s)))
-        for k in kept:
-            factors.add(graph.between_factor(graph.loops[k]))
-        if it:
-            values = solve(factors, values)
-        jac, rhs = _jacobian(factors, values, n)
-        redundancy_rows = 1.0 - hat_diagonal(jac, probes, seed)
+        row_scale = np.ones(len(rows))
+        row_scale[odometry_rows] = 1.0 / np.sqrt(scale[rows[odometry_rows]])
+        jac = diags(row_scale) @ jac0
+        rhs = row_scale * rhs0
+        lu = factor_information(jac)
+        residual = rhs - jac @ lu.solve(jac.T @ rhs)
+        redundancy_rows = 1.0 - hat_diagonal(jac, probes, seed, lu)
         redundancy_rows[rows == n_seg + 1] = 0.0  # anchors fix their poses alone
         red = np.maximum(np.bincount(rows, weights=redundancy_rows, minlength=n_seg + 2), 0.0)
         if red.sum() > 0:
             red *= (jac.shape[0] - n) / red.sum()
-        quad = np.bincount(rows, weights=rhs**2, minlength=n_seg + 2)  # r^T W r per group
+        quad = np.bincount(rows, weights=residual**2, minlength=n_seg + 2)  # r^T W r
         red_k, quad_k = red[:n_seg], quad[:n_seg] * scale  # in stated units
         pooled = float(quad_k.sum() / red_k.sum()) if red_k.sum() > 0 else 1.0
         with np.errstate(divide="ignore", invalid="ignore"):
