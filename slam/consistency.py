@@ -943,11 +943,13 @@ def polish(
 ) -> gtsam.Values:
     """The stated graph `factors` with the loops of ``weights > 0.5`` solved from `values`
     by Powell's dogleg with multifrontal QR, until an iteration lowers the error by less
-    than `POLISH_TOLERANCE` of it (relative decrease ``(E_old - E_new) / E_old``).
+    than `POLISH_TOLERANCE` of it (relative decrease ``(E_old - E_new) / E_old``; no
+    absolute criterion, so a graph whose error is small in gtsam units, as one with
+    loosely stated information, is solved as far as one with a large error).
 
     Why so tight: along the flat directions of a loosely stated graph a solve that stops
-    at ``1e-6`` can end visibly short of the optimum (MITb with odometry information
-    scaled by 0.01), where the result is judged against it.
+    at ``1e-6``, or at gtsam's default absolute decrease of ``1e-5``, can end visibly
+    short of the optimum (MITb with odometry information scaled by 0.01: decimetres).
     """
     base, loop_index = factors
     kept = gtsam.NonlinearFactorGraph()
@@ -958,6 +960,7 @@ def polish(
     params = gtsam.DoglegParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(POLISH_TOLERANCE)
+    params.setAbsoluteErrorTol(0.0)
     params.setLinearSolverType("MULTIFRONTAL_QR")
     return gtsam.DoglegOptimizer(kept, values, params).optimize()
 

@@ -5,7 +5,8 @@ with a robust kernel on loop factors; ``method="gnc"``: the truncated-least-squa
 loss of Yang et al. 2020 with odometry and priors known inliers, solved by our
 warm-started GNC (`gnc_warm`) or, with ``gnc_start="incremental"``, by time-ordered
 admission (`slam.consistency`), the one that survives half the loops being false,
-whose candidates are compared under calibrated odometry (`slam.recheck`);
+whose candidates are compared under calibrated odometry and whose final loops are
+re-checked under odometry calibrated per segment of consecutive poses (`slam.recheck`);
 ``method="gnc-gtsam"``: gtsam's own GncLMOptimizer).
 
 `Smoother` is the interface a mapper uses as keyframes and loops arrive:

@@ -54,12 +54,28 @@ for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains
 memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
 and for the rejected loops admissible alone.
 
-Limits: one factor for all the odometry.  A graph whose odometry is noisier in some
+Limits of one factor for all the odometry: a graph whose odometry is noisier in some
 stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
 both the choice and the family-wise gate from rejecting a false loop whose calibrated
 innovation is no larger than its worst true loop's; a group of false loops that agree
 with one another can bend a loose stretch so that its own factor still makes it the
 cheapest candidate.
+
+`segment_recheck` (``optimize(..., segments=True)``, the default) therefore re-checks
+the final decisions under one odometry factor per segment of consecutive poses
+(`slam.segment_variance`): a false loop on a quiet stretch is judged against that
+stretch's own, small, factor instead of a pooled one inflated by the noisy stretches.
+With the odometry so calibrated, every accepted loop's leave-one-out innovation ``rho``
+(above) is computed at the calibrated solution; the `SUSPECTS` largest above ``c`` are
+then tested against the graph without all of them, with its segment factors
+re-estimated without them (a false loop inflates its own segment's factor by bending
+it) and re-solved, by their innovation ``delta`` (`slam.consistency`), and those above
+the family-wise gate `removal_gate` are removed.  The caller bars them and re-decides
+the stated graph.
+
+Cost of the segment re-check: two calibrated solves, one accepted-loop solve each
+(`InnovationTest.blocks`) and per segment estimate a few sparse LUs with 64-column
+solves; nothing when no loop's ``rho`` exceeds ``c`` beyond the first solve and blocks.
 """
 
 from __future__ import annotations
