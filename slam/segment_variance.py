@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.sparse.linalg import SuperLU
 
+from slam.consistency import solve_columns
 from slam.least_squares import factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
 
@@ -113,7 +114,7 @@ def hat_diagonal(
     rng = np.random.default_rng(seed)
     z = rng.choice(np.array([-1.0, 1.0]), size=(jac.shape[0], probes))
     lu = lu or factor_information(jac)
-    y = jac @ lu.solve(np.asarray(jac.T @ z))
+    y = jac @ solve_columns(lu, np.asarray(jac.T @ z))
     return np.mean(z * y, axis=1)
 
 
