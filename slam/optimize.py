@@ -81,7 +81,8 @@ class OptimizationResult:
         loop_outliers: indices into `graph.loops` classified as outliers.
         loop_weights: GNC weights per loop (1 inlier, 0 outlier); None for LM.
         solver: "lm", "dogleg-qr" (LM fallback, see `slam.least_squares`), "gnc-tls-warm",
-            "tls-incremental-<gate>" (``gnc_start="incremental"``) or "gnc-tls" (gtsam).
+            "tls-incremental-<gate>" (``gnc_start="incremental"``; "...-segments" when
+            the segment re-check removed loops) or "gnc-tls" (gtsam).
     """
 
     poses: dict[int, Array]

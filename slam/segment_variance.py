@@ -22,9 +22,11 @@ residuals ``r_k`` (``r_k^T W_k r_k = 2 E_k``, ``E_k`` its gtsam error) and its r
 
 The traces are estimated by Hutchinson's estimator of the hat matrix's diagonal,
 ``diag(A N^-1 A^T) ~ mean_z z * (A N^-1 A^T z)`` over `PROBES` Rademacher vectors
-``z`` (one sparse LU of ``N`` and one multi-right-hand-side solve), summed per group
-(anchors, each segment, the loops); the group redundancies are then scaled so that
-they sum to the exact total ``m - n``.  A short or loop-free segment has little
+``z`` (one sparse LU of ``N`` and a solve per few probes), summed per group (anchors,
+each segment, the loops); the group redundancies are then scaled so that they sum to
+the exact total ``m - n``.  The factors are iterated as Helmert's estimate is: the
+odometry re-weighted by the last factors, the solution and the redundancies re-computed
+(`segment_factors`).  A short or loop-free segment has little
 redundancy, so each factor is shrunk toward the pooled odometry factor
 ``s = sum_k r_k^T W_k r_k / sum_k red_k`` with a prior of `PRIOR_DOF` degrees of
 freedom, and capped at 1 (a calibrated segment is never looser than stated)::
@@ -113,7 +115,8 @@ def hat_diagonal(
     the caller has it."""
     rng = np.random.default_rng(seed)
     z = rng.choice(np.array([-1.0, 1.0]), size=(jac.shape[0], probes))
-    lu = lu or factor_information(jac)
+    if lu is None:
+        lu = factor_information(jac)
     y = jac @ solve_columns(lu, np.asarray(jac.T @ z))
     return np.mean(z * y, axis=1)
 
