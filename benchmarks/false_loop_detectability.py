@@ -3,16 +3,21 @@ back end obeys.
 
 Run from the repository root::
 
-    python benchmarks/false_loop_detectability.py [--data DIR] [--stated]
+    python benchmarks/false_loop_detectability.py [--data DIR] [--stated] [--no-segments]
         CASE [CASE ...]        # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
 
 For each case the graph's odometry information is multiplied by ``scale``, false loops
 are injected as `eval robustness` does (`evaluation.outlier_policies.inject_false_loops`
 against the clean optimum) and the robust back end (`slam.optimize` ``gnc``, incremental;
 with ``--stated`` choosing among its candidates by the stated TLS cost instead of
-`slam.recheck.calibrated_choice`) solves it from the odometry chain.  Printed
-per case: ATE against the clean optimum [m], false loops obeyed, true loops rejected,
-``tls_gap`` (stated TLS cost of the result less the clean optimum's), seconds; then the
+`slam.recheck.calibrated_choice`) solves it from the odometry chain, first without the
+final segment re-check (``admission``), then, unless ``--no-segments``, with it.  Printed
+per solve: ATE against the clean optimum [m], false loops obeyed, true loops rejected,
+``tls_gap`` (stated TLS cost of the result less the clean optimum's), seconds; between
+the two, the segment re-check of the admission (`slam.recheck.segment_recheck`): the
+segment variance factors, the re-check's seconds, its gate, and every suspect (false or
+true) with its leave-one-out innovation ``rho`` under the segment-calibrated odometry
+and its innovation ``delta`` against the graph without the suspects; then the
 false loops that are *consistent with the outlier-free graph*: innovation ``delta``
 against it (anchors, odometry and the loops the clean optimum obeys, linearised there,
 `slam.consistency.admission_costs`, gtsam error units) below the TLS threshold ``c``,
@@ -43,7 +48,7 @@ from evaluation.robustness import aligned_position_error, clean_optimum
 from slam.consistency import InnovationTest, admission_costs, tls_cost, tls_threshold
 from slam.optimize import default_outlier_residual, optimize
 from slam.pose_graph import PoseGraph, pose_dof, whitened_residual
-from slam.recheck import removal_costs
+from slam.recheck import removal_costs, segment_recheck
 from slam.variance_components import with_information_scaled
 
 
@@ -56,11 +61,34 @@ def _fixed(graph: PoseGraph) -> gtsam.NonlinearFactorGraph:
     return factors
 
 
+def _solved(
+    corrupted: PoseGraph, ref: dict, is_false: np.ndarray, stated: bool, segments: bool,
+    label: str,
+) -> tuple[object, np.ndarray]:
+    """The back end's solution of `corrupted` and the whitened residual of every loop under
+    it; prints its line (module docstring)."""
+    dim = corrupted.dim
+    threshold = default_outlier_residual(dim)
+    start = time.perf_counter()
+    solution = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
+                        calibrated=not stated, segments=segments)
+    seconds = time.perf_counter() - start
+    res = np.array([whitened_residual(lp, solution.poses, dim) for lp in corrupted.loops])
+    gap = (tls_cost(corrupted, corrupted.gtsam_values(solution.poses))
+           - tls_cost(corrupted, corrupted.gtsam_values(ref)))
+    print(f"{label}: ATE {aligned_position_error(solution.poses, ref, dim):.4f} m, "
+          f"false obeyed {(is_false & (res <= threshold)).sum()}/{is_false.sum()}, "
+          f"true rejected {(~is_false & (res > threshold)).sum()}, tls_gap {gap:.2f}, "
+          f"{seconds:.1f} s ({solution.solver})")
+    return solution, res
+
+
 def main() -> None:
     root = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=root.parent / "shared" / "data" / "g2o")
     parser.add_argument("--stated", action="store_true")
+    parser.add_argument("--no-segments", action="store_true")
     parser.add_argument("cases", nargs="+")
     args = parser.parse_args()
     graphs: dict[tuple[str, float], tuple[PoseGraph, dict]] = {}
@@ -82,20 +110,27 @@ def main() -> None:
             clean.add(graph.between_factor(lp))
         corrupted, false_idx = inject_false_loops(
             graph, float(ratio), np.random.default_rng(int(seed)), policy, reference=ref)
-        start = time.perf_counter()
-        solution = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
-                            calibrated=not args.stated)
-        seconds = time.perf_counter() - start
-        res = np.array([whitened_residual(lp, solution.poses, graph.dim)
-                        for lp in corrupted.loops])
-        is_false = np.zeros(len(res), dtype=bool)
+        is_false = np.zeros(len(corrupted.loops), dtype=bool)
         is_false[false_idx] = True
-        gap = (tls_cost(corrupted, corrupted.gtsam_values(solution.poses))
-               - tls_cost(corrupted, values))
-        print(f"{case}: ATE {aligned_position_error(solution.poses, ref, graph.dim):.4f} m, "
-              f"false obeyed {(is_false & (res <= threshold)).sum()}/{len(false_idx)}, "
-              f"true rejected {(~is_false & (res > threshold)).sum()}, tls_gap {gap:.2f}, "
-              f"{seconds:.1f} s ({solution.solver})")
+        solution, res = _solved(corrupted, ref, is_false, args.stated, False, case + " admission")
+        if not args.no_segments:
+            start = time.perf_counter()
+            check = segment_recheck(corrupted, corrupted.gtsam_values(solution.poses),
+                                    solution.loop_weights)
+            seconds = time.perf_counter() - start
+            if check.factors is not None:
+                f = check.factors.factors
+                print(f"  segment factors: pooled {check.factors.pooled:.3g}, min "
+                      f"{f.min():.3g}, median {np.median(f):.3g}, max {f.max():.3g} "
+                      f"({len(f)} segments); re-check {seconds:.1f} s; gate {check.gate:.2f}")
+            for k, rho, delta in zip(check.suspects, check.leave_one_out, check.against_rest,
+                                     strict=True):
+                lp = corrupted.loops[k]
+                print(f"  suspect {'false' if is_false[k] else 'true '} {lp.i}-{lp.j}: "
+                      f"rho {rho:.2f} (with its own bending), delta {delta:.2f} (against the "
+                      f"graph without the suspects): {'removed' if k in check.removed else 'kept'}")
+            solution, res = _solved(corrupted, ref, is_false, args.stated, True,
+                                    case + " segment re-check")
         false = [corrupted.loops[k] for k in false_idx]
         if not false:
             continue

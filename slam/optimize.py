@@ -5,7 +5,8 @@ with a robust kernel on loop factors; ``method="gnc"``: the truncated-least-squa
 loss of Yang et al. 2020 with odometry and priors known inliers, solved by our
 warm-started GNC (`gnc_warm`) or, with ``gnc_start="incremental"``, by time-ordered
 admission (`slam.consistency`), the one that survives half the loops being false,
-whose candidates are compared under calibrated odometry (`slam.recheck`);
+whose candidates are compared under calibrated odometry and whose final loops are
+re-checked under odometry calibrated per segment of consecutive poses (`slam.recheck`);
 ``method="gnc-gtsam"``: gtsam's own GncLMOptimizer).
 
 `Smoother` is the interface a mapper uses as keyframes and loops arrive:
@@ -31,8 +32,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError, warn
-from slam.consistency import ODOMETRY_LADDER, incremental_tls, tls_threshold
-from slam.least_squares import conditioning, dogleg_qr, lm_params, solve
+from slam.consistency import (
+    LM_BUDGET,
+    ODOMETRY_LADDER,
+    incremental_tls,
+    needs_qr,
+    polish,
+    refine_tls,
+    tls_threshold,
+)
+from slam.least_squares import StickySolver, conditioning, dogleg_qr, lm_params, solve
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -44,7 +53,7 @@ from slam.pose_graph import (
     to_gtsam_pose,
     whitened_residual,
 )
-from slam.recheck import calibrated_choice, recheck_loops
+from slam.recheck import calibrated_choice, recheck_loops, segment_recheck
 
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
@@ -72,7 +81,8 @@ class OptimizationResult:
         loop_outliers: indices into `graph.loops` classified as outliers.
         loop_weights: GNC weights per loop (1 inlier, 0 outlier); None for LM.
         solver: "lm", "dogleg-qr" (LM fallback, see `slam.least_squares`), "gnc-tls-warm",
-            "tls-incremental-<gate>" (``gnc_start="incremental"``) or "gnc-tls" (gtsam).
+            "tls-incremental-<gate>" (``gnc_start="incremental"``; "...-segments" when
+            the segment re-check removed loops) or "gnc-tls" (gtsam).
     """
 
     poses: dict[int, Array]
@@ -141,6 +151,7 @@ def optimize(
     odometry_ladder: tuple[float, ...] = ODOMETRY_LADDER,
     calibrated: bool = True,
     recheck: bool = False,
+    segments: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -160,6 +171,10 @@ def optimize(
     (`slam.recheck.recheck_loops`) and, where that changes them, the stated graph
     re-solved (off by default: it changed no decision the choice had not already made on
     the cases measured, and costs a solve per accepted loop and round).
+    `segments`: the incremental admission's loops are finally re-checked under odometry
+    calibrated per segment of consecutive poses (`slam.recheck.segment_recheck`); loops
+    it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
+    and polished (`slam.consistency.polish`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -186,6 +201,9 @@ def optimize(
                 result, weights, solver = _rechecked(graph, factors, loop_index, result,
                                                      weights, gnc_probability, solver,
                                                      factor[-1] if factor else 1.0)
+            if segments and len(graph.loops):
+                result, weights, solver = _segment_rechecked(
+                    graph, factors, loop_index, result, weights, gnc_probability, solver)
         else:
             result, weights, iterations = gnc_warm(
                 graph, values, probability=gnc_probability, start=gnc_start
@@ -249,6 +267,27 @@ def _rechecked(
     for k in np.flatnonzero(new > 0.5):
         kept.add(unit[k])
     return dogleg_qr(kept, values, 100).optimize(), new, f"{solver}-rechecked"
+
+
+def _segment_rechecked(
+    graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
+    values: gtsam.Values, weights: Array, probability: float, solver: str,
+) -> tuple[gtsam.Values, Array, str]:
+    """`slam.recheck.segment_recheck` on a TLS solution; when it removes loops, they are
+    barred, the rest re-decided on the stated graph by `slam.consistency.refine_tls` and
+    the result polished (`slam.consistency.polish`)."""
+    unit = [factors.at(k) for k in loop_index]
+    solve = StickySolver(lm_budget=LM_BUDGET, sticky=False)
+    solve.dogleg = needs_qr(graph, values)
+    check = segment_recheck(graph, values, weights, probability=probability, solver=solve,
+                            unit=unit)
+    if not check.removed:
+        return values, weights, solver
+    stated = (factors, loop_index)
+    refined, new = refine_tls(graph, values, weights, probability=probability, solver=solve,
+                              barred=check.removed, factors=stated)
+    return (polish(stated, new, refined, solve.max_iterations), new,
+            f"{solver}-segments")
 
 
 def _gnc_tls_weights(error: Array, barc: Array, mu: float) -> Array:

@@ -54,12 +54,28 @@ for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains
 memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
 and for the rejected loops admissible alone.
 
-Limits: one factor for all the odometry.  A graph whose odometry is noisier in some
+Limits of one factor for all the odometry: a graph whose odometry is noisier in some
 stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
 both the choice and the family-wise gate from rejecting a false loop whose calibrated
 innovation is no larger than its worst true loop's; a group of false loops that agree
 with one another can bend a loose stretch so that its own factor still makes it the
 cheapest candidate.
+
+`segment_recheck` (``optimize(..., segments=True)``, the default) therefore re-checks
+the final decisions under one odometry factor per segment of consecutive poses
+(`slam.segment_variance`): a false loop on a quiet stretch is judged against that
+stretch's own, small, factor instead of a pooled one inflated by the noisy stretches.
+With the odometry so calibrated, every accepted loop's leave-one-out innovation ``rho``
+(above) is computed at the calibrated solution; the `SUSPECTS` largest above ``c`` are
+then tested against the graph without all of them, with its segment factors
+re-estimated without them (a false loop inflates its own segment's factor by bending
+it) and re-solved, by their innovation ``delta`` (`slam.consistency`), and those above
+the family-wise gate `removal_gate` are removed.  The caller bars them and re-decides
+the stated graph.
+
+Cost of the segment re-check: two calibrated solves, one accepted-loop solve each
+(`InnovationTest.blocks`) and per segment estimate a few sparse LUs with 64-column
+solves; nothing when no loop's ``rho`` exceeds ``c`` beyond the first solve and blocks.
 """
 
 from __future__ import annotations
@@ -74,6 +90,7 @@ from numpy.typing import NDArray
 from slam.consistency import InnovationTest, _Gains, greedy_admission, tls_threshold
 from slam.least_squares import StickySolver
 from slam.pose_graph import Constraint, PoseGraph, chi2_quantile, pose_dof
+from slam.segment_variance import SEGMENT, SegmentFactors, calibrated_odometry, segment_factors
 from slam.variance_components import BOUNDS
 
 Array = NDArray[np.float64]
@@ -369,3 +386,104 @@ def _recheck(
         if not changed:
             break
     return w, s
+
+
+SUSPECTS = 4  # loops the segment re-check tests against the graph without them
+
+
+@dataclass(slots=True)
+class SegmentRecheck:
+    """Outcome of `segment_recheck`.
+
+    Attributes:
+        removed: indices (into `graph.loops`) of the loops to remove.
+        suspects: the accepted loops tested, largest leave-one-out innovation first.
+        leave_one_out: ``rho`` of every suspect under the segment-calibrated odometry,
+            with the loop in (its own bending included), gtsam error units.
+        against_rest: ``delta`` of every suspect against the calibrated graph solved
+            without all the suspects (gtsam error units).
+        gate: the family-wise gate (`removal_gate` over the accepted loops).
+        factors: the segment variance factors used (None without accepted loops).
+    """
+
+    removed: list[int]
+    suspects: list[int]
+    leave_one_out: Array
+    against_rest: Array
+    gate: float
+    factors: SegmentFactors | None
+
+
+def segment_recheck(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    weights: Array,
+    *,
+    probability: float = 0.99,
+    solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+    suspects: int = SUSPECTS,
+    length: int = SEGMENT,
+) -> SegmentRecheck:
+    """Accepted loops that fail a test under segment-calibrated odometry.
+
+    `values`: the least-squares solution of the accepted graph (stated covariances,
+    loops of ``weights > 0.5``).  The odometry information is divided by per-segment
+    variance factors (`slam.segment_variance.segment_factors`, segments of `length`
+    poses) and the accepted graph re-solved; at that solution every accepted loop's
+    leave-one-out innovation ``rho_k = 0.5 b^T (I - M)^-1 b`` is computed (module
+    docstring).  The `suspects` largest above the TLS threshold ``c`` are each tested,
+    as a new loop, against the graph without all of them, its segment factors
+    re-estimated without them and re-solved under those::
+
+        delta_k = 0.5 b'^T (I + M')^-1 b'
+
+    (``b'``, ``M'`` at that solution), so a false loop is judged without the bending it
+    caused (which inflates its own segment's factor) and without the other suspects'.
+    A suspect is removed when ``delta_k`` exceeds the family-wise gate
+    ``0.5 chi2_dof^-1(p^(1/n))`` (`removal_gate`, ``n`` accepted loops).  `unit`: the
+    loops' Gaussian factors (computed when None).
+    """
+    solve = solver or StickySolver()
+    if unit is None:
+        unit = [graph.between_factor(lp) for lp in graph.loops]
+    d, keys = pose_dof(graph.dim), graph.keys
+    kept = np.flatnonzero(np.asarray(weights) > 0.5)
+    gate = removal_gate(len(kept), d, probability)
+    none = SegmentRecheck([], [], np.zeros(0), np.zeros(0), gate, None)
+    if not len(kept):
+        return none
+    factors = segment_factors(graph, values, weights, length=length)
+    accepted = _segment_calibrated(graph, factors, unit, weights)
+    current = solve(accepted, values)
+    b, gram = InnovationTest(accepted, current, keys, d).blocks([unit[k] for k in kept])
+    rho = _quadratic(b, -gram)
+    order = np.argsort(-rho)[:suspects]
+    order = order[rho[order] > tls_threshold(graph.dim, probability)]
+    none.factors = factors
+    if not len(order):
+        return none
+    tested = kept[order]
+    rest = np.asarray(weights, dtype=float).copy()
+    rest[tested] = 0.0
+    # The graph without the suspects, with its own segment factors.
+    own = segment_factors(graph, values, rest, length=length)
+    without = _segment_calibrated(graph, own, unit, rest)
+    b, gram = InnovationTest(without, solve(without, current), keys, d).blocks(
+        [unit[k] for k in tested])
+    delta = _quadratic(b, gram)
+    removed = [int(k) for k in tested[delta > gate]]
+    return SegmentRecheck(removed, [int(k) for k in tested], rho[order], delta, gate, factors)
+
+
+def _segment_calibrated(
+    graph: PoseGraph, factors: SegmentFactors, unit: Sequence[gtsam.NonlinearFactor],
+    weights: Array,
+) -> gtsam.NonlinearFactorGraph:
+    """Anchors, the odometry calibrated by `factors` and the loops of ``weights > 0.5``."""
+    fixed = gtsam.NonlinearFactorGraph()
+    for k in graph.anchor_keys():
+        fixed.add(graph.prior_factor(k))
+    for o in calibrated_odometry(graph, factors):
+        fixed.add(graph.between_factor(o))
+    return _accepted(fixed, unit, np.asarray(weights, dtype=float))
