@@ -65,7 +65,7 @@ def _costs(a, b_t, sa, sb, table, out):
 
 
 @numba.njit(cache=True)
-def _hungarian(c, u, v, p, way, minv, used):
+def _hungarian(c, u, v, p, way, minv, used, visited, todo):
     """Sum of matched costs of the optimal assignment of the square matrix `c`.
 
     Kuhn-Munkres with potentials ``u`` (rows), ``v`` (columns), kept feasible
@@ -75,6 +75,13 @@ def _hungarian(c, u, v, p, way, minv, used):
     row left free is added by a shortest augmenting path in the reduced costs (the
     potentials stay feasible, so the result is optimal).  Work arrays have length
     ``len(c) + 1`` (index 0 is the virtual start column).
+
+    The path search visits, per step, only the columns not yet on the tree (`todo`)
+    and updates the potentials of those already on it (`visited`), deferring each
+    column's ``minv -= delta`` to its next visit: every number goes through the same
+    floating-point operations in the same order as in the textbook loop over all
+    columns (which the first implementation was), so the assignment chosen among
+    equally cheap ones, and hence the sum, are the same to the bit.
     """
     n = c.shape[0]
     for j in range(n + 1):
@@ -99,7 +106,7 @@ def _hungarian(c, u, v, p, way, minv, used):
         for j in range(1, n + 1):
             if p[j] == 0 and c[i - 1, j - 1] - u[i] - v[j] <= 0.0:
                 p[j] = i
-                used[i] = True  # row i matched (reset below)
+                used[i] = True  # row i matched
                 break
         else:
             used[i] = False
@@ -111,30 +118,41 @@ def _hungarian(c, u, v, p, way, minv, used):
             n_free += 1
     for f in range(n_free):
         p[0] = free[f]
-        j0 = 0
-        for j in range(n + 1):
+        for j in range(1, n + 1):
             minv[j] = np.inf
-            used[j] = False
+            todo[j - 1] = j
+        n_todo = n
+        n_visited = 0
+        j0 = 0
+        delta = 0.0
         while True:
-            used[j0] = True
+            visited[n_visited] = j0
+            n_visited += 1
             i0 = p[j0]
+            ui = u[i0]
+            ci = c[i0 - 1]
+            previous = delta  # the last step's delta, not yet taken off minv
             delta = np.inf
             j1 = 0
-            for j in range(1, n + 1):
-                if not used[j]:
-                    cur = c[i0 - 1, j - 1] - u[i0] - v[j]
-                    if cur < minv[j]:
-                        minv[j] = cur
-                        way[j] = j0
-                    if minv[j] < delta:
-                        delta = minv[j]
-                        j1 = j
-            for j in range(n + 1):
-                if used[j]:
-                    u[p[j]] += delta
-                    v[j] -= delta
-                else:
-                    minv[j] -= delta
+            k1 = 0
+            for k in range(n_todo):
+                j = todo[k]
+                m = minv[j] - previous
+                cur = ci[j - 1] - ui - v[j]
+                if cur < m:
+                    m = cur
+                    way[j] = j0
+                minv[j] = m
+                if m < delta or (m == delta and j < j1):  # the lowest column of the least
+                    delta = m
+                    j1 = j
+                    k1 = k
+            for k in range(n_visited):
+                j = visited[k]
+                u[p[j]] += delta
+                v[j] -= delta
+            n_todo -= 1
+            todo[k1] = todo[n_todo]
             j0 = j1
             if p[j0] == 0:
                 break
@@ -155,11 +173,13 @@ def assignment_cost(c):
     """Sum of matched costs of the optimal assignment of the square float64 matrix `c`."""
     n = c.shape[0]
     return _hungarian(c, np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1, np.int64),
-                      np.zeros(n + 1, np.int64), np.zeros(n + 1), np.zeros(n + 1, np.bool_))
+                      np.zeros(n + 1, np.int64), np.zeros(n + 1), np.zeros(n + 1, np.bool_),
+                      np.zeros(n + 1, np.int64), np.zeros(n + 1, np.int64))
 
 
 @numba.njit(cache=True)
-def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, used):
+def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, used,
+          visited, todo):
     """Mean matched chi^2 cost of one pair; `full` is the (n + n_dummy)^2 work matrix."""
     n = a.shape[0]
     _costs(a, b_t, sa, sb, table, full[:n, :n])
@@ -167,7 +187,7 @@ def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, 
         for j in range(n + n_dummy):
             full[i, j] = 0.0 if j >= n else dummy_cost
             full[j, i] = 0.0 if j >= n else dummy_cost
-    d = _hungarian(full, u, v, p, way, minv, used) / n
+    d = _hungarian(full, u, v, p, way, minv, used, visited, todo) / n
     return d if d > 0.0 else 0.0
 
 
@@ -192,13 +212,14 @@ def distances(query, db, table, n_dummy, dummy_cost):
     u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
     p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     used = np.empty(size + 1, np.bool_)
+    visited, todo = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     sa = query.sum(axis=1).astype(np.float64)
     out = np.empty(m)
     for e in range(m):
         b_t = np.ascontiguousarray(db[e].T)
         sb = db[e].sum(axis=1).astype(np.float64)
         out[e] = _pair(query, b_t, sa, sb, table, n_dummy, dummy_cost, full,
-                       u, v, p, way, minv, used)
+                       u, v, p, way, minv, used, visited, todo)
     return out
 
 
@@ -211,6 +232,7 @@ def all_pairs(db, table, n_dummy, dummy_cost):
     u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
     p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     used = np.empty(size + 1, np.bool_)
+    visited, todo = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     sums = np.empty((m, n))
     b_t = np.empty((m, n_bins, n), db.dtype)
     for e in range(m):
@@ -220,9 +242,9 @@ def all_pairs(db, table, n_dummy, dummy_cost):
     for i in range(m):
         for j in range(i + 1, m):
             d = _pair(db[i], b_t[j], sums[i], sums[j], table, n_dummy, dummy_cost, full,
-                      u, v, p, way, minv, used)
+                      u, v, p, way, minv, used, visited, todo)
             out[i, j] = d
             out[j, i] = d
         out[i, i] = _pair(db[i], b_t[i], sums[i], sums[i], table, n_dummy, dummy_cost,
-                          full, u, v, p, way, minv, used)
+                          full, u, v, p, way, minv, used, visited, todo)
     return out
