@@ -180,43 +180,54 @@ def scan_objects(
 
 
 def range_image(scan: StripeScan) -> NDArray[np.float64]:
-    """`StripeScan.range_image` in one vectorised assignment (no loop over frames).
+    """`StripeScan.range_image` without the loop over frames, the same numbers.
 
     Every stripe point writes its row into ``[frame, rint(column)]`` in the same order
-    as the method's loop (numpy assigns repeated indices in order, the last one
-    staying), so the image is the method's, element for element.
+    as the method's loop (the last point on a pixel staying), by the compiled
+    `stripes_kernels.fill_range_image`, or by one numpy assignment (which assigns
+    repeated indices in order too) when a column falls outside the image.
     """
+    from evaluation.stripes_kernels import fill_range_image
+
     out = np.full((scan.n_frames, scan.image_shape[1]), np.nan)
     if not scan.stripes:
         return out
     points = np.concatenate([np.asarray(s, dtype=float).reshape(-1, 2) for s in scan.stripes])
     rows = np.repeat(np.asarray(scan.frame, dtype=np.int64), [len(s) for s in scan.stripes])
-    out[rows, np.rint(points[:, 0]).astype(np.int64)] = points[:, 1]
+    if not fill_range_image(out, rows, points):
+        out[rows, np.rint(points[:, 0]).astype(np.int64)] = points[:, 1]
     return out
 
 
 def height_map(
     scan: StripeScan, config: ScannerConfig | None = None
 ) -> tuple[NDArray[np.float64], tuple[float, float]]:
-    """`StripeScan.height_map` with the vectorised `range_image` (the same numbers).
+    """`StripeScan.height_map` with the fast `range_image`, the same numbers.
 
-    The method reads its range image through ``self.range_image()``; here the scan's
-    own method runs on a view of the scan whose range image is `range_image`'s, so the
-    camera model is the scanner's, not a copy.
+    The scan's own method (the camera model is the scanner's, not a copy) runs on the
+    seen pixels only: on a stand-in for the scan whose range image is the row of the
+    finite values of `range_image`; the method's arithmetic is elementwise, so each
+    height is the one it gives on the whole image, and the heights are put back in
+    place (NaN elsewhere).
     """
-    return StripeScan.height_map(_WithRangeImage(scan), config)  # type: ignore[arg-type]
+    image = range_image(scan)
+    seen = np.isfinite(image)
+    z, cell = StripeScan.height_map(_WithRangeImage(scan, image[seen]), config)  # type: ignore[arg-type]
+    out = np.full(image.shape, np.nan)
+    out[seen] = z
+    return out, cell
 
 
 class _WithRangeImage:
-    """A scan's `standoff` and `field_of_view` with the vectorised range image."""
+    """A scan's `standoff` and `field_of_view` with a given range image."""
 
-    def __init__(self, scan: StripeScan) -> None:
+    def __init__(self, scan: StripeScan, image: NDArray[np.float64]) -> None:
         self.standoff = scan.standoff
         self.field_of_view = scan.field_of_view
-        self._scan = scan
+        self._image = image
 
     def range_image(self) -> NDArray[np.float64]:
-        return range_image(self._scan)
+        return self._image
 
 
 #: Pixels kept around the footprint's bounding box when the silhouette is closed and

@@ -38,7 +38,8 @@ def whole_image_silhouette(scan: StripeScan, cfg: ScannerConfig, smooth: float) 
 
 def hand_made_scans() -> list[StripeScan]:
     """A block with a one-pixel gap and a notch, a single stripe, a stripe at the image's
-    edge, and one column written twice in a frame (the last point counts)."""
+    edge, one column written twice in a frame (the last point counts), and a point off
+    the image."""
     rng = np.random.default_rng(0)
     stripes = []
     for r in range(30):
@@ -54,7 +55,10 @@ def hand_made_scans() -> list[StripeScan]:
                       (0.0, 0.0, 0.0), (600, 712))
     twice = StripeScan("twice", [np.array([[10.0, 5.0], [10.2, 7.0], [11.0, 6.0]])] * 3,
                        np.zeros(3), np.arange(3), 3, 0, (0.0, 0.0, 0.0), (600, 712))
-    return [block, single, edge, twice]
+    # A point left of the image (column -1, which the method's indexing wraps around).
+    off = StripeScan("off", [np.array([[-0.7, 5.0], [0.0, 6.0], [1.0, 6.0]])] * 2,
+                     np.zeros(2), np.arange(2), 2, 0, (0.0, 0.0, 0.0), (600, 712))
+    return [block, single, edge, twice, off]
 
 
 @pytest.mark.filterwarnings("ignore::data.errors.DataWarning")
