@@ -180,22 +180,18 @@ def scan_objects(
 
 
 def range_image(scan: StripeScan) -> NDArray[np.float64]:
-    """`StripeScan.range_image` without the loop over frames, the same numbers.
+    """`StripeScan.range_image` in one vectorised assignment (no loop over frames).
 
     Every stripe point writes its row into ``[frame, rint(column)]`` in the same order
-    as the method's loop (the last point on a pixel staying), by the compiled
-    `stripes_kernels.fill_range_image`, or by one numpy assignment (which assigns
-    repeated indices in order too) when a column falls outside the image.
+    as the method's loop (numpy assigns repeated indices in order, the last one
+    staying), so the image is the method's, element for element.
     """
-    from evaluation.stripes_kernels import fill_range_image
-
     out = np.full((scan.n_frames, scan.image_shape[1]), np.nan)
     if not scan.stripes:
         return out
     points = np.concatenate([np.asarray(s, dtype=float).reshape(-1, 2) for s in scan.stripes])
     rows = np.repeat(np.asarray(scan.frame, dtype=np.int64), [len(s) for s in scan.stripes])
-    if not fill_range_image(out, rows, points):
-        out[rows, np.rint(points[:, 0]).astype(np.int64)] = points[:, 1]
+    out[rows, np.rint(points[:, 0]).astype(np.int64)] = points[:, 1]
     return out
 
 
