@@ -96,7 +96,13 @@ from numpy.typing import NDArray
 
 from data.errors import UserError, warn
 from data.stripe_scanner import ScannerConfig, StripeScan
-from evaluation.stripes_objects import ObjectSet, ScannedSet, scan_objects, silhouette_polygon
+from evaluation.stripes_objects import (
+    ObjectSet,
+    ScannedSet,
+    height_map,
+    scan_objects,
+    silhouette_polygon,
+)
 from evaluation.stripes_retrieval import MethodResult, evaluate
 from loopclosure.polygon import Polygon
 from loopclosure.stripes import (
@@ -178,7 +184,7 @@ def relief_distances(
     """Reliefs of every scan (heights from `StripeScan.height_map` with the `scanner`
     that made them) and the full distance matrix; wall time [s]."""
     t0 = time.perf_counter()
-    reliefs = [describe_relief(*s.height_map(scanner), config, s.name) for s in scans]
+    reliefs = [describe_relief(*height_map(s, scanner), config, s.name) for s in scans]
     d = ReliefDatabase(reliefs).pairwise()
     return d, time.perf_counter() - t0
 
@@ -189,7 +195,7 @@ def surface_distances(
     """Surface contexts of every scan (heights from `StripeScan.height_map` with the
     `scanner` that made them) and the full distance matrix; wall time [s]."""
     t0 = time.perf_counter()
-    surfaces = [describe_surface(*s.height_map(scanner), config, s.name) for s in scans]
+    surfaces = [describe_surface(*height_map(s, scanner), config, s.name) for s in scans]
     d = SurfaceDatabase(surfaces).pairwise()
     return d, time.perf_counter() - t0
 
@@ -200,7 +206,7 @@ def canonical_distances(
     """Canonical profiles of every scan (heights from `StripeScan.height_map` with the
     `scanner` that made them) and the full distance matrix; wall time [s]."""
     t0 = time.perf_counter()
-    profiles = [describe_canonical(*s.height_map(scanner), config, s.name) for s in scans]
+    profiles = [describe_canonical(*height_map(s, scanner), config, s.name) for s in scans]
     d = CanonicalDatabase(profiles).pairwise()
     return d, time.perf_counter() - t0
 

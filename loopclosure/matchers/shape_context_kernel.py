@@ -64,8 +64,19 @@ def _costs(a, b_t, sa, sb, table, out):
             out[i, j] = c if c > 0.0 else 0.0
 
 
+@numba.njit(cache=True, fastmath={"nnan", "nsz"})
+def _least(key, n):
+    """``min(key[1..n])`` (exact: a minimum rounds nothing; no NaN here, and the sign
+    of a zero minimum, which the flags leave open, changes no comparison)."""
+    d = np.inf
+    for j in range(1, n + 1):
+        x = key[j]
+        d = x if x < d else d
+    return d
+
+
 @numba.njit(cache=True)
-def _hungarian(c, u, v, p, way, minv, used):
+def _hungarian(c, u, v, p, way, minv, used, visited, key, row):
     """Sum of matched costs of the optimal assignment of the square matrix `c`.
 
     Kuhn-Munkres with potentials ``u`` (rows), ``v`` (columns), kept feasible
@@ -73,8 +84,17 @@ def _hungarian(c, u, v, p, way, minv, used):
     ``u_i = min_j c_ij``, column reduction ``v_j = min_i (c_ij - u_i)``, and the pairs
     of zero reduced cost matched greedily (row order, lowest free column); then each
     row left free is added by a shortest augmenting path in the reduced costs (the
-    potentials stay feasible, so the result is optimal).  Work arrays have length
-    ``len(c) + 1`` (index 0 is the virtual start column).
+    potentials stay feasible, so the result is optimal); each step of the path search
+    moves to the lowest-numbered column of least ``minv`` off the tree.  Work arrays
+    have length ``len(c) + 1`` (index 0 is the virtual start column).
+
+    Each step runs over all columns without branches (columns on the tree keep their
+    ``minv`` and get key infinity; the loops vectorise), defers the ``minv -= delta``
+    of the columns off the tree to the next step, and updates the potentials of the
+    columns on the tree only: every number goes through the same floating-point
+    operations in the same order as in the textbook loop (which the first
+    implementation was; ``tests/test_shape_context_kernel.py``), so the assignment
+    chosen among equally cheap ones, and hence the sum, are the same to the bit.
     """
     n = c.shape[0]
     for j in range(n + 1):
@@ -111,30 +131,39 @@ def _hungarian(c, u, v, p, way, minv, used):
             n_free += 1
     for f in range(n_free):
         p[0] = free[f]
-        j0 = 0
         for j in range(n + 1):
             minv[j] = np.inf
-            used[j] = False
+            used[j] = False  # column j on the tree
+        n_visited = 0
+        j0 = 0
+        delta = 0.0
         while True:
             used[j0] = True
+            visited[n_visited] = j0
+            n_visited += 1
             i0 = p[j0]
-            delta = np.inf
+            ui = u[i0]
+            previous = delta  # the last step's delta, not yet taken off minv
+            row[1:] = c[i0 - 1]
+            for j in range(1, n + 1):
+                m = minv[j] - previous
+                cur = row[j] - ui - v[j]
+                off = not used[j]
+                better = off and cur < m
+                way[j] = j0 if better else way[j]
+                m = cur if better else m
+                minv[j] = m if off else minv[j]
+                key[j] = m if off else np.inf
+            delta = _least(key, n)
             j1 = 0
             for j in range(1, n + 1):
-                if not used[j]:
-                    cur = c[i0 - 1, j - 1] - u[i0] - v[j]
-                    if cur < minv[j]:
-                        minv[j] = cur
-                        way[j] = j0
-                    if minv[j] < delta:
-                        delta = minv[j]
-                        j1 = j
-            for j in range(n + 1):
-                if used[j]:
-                    u[p[j]] += delta
-                    v[j] -= delta
-                else:
-                    minv[j] -= delta
+                if key[j] == delta:
+                    j1 = j
+                    break
+            for k in range(n_visited):
+                j = visited[k]
+                u[p[j]] += delta
+                v[j] -= delta
             j0 = j1
             if p[j0] == 0:
                 break
@@ -155,11 +184,13 @@ def assignment_cost(c):
     """Sum of matched costs of the optimal assignment of the square float64 matrix `c`."""
     n = c.shape[0]
     return _hungarian(c, np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1, np.int64),
-                      np.zeros(n + 1, np.int64), np.zeros(n + 1), np.zeros(n + 1, np.bool_))
+                      np.zeros(n + 1, np.int64), np.zeros(n + 1), np.zeros(n + 1, np.bool_),
+                      np.zeros(n + 1, np.int64), np.zeros(n + 1), np.zeros(n + 1))
 
 
 @numba.njit(cache=True)
-def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, used):
+def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, used,
+          visited, key, row):
     """Mean matched chi^2 cost of one pair; `full` is the (n + n_dummy)^2 work matrix."""
     n = a.shape[0]
     _costs(a, b_t, sa, sb, table, full[:n, :n])
@@ -167,7 +198,7 @@ def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, 
         for j in range(n + n_dummy):
             full[i, j] = 0.0 if j >= n else dummy_cost
             full[j, i] = 0.0 if j >= n else dummy_cost
-    d = _hungarian(full, u, v, p, way, minv, used) / n
+    d = _hungarian(full, u, v, p, way, minv, used, visited, key, row) / n
     return d if d > 0.0 else 0.0
 
 
@@ -192,13 +223,14 @@ def distances(query, db, table, n_dummy, dummy_cost):
     u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
     p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     used = np.empty(size + 1, np.bool_)
+    visited, key, row = np.empty(size + 1, np.int64), np.empty(size + 1), np.empty(size + 1)
     sa = query.sum(axis=1).astype(np.float64)
     out = np.empty(m)
     for e in range(m):
         b_t = np.ascontiguousarray(db[e].T)
         sb = db[e].sum(axis=1).astype(np.float64)
         out[e] = _pair(query, b_t, sa, sb, table, n_dummy, dummy_cost, full,
-                       u, v, p, way, minv, used)
+                       u, v, p, way, minv, used, visited, key, row)
     return out
 
 
@@ -211,6 +243,7 @@ def all_pairs(db, table, n_dummy, dummy_cost):
     u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
     p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
     used = np.empty(size + 1, np.bool_)
+    visited, key, row = np.empty(size + 1, np.int64), np.empty(size + 1), np.empty(size + 1)
     sums = np.empty((m, n))
     b_t = np.empty((m, n_bins, n), db.dtype)
     for e in range(m):
@@ -220,9 +253,9 @@ def all_pairs(db, table, n_dummy, dummy_cost):
     for i in range(m):
         for j in range(i + 1, m):
             d = _pair(db[i], b_t[j], sums[i], sums[j], table, n_dummy, dummy_cost, full,
-                      u, v, p, way, minv, used)
+                      u, v, p, way, minv, used, visited, key, row)
             out[i, j] = d
             out[j, i] = d
         out[i, i] = _pair(db[i], b_t[i], sums[i], sums[i], table, n_dummy, dummy_cost,
-                          full, u, v, p, way, minv, used)
+                          full, u, v, p, way, minv, used, visited, key, row)
     return out

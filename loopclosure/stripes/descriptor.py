@@ -211,12 +211,21 @@ def sampled_batches(
     if not arrays:
         return
     h = np.array([len(a) for a in arrays], dtype=np.int64)
+    yield from flat_sampled_batches(np.concatenate(arrays), h, max_samples, min_points)
+
+
+def flat_sampled_batches(
+    flat: Array, h: NDArray[np.int64], max_samples: int | None, min_points: int
+) -> Iterator[tuple[NDArray[np.intp], Array]]:
+    """`sampled_batches` of stripes given as their points one after the other, `flat`
+    ``(sum h, 2)``, and their point counts `h` ``(N,)`` (no list of arrays to join)."""
+    if len(h) == 0:
+        return
     cap = int(h.max()) if max_samples is None else int(max_samples)
     samples = np.minimum(h, max(cap, 2))
     described = h >= max(min_points, 2)
     if not described.any():
         return
-    flat = np.concatenate(arrays)
     offsets = np.concatenate([[0], np.cumsum(h)[:-1]])
     for s in np.unique(samples[described]):
         group = np.flatnonzero(described & (samples == s))
