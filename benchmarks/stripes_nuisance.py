@@ -47,22 +47,6 @@ per-query medians taken over the reference database, as `bench stripes` does).  
 last row is the same ratio for two different objects of one class.  Heights come
 from each scan with the scanner configuration that made it.
 
-Measured (``--parts --per-class 100``, the 32 YCB multi-instance objects, seeds 0 and
-1; ranges over the two seeds): a re-scan at another pose (``pose (seed)``) moves the
-profile 0.17, the canonical profile 0.09-0.13, shape context 0.13-0.14, the surface
-context 0.08, the relief 0.01, both fusions 0.08-0.09.  Against that baseline: the
-triangulation angle is the nuisance that matters most for the stripe side (profile
-0.39-0.43, above its class spread, ``other member of class`` 0.34-0.36; canonical
-0.24-0.31; fusions 0.14-0.24); image noise and gaps come next (canonical 0.25-0.30,
-profile 0.22-0.24, surface 0.13-0.16, the largest for the surface context); mesh
-holes move the profile (0.27-0.30) and little else; any yaw moves the profile
-(0.22-0.23) and the canonical profile (0.18-0.19); standoff and laser step stay at the
-re-scan baseline everywhere.  Shape context moves 0.12-0.17 under every nuisance, as
-much as under a re-scan, yet that is above its class spread (0.09-0.12): its classes
-are tight, and the re-scan's silhouette alone blurs them.  The relief hardly moves
-(at most 0.06).  Every fusion ratio stays below its class spread (0.22 ``fused``, 0.29
-``fused-stripes``).
-
 Nothing is written; the meshes are read in place.
 """
 

@@ -6,7 +6,7 @@ Run from the repository root::
                                        [--repeats 5] [--cache DIR]
 
 "Old" is the code of the packages ``loopclosure`` and ``evaluation`` at git revision
-``--baseline`` (default `BASELINE`, the commit before the speed work of issue 15),
+``--baseline`` (default `BASELINE`, the commit before the fused matcher's speed work),
 extracted with ``git archive`` into a temporary folder and imported beside the
 working tree under the names ``_old_loopclosure`` and ``_old_evaluation`` (their
 imports of each other renamed); "new" is the working tree.  Both run in this one
@@ -27,15 +27,6 @@ process on the same scans, so their time ratios hold on a noisy machine.
    ``--repeats`` times, the fastest of each kept, and their ratio; then the two fused
    matchers (sum of their parts and the fusion step), with and without the
    silhouettes.  Time it with one BLAS thread (``OPENBLAS_NUM_THREADS=1``).
-
-Measured (``OPENBLAS_NUM_THREADS=1``, 2 shared cores, old = `BASELINE`): every
-distance of the 8 scan sets identical; per 100 objects, old -> new seconds:
-silhouettes 0.244 -> 0.094 (2.6x: closing and tracing on the footprint's bounding
-box), profile 0.212 -> 0.136 (1.55x: pair gathering by `numpy.take`, one flat pass),
-relief 0.135 -> 0.126 and surface 0.170 -> 0.168 (the vectorised range image),
-shape context 50 0.585 -> 0.382 (1.5x: the branch-free path search of the compiled
-Hungarian method); ``fused`` 1.10 -> 0.81 s (1.36x), with the silhouettes 1.35 ->
-0.91 s (1.48x); ``fused-stripes`` 0.68 -> 0.58 s (1.17x).
 
 ``--cache DIR`` keeps the scans (pickles) in DIR, e.g. ``/tmp/stripes-speed``, never in
 the repository.  Nothing else is written; the meshes are read in place.
