@@ -465,8 +465,9 @@ class GroupTest:
 
 @dataclass(slots=True)
 class GroupRecheck:
-    """Outcome of `group_recheck`: the loops removed (indices into `graph.loops`), every
-    group tested (in test order) and the number of rounds run."""
+    """Outcome of `group_recheck`: the loops removed (indices into `graph.loops`, the
+    groups `before` included unless re-admitted), every group tested (in test order) and
+    the number of rounds run."""
 
     removed: list[int]
     tested: list[GroupTest]
@@ -540,8 +541,9 @@ def segment_recheck(
         left = (np.asarray(weights) > 0.5).astype(float)
         left[result.removed] = 0.0
         result.groups = group_recheck(graph, current, left, probability=probability,
-                                      solver=solve, unit=unit, length=length)
-        result.removed = result.removed + result.groups.removed
+                                      solver=solve, unit=unit, length=length,
+                                      before=[([k], gate) for k in result.removed])
+        result.removed = result.groups.removed
     return result
 
 
@@ -620,6 +622,7 @@ def group_recheck(
     suspects: int = GROUP_SUSPECTS,
     rounds: int = GROUP_ROUNDS,
     length: int = SEGMENT,
+    before: Sequence[tuple[list[int], float]] = (),
 ) -> GroupRecheck:
     """Groups of accepted loops that fail the joint test under segment-calibrated odometry
     (module docstring).
@@ -633,7 +636,9 @@ def group_recheck(
     `group_gate` (Sidak over the round's groups) are removed.  Rounds end when one
     removes nothing (at most `rounds`).  Last, the removed groups are tested against the
     re-calibrated graph without all of them and re-admitted when ``delta_G`` is below
-    their gate.
+    their gate, as are the groups `before` (loops already removed, each with its gate,
+    as `segment_recheck`'s single suspects: they are out of `weights` and
+    in `GroupRecheck.removed` unless re-admitted) once the rounds removed any group.
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -679,16 +684,19 @@ def group_recheck(
         current = x if len(fail) == len(order) else solve(
             _segment_calibrated(graph, segment_factors(graph, x, w, length=length), unit, w),
             x)
+    earlier = [GroupTest(list(g), np.nan, np.nan, gate, True) for g, gate in before]
     if removed:
+        offered = earlier + removed
         without = _segment_calibrated(graph, segment_factors(graph, current, w, length=length),
                                       unit, w)
         x = solve(without, current)
         delta = joint_costs(InnovationTest(without, x, keys, d), unit,
-                            [t.loops for t in removed], removal=False)
-        for t, dl in zip(removed, delta, strict=True):
+                            [t.loops for t in offered], removal=False)
+        for t, dl in zip(offered, delta, strict=True):
             if dl <= t.gate:
                 t.removed = False
-    return GroupRecheck([k for t in removed if t.removed for k in t.loops], tested, n_rounds)
+    return GroupRecheck([k for t in earlier + removed if t.removed for k in t.loops], tested,
+                        n_rounds)
 
 
 def _segment_calibrated(
