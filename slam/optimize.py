@@ -289,6 +289,9 @@ def _segment_rechecked(
     if not check.removed:
         return values, weights, solver
     stated = (factors, loop_index)
+    if check.groups is not None and check.groups.readmitted:
+        weights = np.asarray(weights, dtype=float).copy()
+        weights[check.groups.readmitted] = 1.0
     refined, new = refine_tls(graph, values, weights, probability=probability, solver=solve,
                               barred=check.removed, factors=stated)
     c = tls_threshold(graph.dim, probability)

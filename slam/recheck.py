@@ -466,12 +466,14 @@ class GroupTest:
 @dataclass(slots=True)
 class GroupRecheck:
     """Outcome of `group_recheck`: the loops removed (indices into `graph.loops`, the
-    groups `before` included unless re-admitted), every group tested (in test order) and
-    the number of rounds run."""
+    groups `before` included unless re-admitted), every group tested (in test order), the
+    number of rounds run, and the loops of weight 0 in `weights` (neither removed nor
+    offered back) that the graph without the removed groups admits (`readmitted`)."""
 
     removed: list[int]
     tested: list[GroupTest]
     rounds: int
+    readmitted: list[int]
 
 
 def segment_recheck(
@@ -639,6 +641,10 @@ def group_recheck(
     their gate, as are the groups `before` (loops already removed, each with its gate,
     as `segment_recheck`'s single suspects: they are out of `weights` and
     in `GroupRecheck.removed` unless re-admitted) once the rounds removed any group.
+    Then the other loops of weight 0 in `weights` (rejected before the group test, maybe
+    for disagreeing with a false group) whose innovation ``delta`` against that
+    calibrated graph is below ``c`` are offered in, smallest first
+    (`slam.consistency.greedy_admission` at ``c``): `GroupRecheck.readmitted`.
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -685,6 +691,7 @@ def group_recheck(
             _segment_calibrated(graph, segment_factors(graph, x, w, length=length), unit, w),
             x)
     earlier = [GroupTest(list(g), np.nan, np.nan, gate, True) for g, gate in before]
+    readmitted: list[int] = []
     if removed:
         offered = earlier + removed
         without = _segment_calibrated(graph, segment_factors(graph, current, w, length=length),
@@ -695,8 +702,19 @@ def group_recheck(
         for t, dl in zip(offered, delta, strict=True):
             if dl <= t.gate:
                 t.removed = False
+        out = {k for t in earlier + removed for k in t.loops}
+        rejected = [k for k in np.flatnonzero(np.asarray(weights) < 0.5) if k not in out]
+        test = InnovationTest(without, x, keys, d)
+        if rejected:
+            b, gram = test.blocks([unit[k] for k in rejected])
+            rejected = [k for k, e in zip(rejected, _quadratic(b, gram), strict=True)
+                        if e < tls_threshold(graph.dim, probability)]
+        if rejected:
+            admitted, _ = greedy_admission(test.gains([unit[k] for k in rejected]),
+                                           tls_threshold(graph.dim, probability))
+            readmitted = sorted(int(rejected[q]) for q in admitted)
     return GroupRecheck([k for t in earlier + removed if t.removed for k in t.loops], tested,
-                        n_rounds)
+                        n_rounds, readmitted)
 
 
 def _segment_calibrated(
