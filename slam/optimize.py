@@ -276,9 +276,11 @@ def _segment_rechecked(
 ) -> tuple[gtsam.Values, Array, str]:
     """`slam.recheck.segment_recheck` on a TLS solution; when it removes loops, they are
     barred, the rest re-decided on the stated graph by `slam.consistency.refine_tls` and
-    the result polished (`slam.consistency.polish`).  The decisions are then re-made at the
-    polished solution (``w_k = [e_k <= c]``, barred loops out) and re-polished until they
-    hold (at most `POLISH_ROUNDS` times): on a loosely stated graph `refine_tls`'s solves
+    the result polished (`slam.consistency.polish`), as is the odometry chain with the
+    same loops; the solution of lower stated error is kept (the map the false loops bent
+    can hold the polish in a local minimum the chain is free of).  The decisions are then
+    re-made at the polished solution (``w_k = [e_k <= c]``, barred loops out) and
+    re-polished until they hold (at most `POLISH_ROUNDS` times): on a loosely stated graph `refine_tls`'s solves
     can stop short of the optimum, where a true loop that a group of false ones had kept
     out still shows an error above ``c``."""
     unit = [factors.at(k) for k in loop_index]
@@ -296,6 +298,10 @@ def _segment_rechecked(
                               barred=check.removed, factors=stated)
     c = tls_threshold(graph.dim, probability)
     result = polish(stated, new, refined, solve.max_iterations)
+    chain = polish(stated, new, graph.gtsam_values(initial_guess(graph, "odometry")),
+                   solve.max_iterations)
+    if _stated_error(stated, new, chain) < _stated_error(stated, new, result):
+        result = chain
     for _ in range(POLISH_ROUNDS):
         again = np.array([unit[k].error(result) <= c for k in range(len(unit))], dtype=float)
         again[check.removed] = 0.0
@@ -304,6 +310,17 @@ def _segment_rechecked(
         new = again
         result = polish(stated, new, result, solve.max_iterations)
     return result, new, f"{solver}-segments"
+
+
+def _stated_error(factors: tuple[gtsam.NonlinearFactorGraph, list[int]], weights: Array,
+                  values: gtsam.Values) -> float:
+    """Error (gtsam units) of the stated graph `factors` with the loops of ``weights > 0.5``
+    at `values`."""
+    base, loop_index = factors
+    loops = set(loop_index)
+    fixed = sum(base.at(k).error(values) for k in range(base.size()) if k not in loops)
+    return float(fixed + sum(base.at(loop_index[k]).error(values)
+                             for k in np.flatnonzero(np.asarray(weights) > 0.5)))
 
 
 def _gnc_tls_weights(error: Array, barc: Array, mu: float) -> Array:
