@@ -153,6 +153,7 @@ def optimize(
     calibrated: bool = True,
     recheck: bool = False,
     segments: bool = True,
+    groups: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -175,7 +176,8 @@ def optimize(
     `segments`: the incremental admission's loops are finally re-checked under odometry
     calibrated per segment of consecutive poses (`slam.recheck.segment_recheck`); loops
     it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
-    and polished (`slam.consistency.polish`).
+    and polished (`slam.consistency.polish`).  `groups`: the segment re-check also tests
+    groups of loops that agree with one another as a whole (`slam.recheck.group_recheck`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -204,7 +206,8 @@ def optimize(
                                                      factor[-1] if factor else 1.0)
             if segments and len(graph.loops):
                 result, weights, solver = _segment_rechecked(
-                    graph, factors, loop_index, result, weights, gnc_probability, solver)
+                    graph, factors, loop_index, result, weights, gnc_probability, solver,
+                    groups)
         else:
             result, weights, iterations = gnc_warm(
                 graph, values, probability=gnc_probability, start=gnc_start
@@ -273,21 +276,23 @@ def _rechecked(
 def _segment_rechecked(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, weights: Array, probability: float, solver: str,
+    groups: bool = True,
 ) -> tuple[gtsam.Values, Array, str]:
-    """`slam.recheck.segment_recheck` on a TLS solution; when it removes loops, they are
-    barred, the rest re-decided on the stated graph by `slam.consistency.refine_tls` and
-    the result polished (`slam.consistency.polish`), as is the odometry chain with the
-    same loops; the solution of lower stated error is kept (the map the false loops bent
-    can hold the polish in a local minimum the chain is free of).  The decisions are then
-    re-made at the polished solution (``w_k = [e_k <= c]``, barred loops out) and
-    re-polished until they hold (at most `POLISH_ROUNDS` times): on a loosely stated graph `refine_tls`'s solves
-    can stop short of the optimum, where a true loop that a group of false ones had kept
-    out still shows an error above ``c``."""
+    """`slam.recheck.segment_recheck` on a TLS solution (`groups`: with its group test);
+    when it removes loops, they are barred, the rest re-decided on the stated graph by
+    `slam.consistency.refine_tls` and the result polished (`slam.consistency.polish`), as
+    is the odometry chain with the same loops; the solution of lower stated error is kept
+    (the map the false loops bent can hold the polish in a local minimum the chain is
+    free of).  The decisions are then re-made at the polished solution
+    (``w_k = [e_k <= c]``, barred loops out) and re-polished until they hold (at most
+    `POLISH_ROUNDS` times): on a loosely stated graph `refine_tls`'s solves can stop short
+    of the optimum, where a true loop that a group of false ones had kept out still shows
+    an error above ``c``."""
     unit = [factors.at(k) for k in loop_index]
     solve = StickySolver(lm_budget=LM_BUDGET, sticky=False)
     solve.dogleg = needs_qr(graph, values)
     check = segment_recheck(graph, values, weights, probability=probability, solver=solve,
-                            unit=unit)
+                            unit=unit, groups=groups)
     if not check.removed:
         return values, weights, solver
     stated = (factors, loop_index)
