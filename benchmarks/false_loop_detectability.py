@@ -4,7 +4,7 @@ back end obeys.
 Run from the repository root::
 
     python benchmarks/false_loop_detectability.py [--data DIR] [--stated] [--no-segments]
-        CASE [CASE ...]        # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
+        [--no-groups] CASE [CASE ...]   # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
 
 For each case the graph's odometry information is multiplied by ``scale``, false loops
 are injected as `eval robustness` does (`evaluation.outlier_policies.inject_false_loops`
@@ -17,7 +17,11 @@ per solve: ATE against the clean optimum [m], false loops obeyed, true loops rej
 the two, the segment re-check of the admission (`slam.recheck.segment_recheck`): the
 segment variance factors, the re-check's seconds, its gate, and every suspect (false or
 true) with its leave-one-out innovation ``rho`` under the segment-calibrated odometry
-and its innovation ``delta`` against the graph without the suspects; then the
+and its innovation ``delta`` against the graph without the suspects, and every group
+of agreeing loops the group test (`slam.recheck.group_recheck`; off with ``--no-groups``)
+tested, with its false members, its joint leave-group-out innovation ``rho_G``, its
+joint innovation ``delta_G`` against the graph without the round's suspect groups and
+its gate (gtsam error units); then the
 false loops that are *consistent with the outlier-free graph*: innovation ``delta``
 against it (anchors, odometry and the loops the clean optimum obeys, linearised there,
 `slam.consistency.admission_costs`, gtsam error units) below the TLS threshold ``c``,
@@ -63,7 +67,7 @@ def _fixed(graph: PoseGraph) -> gtsam.NonlinearFactorGraph:
 
 def _solved(
     corrupted: PoseGraph, ref: dict, is_false: np.ndarray, stated: bool, segments: bool,
-    label: str,
+    label: str, groups: bool = True,
 ) -> tuple[object, np.ndarray]:
     """The back end's solution of `corrupted` and the whitened residual of every loop under
     it; prints its line (module docstring)."""
@@ -71,7 +75,7 @@ def _solved(
     threshold = default_outlier_residual(dim)
     start = time.perf_counter()
     solution = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
-                        calibrated=not stated, segments=segments)
+                        calibrated=not stated, segments=segments, groups=groups)
     seconds = time.perf_counter() - start
     res = np.array([whitened_residual(lp, solution.poses, dim) for lp in corrupted.loops])
     gap = (tls_cost(corrupted, corrupted.gtsam_values(solution.poses))
@@ -89,6 +93,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=root.parent / "shared" / "data" / "g2o")
     parser.add_argument("--stated", action="store_true")
     parser.add_argument("--no-segments", action="store_true")
+    parser.add_argument("--no-groups", action="store_true")
     parser.add_argument("cases", nargs="+")
     args = parser.parse_args()
     graphs: dict[tuple[str, float], tuple[PoseGraph, dict]] = {}
@@ -116,7 +121,7 @@ def main() -> None:
         if not args.no_segments:
             start = time.perf_counter()
             check = segment_recheck(corrupted, corrupted.gtsam_values(solution.poses),
-                                    solution.loop_weights)
+                                    solution.loop_weights, groups=not args.no_groups)
             seconds = time.perf_counter() - start
             if check.factors is not None:
                 f = check.factors.factors
@@ -129,8 +134,17 @@ def main() -> None:
                 print(f"  suspect {'false' if is_false[k] else 'true '} {lp.i}-{lp.j}: "
                       f"rho {rho:.2f} (with its own bending), delta {delta:.2f} (against the "
                       f"graph without the suspects): {'removed' if k in check.removed else 'kept'}")
+            if check.groups is not None:
+                g = check.groups
+                print(f"  group test: {g.rounds} rounds, {len(g.removed)} loops removed, "
+                      f"{len(g.readmitted)} rejected loops re-admitted")
+                for t in g.tested:
+                    lp = corrupted.loops[t.loops[0]]
+                    print(f"  group of {len(t.loops)} ({int(is_false[t.loops].sum())} false) "
+                          f"from {lp.i}-{lp.j}: rho_G {t.rho:.2f}, delta_G {t.delta:.2f}, "
+                          f"gate {t.gate:.2f}: {'removed' if t.removed else 'kept'}")
             solution, res = _solved(corrupted, ref, is_false, args.stated, True,
-                                    case + " segment re-check")
+                                    case + " segment re-check", not args.no_groups)
         false = [corrupted.loops[k] for k in false_idx]
         if not false:
             continue

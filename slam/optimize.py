@@ -60,6 +60,7 @@ METHODS = ("lm", "gnc", "gnc-gtsam")
 INITIALISATIONS = ("given", "odometry", "lago")
 WARM_STARTS = ("given", "least-squares")
 GNC_STARTS = (*WARM_STARTS, "incremental")
+POLISH_ROUNDS = 5  # re-decisions at the polished solution after the segment re-check
 
 
 def default_outlier_residual(dim: int, probability: float = 0.99) -> float:
@@ -152,6 +153,7 @@ def optimize(
     calibrated: bool = True,
     recheck: bool = False,
     segments: bool = True,
+    groups: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -174,7 +176,8 @@ def optimize(
     `segments`: the incremental admission's loops are finally re-checked under odometry
     calibrated per segment of consecutive poses (`slam.recheck.segment_recheck`); loops
     it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
-    and polished (`slam.consistency.polish`).
+    and polished (`slam.consistency.polish`).  `groups`: the segment re-check also tests
+    groups of loops that agree with one another as a whole (`slam.recheck.group_recheck`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -203,7 +206,8 @@ def optimize(
                                                      factor[-1] if factor else 1.0)
             if segments and len(graph.loops):
                 result, weights, solver = _segment_rechecked(
-                    graph, factors, loop_index, result, weights, gnc_probability, solver)
+                    graph, factors, loop_index, result, weights, gnc_probability, solver,
+                    groups)
         else:
             result, weights, iterations = gnc_warm(
                 graph, values, probability=gnc_probability, start=gnc_start
@@ -272,22 +276,56 @@ def _rechecked(
 def _segment_rechecked(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, weights: Array, probability: float, solver: str,
+    groups: bool = True,
 ) -> tuple[gtsam.Values, Array, str]:
-    """`slam.recheck.segment_recheck` on a TLS solution; when it removes loops, they are
-    barred, the rest re-decided on the stated graph by `slam.consistency.refine_tls` and
-    the result polished (`slam.consistency.polish`)."""
+    """`slam.recheck.segment_recheck` on a TLS solution (`groups`: with its group test);
+    when it removes loops, they are barred, the rest re-decided on the stated graph by
+    `slam.consistency.refine_tls` and the result polished (`slam.consistency.polish`), as
+    is the odometry chain with the same loops; the solution of lower stated error is kept
+    (the map the false loops bent can hold the polish in a local minimum the chain is
+    free of).  The decisions are then re-made at the polished solution
+    (``w_k = [e_k <= c]``, barred loops out) and re-polished until they hold (at most
+    `POLISH_ROUNDS` times): on a loosely stated graph `refine_tls`'s solves can stop short
+    of the optimum, where a true loop that a group of false ones had kept out still shows
+    an error above ``c``."""
     unit = [factors.at(k) for k in loop_index]
     solve = StickySolver(lm_budget=LM_BUDGET, sticky=False)
     solve.dogleg = needs_qr(graph, values)
     check = segment_recheck(graph, values, weights, probability=probability, solver=solve,
-                            unit=unit)
+                            unit=unit, groups=groups)
     if not check.removed:
         return values, weights, solver
     stated = (factors, loop_index)
+    if check.groups is not None and check.groups.readmitted:
+        weights = np.asarray(weights, dtype=float).copy()
+        weights[check.groups.readmitted] = 1.0
     refined, new = refine_tls(graph, values, weights, probability=probability, solver=solve,
                               barred=check.removed, factors=stated)
-    return (polish(stated, new, refined, solve.max_iterations), new,
-            f"{solver}-segments")
+    c = tls_threshold(graph.dim, probability)
+    result = polish(stated, new, refined, solve.max_iterations)
+    chain = polish(stated, new, graph.gtsam_values(initial_guess(graph, "odometry")),
+                   solve.max_iterations)
+    if _stated_error(stated, new, chain) < _stated_error(stated, new, result):
+        result = chain
+    for _ in range(POLISH_ROUNDS):
+        again = np.array([unit[k].error(result) <= c for k in range(len(unit))], dtype=float)
+        again[check.removed] = 0.0
+        if np.array_equal(again, new):
+            break
+        new = again
+        result = polish(stated, new, result, solve.max_iterations)
+    return result, new, f"{solver}-segments"
+
+
+def _stated_error(factors: tuple[gtsam.NonlinearFactorGraph, list[int]], weights: Array,
+                  values: gtsam.Values) -> float:
+    """Error (gtsam units) of the stated graph `factors` with the loops of ``weights > 0.5``
+    at `values`."""
+    base, loop_index = factors
+    loops = set(loop_index)
+    fixed = sum(base.at(k).error(values) for k in range(base.size()) if k not in loops)
+    return float(fixed + sum(base.at(loop_index[k]).error(values)
+                             for k in np.flatnonzero(np.asarray(weights) > 0.5)))
 
 
 def _gnc_tls_weights(error: Array, barc: Array, mu: float) -> Array:
