@@ -54,14 +54,13 @@ every object at once.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data.errors import DataError, UserError
-from loopclosure.stripes.profile import _median_scale
+from loopclosure.stripes.profile import ProfileDatabase
 
 Array = NDArray[np.float64]
 
@@ -198,50 +197,13 @@ def describe_canonical(
     return CanonicalProfile(profile, length, width, name)
 
 
-class CanonicalDatabase:
-    """Many objects' canonical profiles, queried in one vectorised pass.
+class CanonicalDatabase(ProfileDatabase):
+    """Many objects' canonical profiles, queried in one vectorised pass: the stripe
+    profile's distance (`ProfileDatabase`: mean absolute difference per feature, the
+    query forward and reversed, each feature divided by its median over the database).
 
     Args:
         profiles: one `CanonicalProfile` per object, all with the same ``K``.
     """
 
-    def __init__(self, profiles: Sequence[CanonicalProfile]) -> None:
-        self.profiles = list(profiles)
-        shapes = {p.profile.shape for p in self.profiles}
-        if len(shapes) > 1:
-            raise UserError(f"every canonical profile must have one shape, got {sorted(shapes)}")
-        self.stack = (np.stack([p.profile for p in self.profiles]) if self.profiles
-                      else np.zeros((0, CANONICAL_SAMPLES, len(CANONICAL_FEATURES))))
-
-    def __len__(self) -> int:
-        return len(self.profiles)
-
-    def distances(self, query: CanonicalProfile) -> Array:
-        """``(M,)`` distances of the query to every object (module docstring; >= 0)."""
-        q = np.asarray(query.profile, dtype=float)
-        if q.shape != self.stack.shape[1:]:
-            raise UserError(f"query canonical profile has shape {q.shape}, the database "
-                            f"{self.stack.shape[1:]}")
-        if len(self) == 0:
-            return np.zeros(0)
-        forward = np.abs(self.stack - q[None]).mean(axis=1)  # (M, F)
-        reverse = np.abs(self.stack - q[None, ::-1]).mean(axis=1)
-        scale = _median_scale(np.minimum(forward, reverse))
-        return np.minimum((forward / scale).mean(axis=1), (reverse / scale).mean(axis=1))
-
-    def query(self, query: CanonicalProfile, k: int = 10) -> tuple[NDArray[np.int64], Array]:
-        """Indices and distances of the `k` nearest objects, nearest first (stable ties)."""
-        d = self.distances(query)
-        order = np.argsort(d, kind="stable")[:k]
-        return order, d[order]
-
-    def pairwise(self) -> Array:
-        """``(M, M)`` distances, row i = object i as query (zero diagonal, not symmetric:
-        each row has its own medians)."""
-        if len(self) == 0:
-            return np.zeros((0, 0))
-        s = self.stack
-        forward = np.abs(s[:, None] - s[None]).mean(axis=2)  # (M, M, F)
-        reverse = np.abs(s[:, None, ::-1] - s[None]).mean(axis=2)
-        scale = _median_scale(np.minimum(forward, reverse))
-        return np.minimum((forward / scale).mean(axis=2), (reverse / scale).mean(axis=2))
+    EMPTY_SHAPE = (CANONICAL_SAMPLES, len(CANONICAL_FEATURES))

@@ -288,19 +288,22 @@ class ProfileDatabase:
         profiles: one `StripeProfile` per object, all with the same length ``K``.
     """
 
+    #: ``(K, F)`` of the empty database's stack.
+    EMPTY_SHAPE: tuple[int, int] = (PROFILE_SAMPLES, 3)
+
     def __init__(self, profiles: Sequence[StripeProfile]) -> None:
         self.profiles = list(profiles)
         shapes = {p.profile.shape for p in self.profiles}
         if len(shapes) > 1:
             raise UserError(f"every profile must have one shape, got {sorted(shapes)}")
         self.stack = (np.stack([p.profile for p in self.profiles]) if self.profiles
-                      else np.zeros((0, PROFILE_SAMPLES, 3)))
+                      else np.zeros((0, *self.EMPTY_SHAPE)))
 
     def __len__(self) -> int:
         return len(self.profiles)
 
     def feature_distances(self, query: StripeProfile) -> tuple[Array, Array]:
-        """``(M, 3)`` mean absolute differences per feature, forward and reversed query."""
+        """``(M, F)`` mean absolute differences per feature, forward and reversed query."""
         q = np.asarray(query.profile, dtype=float)
         if q.shape != self.stack.shape[1:]:
             raise UserError(f"query profile has shape {q.shape}, the database "
@@ -329,7 +332,7 @@ class ProfileDatabase:
         if len(self) == 0:
             return np.zeros((0, 0))
         s = self.stack
-        forward = np.abs(s[:, None] - s[None]).mean(axis=2)  # (M, M, 3)
+        forward = np.abs(s[:, None] - s[None]).mean(axis=2)  # (M, M, F)
         reverse = np.abs(s[:, None, ::-1] - s[None]).mean(axis=2)
         scale = _median_scale(np.minimum(forward, reverse))
         return np.minimum((forward / scale).mean(axis=2), (reverse / scale).mean(axis=2))
