@@ -178,37 +178,40 @@ def profile_distances(
     return d, time.perf_counter() - t0
 
 
+def _height_map_distances(
+    describe: Callable[..., Any], database: Callable[[list[Any]], Any],
+    scans: Sequence[StripeScan], scanner: ScannerConfig, config: Any,
+) -> tuple[Array, float]:
+    """`describe` of every scan's height map (`StripeScan.height_map` with the `scanner`
+    that made them), the full distance matrix of their `database`; wall time [s]."""
+    t0 = time.perf_counter()
+    parts = [describe(*height_map(s, scanner), config, s.name) for s in scans]
+    d = database(parts).pairwise()
+    return d, time.perf_counter() - t0
+
+
 def relief_distances(
     scans: Sequence[StripeScan], scanner: ScannerConfig, config: ReliefConfig | None = None
 ) -> tuple[Array, float]:
-    """Reliefs of every scan (heights from `StripeScan.height_map` with the `scanner`
-    that made them) and the full distance matrix; wall time [s]."""
-    t0 = time.perf_counter()
-    reliefs = [describe_relief(*height_map(s, scanner), config, s.name) for s in scans]
-    d = ReliefDatabase(reliefs).pairwise()
-    return d, time.perf_counter() - t0
+    """Reliefs of every scan and their full distance matrix (`_height_map_distances`)."""
+    return _height_map_distances(describe_relief, ReliefDatabase, scans, scanner, config)
 
 
 def surface_distances(
     scans: Sequence[StripeScan], scanner: ScannerConfig, config: SurfaceConfig | None = None
 ) -> tuple[Array, float]:
-    """Surface contexts of every scan (heights from `StripeScan.height_map` with the
-    `scanner` that made them) and the full distance matrix; wall time [s]."""
-    t0 = time.perf_counter()
-    surfaces = [describe_surface(*height_map(s, scanner), config, s.name) for s in scans]
-    d = SurfaceDatabase(surfaces).pairwise()
-    return d, time.perf_counter() - t0
+    """Surface contexts of every scan and their full distance matrix
+    (`_height_map_distances`)."""
+    return _height_map_distances(describe_surface, SurfaceDatabase, scans, scanner, config)
 
 
 def canonical_distances(
     scans: Sequence[StripeScan], scanner: ScannerConfig, config: CanonicalConfig | None = None
 ) -> tuple[Array, float]:
-    """Canonical profiles of every scan (heights from `StripeScan.height_map` with the
-    `scanner` that made them) and the full distance matrix; wall time [s]."""
-    t0 = time.perf_counter()
-    profiles = [describe_canonical(*height_map(s, scanner), config, s.name) for s in scans]
-    d = CanonicalDatabase(profiles).pairwise()
-    return d, time.perf_counter() - t0
+    """Canonical profiles of every scan and their full distance matrix
+    (`_height_map_distances`)."""
+    return _height_map_distances(describe_canonical, CanonicalDatabase, scans, scanner,
+                                 config)
 
 
 def baseline_matcher(name: str) -> tuple[Any, dict[str, Any]]:
