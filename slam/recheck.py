@@ -697,14 +697,13 @@ def group_recheck(
         without = _segment_calibrated(graph, segment_factors(graph, current, w, length=length),
                                       unit, w)
         x = solve(without, current)
-        delta = joint_costs(InnovationTest(without, x, keys, d), unit,
-                            [t.loops for t in offered], removal=False)
+        test = InnovationTest(without, x, keys, d)
+        delta = joint_costs(test, unit, [t.loops for t in offered], removal=False)
         for t, dl in zip(offered, delta, strict=True):
             if dl <= t.gate:
                 t.removed = False
         out = {k for t in earlier + removed for k in t.loops}
         rejected = [k for k in np.flatnonzero(np.asarray(weights) < 0.5) if k not in out]
-        test = InnovationTest(without, x, keys, d)
         if rejected:
             b, gram = test.blocks([unit[k] for k in rejected])
             rejected = [k for k, e in zip(rejected, _quadratic(b, gram), strict=True)
