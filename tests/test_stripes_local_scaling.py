@@ -175,3 +175,25 @@ def test_diagnosis_blocks_and_figures_by_hand():
     # Own scan nearest for query 0 only; ratios: 0.1 / 0.5, 0.3 / median(0.2, 0.1).
     assert own == 0.5
     np.testing.assert_allclose(ratio, [0.2, 0.3 / 0.15])
+
+
+def test_speed_benchmark_judges_decisions_by_hand():
+    from benchmarks.stripes_speed import decision_changes, nearest_other, relative_change
+
+    old = np.array([[0.0, 1.0, 2.0], [1.0, 0.0, 3.0], [2.0, 3.0, 0.0]])
+    # The diagonal (the query itself) is no answer: 0 -> 1, 1 -> 0, 2 -> 0.
+    np.testing.assert_array_equal(nearest_other(old), [0 + 1, 0, 0])
+    # Relative changes: |1.001 - 1| / 1 = 1e-3 is the largest; zeros stay zeros.
+    new = old.copy()
+    new[0, 1], new[2, 1] = 1.001, 3.0 * (1 + 1e-9)
+    assert relative_change(old, new) == pytest.approx(1e-3)
+    assert decision_changes(old, new) == 0
+    # Query 2 flips from object 0 (2.0) to object 1 (3.0 -> 1.9): one changed decision.
+    moved = old.copy()
+    moved[2, 1] = 1.9
+    assert decision_changes(old, moved) == 1
+    # Non-finite entries are never nearest; a matrix against itself changes nothing.
+    inf = old.copy()
+    inf[0, 1] = np.inf
+    np.testing.assert_array_equal(nearest_other(inf), [2, 0, 0])
+    assert decision_changes(inf, inf) == 0
