@@ -5,6 +5,11 @@ Run from the repository root::
     python benchmarks/stripes_diagnosis.py [--meshes DIR] [--labels CSV ...] [--seeds 0,1]
         [--cache DIR] [--baselines] [--failures] [--neighbour 5]
 
+``--seeds '0,1;2,3;4,5'`` evaluates each group of seeds apart (its own poses and
+columns, every table below per group) and ends with a summary: per row, the worst
+and the mean column of each group and of all groups (a change judged on seeds 0, 1
+and on the held-out groups in one run).
+
 Object sets: the YCB multi-instance classes (balls, stacking cups, Lego Duplo, toy
 airplane parts, food boxes) and the second labelled YCB set
 (``benchmarks/stripes_ycb_other_labels.csv``: cans, bottles, fruit, utensils, tools,
@@ -389,23 +394,11 @@ def timing(sets: list[ScannedSet], repeats: int = 3) -> None:
               f"({total + sil:.3f} s with the silhouettes)")
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--labels", nargs="*", default=None,
-                    help="labels CSVs ('ycb': the multi-instance classes); default: ycb "
-                         "and the second labelled YCB set")
-    ap.add_argument("--seeds", default="0,1")
-    ap.add_argument("--cache", type=Path, default=None)
-    ap.add_argument("--baselines", action="store_true")
-    ap.add_argument("--failures", action="store_true")
-    ap.add_argument("--neighbour", type=int, default=5)
-    ap.add_argument("--no-timing", action="store_true")
-    args = ap.parse_args(argv)
-    if not args.meshes.is_dir():
-        print(f"skipped: no mesh folder {args.meshes}")
-        return
-    seeds = [int(s) for s in args.seeds.split(",")]
+def run_seeds(args: argparse.Namespace, seeds: list[int]) -> tuple[dict[str, dict[str, float]],
+                                                                  list[Column],
+                                                                  list[ScannedSet]]:
+    """Every table of the module docstring for one group of `seeds` (one pose each):
+    the rows' figures per column, the columns and the scanned sets."""
     labels = args.labels or ["ycb", str(OTHER_LABELS)]
     pooled: list[tuple[Pooled, list[Column]]] = []
     all_sets: list[ScannedSet] = []
@@ -454,8 +447,52 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{m:24s} {np.mean(own):11.3f}  {np.median(r[ok]):14.3f}  {rho:+10.2f}")
     if args.failures:
         failures(pooled, args.neighbour)
-    if not args.no_timing:
-        timing(all_sets)
+    return rows, cols, all_sets
+
+
+def summary(groups: list[tuple[list[int], dict[str, dict[str, float]]]]) -> None:
+    """Per row, the worst and mean column of every seed group and of all of them."""
+    print("\nsummary: worst / mean column per seed group (each its own poses' columns)")
+    heads = [",".join(map(str, seeds)) for seeds, _ in groups]
+    print(f"{'method':24s}" + "".join(f"{h:>15s}" for h in heads) + f"{'all':>15s}")
+    for m in groups[0][1]:
+        vals = [list(rows[m].values()) for _, rows in groups]
+        every = [v for vs in vals for v in vs]
+        print(f"{m:24s}" + "".join(f"{min(v):8.3f}/{np.mean(v):.3f}" for v in vals)
+              + f"{min(every):8.3f}/{np.mean(every):.3f}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--labels", nargs="*", default=None,
+                    help="labels CSVs ('ycb': the multi-instance classes); default: ycb "
+                         "and the second labelled YCB set")
+    ap.add_argument("--seeds", default="0,1",
+                    help="seeds, one pose each, comma-separated; groups separated by "
+                         "';' (e.g. '0,1;2,3;4,5') are evaluated apart, then summarised")
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--baselines", action="store_true")
+    ap.add_argument("--failures", action="store_true")
+    ap.add_argument("--neighbour", type=int, default=5)
+    ap.add_argument("--no-timing", action="store_true")
+    args = ap.parse_args(argv)
+    if not args.meshes.is_dir():
+        print(f"skipped: no mesh folder {args.meshes}")
+        return
+    groups = [[int(s) for s in g.split(",")] for g in args.seeds.split(";") if g.strip()]
+    results = []
+    timed: list[ScannedSet] = []  # the first group's scans: the timing set
+    for i, seeds in enumerate(groups):
+        if len(groups) > 1:
+            print(f"{'' if i == 0 else chr(10)}=== seed group {i + 1} of {len(groups)}: {seeds}")
+        rows, _, sets = run_seeds(args, seeds)
+        results.append((seeds, rows))
+        timed = timed or sets
+    if len(groups) > 1:
+        summary(results)
+    if not args.no_timing and timed:
+        timing(timed)
 
 
 if __name__ == "__main__":
