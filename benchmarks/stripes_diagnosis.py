@@ -5,6 +5,11 @@ Run from the repository root::
     python benchmarks/stripes_diagnosis.py [--meshes DIR] [--labels CSV ...] [--seeds 0,1]
         [--cache DIR] [--baselines] [--failures] [--neighbour 5]
 
+``--seeds '0,1;2,3;4,5'`` evaluates each group of seeds apart (its own poses and
+columns, every table below per group) and ends with a summary: per row, the worst
+and the mean column of each group and of all groups (a change judged on seeds 0, 1
+and on the held-out groups in one run).
+
 Object sets: the YCB multi-instance classes (balls, stacking cups, Lego Duplo, toy
 airplane parts, food boxes) and the second labelled YCB set
 (``benchmarks/stripes_ycb_other_labels.csv``: cans, bottles, fruit, utensils, tools,
@@ -29,9 +34,11 @@ Rows:
 - ``fused-stripes`` (profile + relief + surface + canonical) and ``fused`` (profile +
   relief + surface + sc50), each part locally scaled (`loopclosure.stripes.fuse`,
   ``scaling="local"``: ``D(q, j) / sqrt(s(q) s(j))``, ``s`` the distance to the
-  ``--neighbour``-th nearest other object of the database of pose ``b``); and the
-  earlier rules for comparison: ``/median`` (each part divided by its per-query
-  median over the database) and ``fused-stripes-3`` (without the canonical profile);
+  ``--neighbour``-th nearest other object of the database of pose ``b``), their
+  geometric mean (`loopclosure.stripes.combine`); and the earlier rules for
+  comparison: ``/arith`` (the arithmetic mean of the same scaled parts), ``/median``
+  (each part divided by its per-query median over the database, arithmetic mean)
+  and ``fused-stripes-3`` (without the canonical profile);
 - with ``--baselines``: shape context (100 points), MRM and FFT on the silhouettes, and
   the paper's stripe descriptor (``stripes``, Eq. 1-6).
 
@@ -102,6 +109,7 @@ from loopclosure.stripes import (  # noqa: E402
     ReliefDatabase,
     StripeDatabase,
     SurfaceDatabase,
+    combine,
     database_scales,
     describe_canonical,
     describe_many,
@@ -111,19 +119,26 @@ from loopclosure.stripes import (  # noqa: E402
     fuse,
     local_scaled,
 )
+from loopclosure.stripes.fusion import GEOMETRIC_FLOOR  # noqa: E402
 from loopclosure.stripes.profile import _median_scale  # noqa: E402
 
 #: The fused matcher's parts, in the fusion's order.
 PARTS: tuple[str, ...] = ("profile", "relief", "surface", "canonical", "sc50")
-#: Fused rows: name -> (parts, scaling).
-FUSED: dict[str, tuple[tuple[str, ...], str]] = {
-    "fused-stripes": (("profile", "relief", "surface", "canonical"), "local"),
-    "fused-stripes/median": (("profile", "relief", "surface", "canonical"), "median"),
-    "fused-stripes-3": (("profile", "relief", "surface"), "local"),
-    "fused-stripes-3/median": (("profile", "relief", "surface"), "median"),
-    "fused": (("profile", "relief", "surface", "sc50"), "local"),
-    "fused/median": (("profile", "relief", "surface", "sc50"), "median"),
+#: Fused rows: name -> (parts, scaling, mean).
+FUSED: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "fused-stripes": (("profile", "relief", "surface", "canonical"), "local", "geometric"),
+    "fused-stripes/arith": (("profile", "relief", "surface", "canonical"), "local",
+                            "arithmetic"),
+    "fused-stripes/median": (("profile", "relief", "surface", "canonical"), "median",
+                             "arithmetic"),
+    "fused-stripes-3": (("profile", "relief", "surface"), "local", "geometric"),
+    "fused-stripes-3/arith": (("profile", "relief", "surface"), "local", "arithmetic"),
+    "fused": (("profile", "relief", "surface", "sc50"), "local", "geometric"),
+    "fused/arith": (("profile", "relief", "surface", "sc50"), "local", "arithmetic"),
+    "fused/median": (("profile", "relief", "surface", "sc50"), "median", "arithmetic"),
 }
+#: Rows whose misses ``--failures`` lists.
+FAILURE_ROWS: tuple[str, ...] = ("fused-stripes", "fused", "fused/arith")
 #: Silhouette baselines of ``--baselines`` (names of `loopclosure.matchers`).
 BASELINES: tuple[str, ...] = ("shape-context", "mrm", "fft")
 #: Objects of the timing set.
@@ -307,16 +322,20 @@ def table(rows: dict[str, dict[str, float]], cols: list[Column]) -> None:
 
 
 def failures(sets: list[tuple[Pooled, list[Column]]], neighbour: int) -> None:
-    """The misses of the fused rows and the part that moved each decision."""
-    for name in ("fused-stripes", "fused"):
-        parts, scaling = FUSED[name]
+    """The misses of the fused rows and the part that moved each decision (in the
+    row's mean: scaled differences for the arithmetic, log ratios for the geometric)."""
+    for name in FAILURE_ROWS:
+        parts, scaling, mean = FUSED[name]
         confusions: dict[tuple[str, str], int] = {}
         movers: dict[str, int] = {}
-        print(f"\nfailures of {name} ({scaling} scaling; part = the one that preferred the "
-              "wrong object most, in scaled units)")
+        print(f"\nfailures of {name} ({scaling} scaling, {mean} mean; part = the one that "
+              "preferred the wrong object most, in scaled units"
+              + (", log" if mean == "geometric" else "") + ")")
         for p, col in ((p, c) for p, cols in sets for c in cols):
             sp = scaled_parts(p, col, parts, scaling, neighbour)
-            fused = np.mean(sp, axis=0)
+            fused = combine(sp, np.full(len(sp), 1.0 / len(sp)), mean)
+            if mean == "geometric":
+                sp = [np.log(np.maximum(s, GEOMETRIC_FLOOR)) for s in sp]
             near = nearest_other(fused, col)
             same_cls = (col.dlab[None, :] == col.qlab[:, None]) & ~col.own
             for q in np.flatnonzero(col.dlab[near] != col.qlab):
@@ -367,31 +386,19 @@ def timing(sets: list[ScannedSet], repeats: int = 3) -> None:
           f"{repeats} (silhouettes {sil:.2f} s apart): "
           + ", ".join(f"{k} {v:.3f}" for k, v in secs.items()))
     for name in ("fused-stripes", "fused"):
-        parts, scaling = FUSED[name]
+        parts, scaling, mean = FUSED[name]
         t0 = time.perf_counter()
-        fuse([d[m] for m in parts], scaling=scaling)
+        fuse([d[m] for m in parts], scaling=scaling, mean=mean)
         total = sum(secs[m] for m in parts) + time.perf_counter() - t0
         print(f"  {name:14s} {total:.3f} s per {len(scans)} objects "
               f"({total + sil:.3f} s with the silhouettes)")
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
-    ap.add_argument("--labels", nargs="*", default=None,
-                    help="labels CSVs ('ycb': the multi-instance classes); default: ycb "
-                         "and the second labelled YCB set")
-    ap.add_argument("--seeds", default="0,1")
-    ap.add_argument("--cache", type=Path, default=None)
-    ap.add_argument("--baselines", action="store_true")
-    ap.add_argument("--failures", action="store_true")
-    ap.add_argument("--neighbour", type=int, default=5)
-    ap.add_argument("--no-timing", action="store_true")
-    args = ap.parse_args(argv)
-    if not args.meshes.is_dir():
-        print(f"skipped: no mesh folder {args.meshes}")
-        return
-    seeds = [int(s) for s in args.seeds.split(",")]
+def run_seeds(args: argparse.Namespace, seeds: list[int]) -> tuple[dict[str, dict[str, float]],
+                                                                  list[Column],
+                                                                  list[ScannedSet]]:
+    """Every table of the module docstring for one group of `seeds` (one pose each):
+    the rows' figures per column, the columns and the scanned sets."""
     labels = args.labels or ["ycb", str(OTHER_LABELS)]
     pooled: list[tuple[Pooled, list[Column]]] = []
     all_sets: list[ScannedSet] = []
@@ -413,8 +420,9 @@ def main(argv: list[str] | None = None) -> None:
         for p, cs in pooled:
             for c in cs:
                 if m in FUSED:
-                    parts, scaling = FUSED[m]
-                    d = np.mean(scaled_parts(p, c, parts, scaling, args.neighbour), axis=0)
+                    parts, scaling, mean = FUSED[m]
+                    sp = scaled_parts(p, c, parts, scaling, args.neighbour)
+                    d = combine(sp, np.full(len(sp), 1.0 / len(sp)), mean)
                 else:
                     d = p.block(m, c.a, c.b)
                 rows[m][c.name] = hit_rate(d, c)
@@ -439,8 +447,52 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{m:24s} {np.mean(own):11.3f}  {np.median(r[ok]):14.3f}  {rho:+10.2f}")
     if args.failures:
         failures(pooled, args.neighbour)
-    if not args.no_timing:
-        timing(all_sets)
+    return rows, cols, all_sets
+
+
+def summary(groups: list[tuple[list[int], dict[str, dict[str, float]]]]) -> None:
+    """Per row, the worst and mean column of every seed group and of all of them."""
+    print("\nsummary: worst / mean column per seed group (each its own poses' columns)")
+    heads = [",".join(map(str, seeds)) for seeds, _ in groups]
+    print(f"{'method':24s}" + "".join(f"{h:>15s}" for h in heads) + f"{'all':>15s}")
+    for m in groups[0][1]:
+        vals = [list(rows[m].values()) for _, rows in groups]
+        every = [v for vs in vals for v in vs]
+        print(f"{m:24s}" + "".join(f"{min(v):8.3f}/{np.mean(v):.3f}" for v in vals)
+              + f"{min(every):8.3f}/{np.mean(every):.3f}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--meshes", type=Path, default=DEFAULT_MESHES)
+    ap.add_argument("--labels", nargs="*", default=None,
+                    help="labels CSVs ('ycb': the multi-instance classes); default: ycb "
+                         "and the second labelled YCB set")
+    ap.add_argument("--seeds", default="0,1",
+                    help="seeds, one pose each, comma-separated; groups separated by "
+                         "';' (e.g. '0,1;2,3;4,5') are evaluated apart, then summarised")
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--baselines", action="store_true")
+    ap.add_argument("--failures", action="store_true")
+    ap.add_argument("--neighbour", type=int, default=5)
+    ap.add_argument("--no-timing", action="store_true")
+    args = ap.parse_args(argv)
+    if not args.meshes.is_dir():
+        print(f"skipped: no mesh folder {args.meshes}")
+        return
+    groups = [[int(s) for s in g.split(",")] for g in args.seeds.split(";") if g.strip()]
+    results = []
+    timed: list[ScannedSet] = []  # the first group's scans: the timing set
+    for i, seeds in enumerate(groups):
+        if len(groups) > 1:
+            print(f"{'' if i == 0 else chr(10)}=== seed group {i + 1} of {len(groups)}: {seeds}")
+        rows, _, sets = run_seeds(args, seeds)
+        results.append((seeds, rows))
+        timed = timed or sets
+    if len(groups) > 1:
+        summary(results)
+    if not args.no_timing and timed:
+        timing(timed)
 
 
 if __name__ == "__main__":

@@ -39,7 +39,8 @@ context on 50 points of the silhouette, `evaluation.stripes_objects.silhouette_p
 of each scan with the scanner that made it), and the two fused matchers, ``fused``
 (profile + relief + surface + sc50) and ``fused-stripes`` (profile + relief + surface +
 canonical), each part locally scaled by the reference database's own distances
-(`fusion.local_scaled`; the disturbed scan is a query against the reference scans).
+(`fusion.local_scaled`; the disturbed scan is a query against the reference scans),
+their geometric mean (`fusion.combine`, the fused matcher's rule).
 Ratio per cell: the median over the objects of the distance from the disturbed scan
 to the same object's reference scan, divided by the median distance between
 reference scans of different classes (the profile's and canonical profile's
@@ -81,7 +82,13 @@ from loopclosure.stripes import (  # noqa: E402
     describe_relief,
     describe_surface,
 )
-from loopclosure.stripes.fusion import database_scales, local_scaled, verifier  # noqa: E402
+from loopclosure.stripes.fusion import (  # noqa: E402
+    DEFAULT_MEAN,
+    database_scales,
+    local_scaled,
+    verifier,
+)
+from loopclosure.stripes.fusion import combine as fusion_mean  # noqa: E402
 from loopclosure.stripes.matching import LAMBDA_PAPER, combine  # noqa: E402
 
 DEFAULT_MESHES = ROOT.parent / "shared" / "data" / "meshes-ycb"
@@ -161,6 +168,11 @@ FUSIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+def _fusion(scaled: list[np.ndarray]) -> np.ndarray:
+    """The fused matcher's mean (`DEFAULT_MEAN`, equal weights) of locally scaled parts."""
+    return fusion_mean(scaled, np.full(len(scaled), 1.0 / len(scaled)), DEFAULT_MEAN)
+
+
 def part_descriptions(scans: list, cfg: ScannerConfig, sc) -> dict[str, list]:
     """Each part's description of every scan (`cfg`: the scanner that made them; `sc`
     the ``shape-context-50`` matcher)."""
@@ -196,15 +208,14 @@ class PartDatabases:
         out["sc50"] = np.stack([np.asarray(self.sc.distances(q, self.sc_stack), dtype=float)
                                 for q in queries["sc50"]])
         for name, parts in FUSIONS.items():
-            out[name] = np.mean([local_scaled(out[k], self.scales[k]) for k in parts], axis=0)
+            out[name] = _fusion([local_scaled(out[k], self.scales[k]) for k in parts])
         return out
 
     def pairwise(self) -> dict[str, np.ndarray]:
         """Part (and fusion) -> the reference scans' ``(M, M)`` distances."""
         out = dict(self.own)
         for name, parts in FUSIONS.items():
-            out[name] = np.mean([local_scaled(self.own[k], self.scales[k]) for k in parts],
-                                axis=0)
+            out[name] = _fusion([local_scaled(self.own[k], self.scales[k]) for k in parts])
         return out
 
 

@@ -112,6 +112,12 @@ def stripes(
     neighbour: Annotated[
         int, typer.Option("--neighbour", help="Neighbour rank of --scaling local.")
     ] = 5,
+    mean: Annotated[
+        str,
+        typer.Option("--mean", help="How the fused and fused-stripes rows average their "
+                     "unitless parts: geometric (each part counts by ratios) or "
+                     "arithmetic."),
+    ] = "geometric",
     stripe_count: Annotated[
         int | None,
         typer.Option("--stripe-count", help="Describe each object by at most N evenly "
@@ -192,6 +198,7 @@ def stripes(
         fused_relief=relief_verifiers,
         scaling=scaling,
         neighbour=neighbour,
+        mean=mean,
     )
     if meshes is not None:
         objects = mesh_folder_objects(meshes, labels, units=units, up=up_axis)

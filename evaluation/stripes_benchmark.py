@@ -34,8 +34,8 @@ Methods on the same scans:
 - ``fused-stripes``: profile, relief, surface context and canonical profile combined
   by `loopclosure.stripes.fuse` (each method's distances locally scaled,
   ``D(q, j) / sqrt(s(q) s(j))`` with ``s`` the distance to the 5th nearest other
-  object, `StripesBenchmarkConfig.scaling`; equal weights): the matcher that reads
-  nothing but the stripes.
+  object, `StripesBenchmarkConfig.scaling`; their geometric mean with equal weights,
+  `StripesBenchmarkConfig.mean`): the matcher that reads nothing but the stripes.
 - ``fused``: the default matcher (`loopclosure.stripes.FusedObjectDatabase`): profile,
   relief, surface context and the silhouette verifiers (default
   ``shape-context-50``), same rule; its time is the parts' times plus the fusion.
@@ -126,8 +126,10 @@ from loopclosure.stripes import (
     fuse,
 )
 from loopclosure.stripes.fusion import (
+    DEFAULT_MEAN,
     DEFAULT_SCALING,
     LOCAL_NEIGHBOUR,
+    MEANS,
     SCALINGS,
     VERIFIER_PRESETS,
     verifier_options,
@@ -286,6 +288,9 @@ class StripesBenchmarkConfig:
             ``"local"`` (local scaling) or ``"median"`` (per-query median); the
             ``fused-sc`` and ``fused-relief`` rows keep the median.
         neighbour: neighbour rank of local scaling.
+        mean: how ``fused-stripes`` and ``fused`` average the unitless parts:
+            ``"geometric"`` or ``"arithmetic"`` (`loopclosure.stripes.combine`); the
+            ``fused-sc`` and ``fused-relief`` rows keep the arithmetic mean.
     """
 
     seed: int = 0
@@ -304,10 +309,13 @@ class StripesBenchmarkConfig:
     canonical: CanonicalConfig = field(default_factory=CanonicalConfig)
     scaling: str = DEFAULT_SCALING
     neighbour: int = LOCAL_NEIGHBOUR
+    mean: str = DEFAULT_MEAN
 
     def __post_init__(self) -> None:
         if self.scaling not in SCALINGS:
             raise UserError(f"unknown scaling {self.scaling!r}; known: {', '.join(SCALINGS)}")
+        if self.mean not in MEANS:
+            raise UserError(f"unknown mean {self.mean!r}; known: {', '.join(MEANS)}")
         if self.neighbour < 1:
             raise UserError(f"--neighbour must be at least 1, got {self.neighbour}")
 
@@ -331,6 +339,7 @@ class StripesBenchmarkConfig:
             "canonical": asdict(self.canonical),
             "scaling": self.scaling,
             "neighbour": self.neighbour,
+            "mean": self.mean,
         }
 
 
@@ -602,8 +611,8 @@ def run_stripes_benchmark(
     silhouette_seconds = next((r.silhouette_seconds for r in rows.values()), 0.0)
     three = [profile, relief, surface]
     fused_stripes = _fused(scanned, [*three, canonical], ranked, cfg, (), "fused-stripes",
-                           cfg.scaling)
-    fused = (_fused(scanned, three, ranked, cfg, cfg.fused, "fused", cfg.scaling)
+                           cfg.scaling, cfg.mean)
+    fused = (_fused(scanned, three, ranked, cfg, cfg.fused, "fused", cfg.scaling, cfg.mean)
              if cfg.fused else None)
     fused_sc = (_fused(scanned, [profile], ranked, cfg, cfg.fused_sc, "fused-sc")
                 if cfg.fused_sc else None)
@@ -657,14 +666,15 @@ def _rank_with_profile(
 def _fused(
     scanned: ScannedSet, stripe_side: Sequence[MethodResult], ranked: dict[str, MethodResult],
     cfg: StripesBenchmarkConfig, verifiers: Sequence[str], name: str = "fused",
-    scaling: str = "median",
+    scaling: str = "median", mean: str = "arithmetic",
 ) -> MethodResult:
     """A fused matcher's figures from the matrices of its stripe-side parts (the profile,
     and the relief, surface context and canonical profile when given) and of the
-    `verifiers`, each made unitless by `scaling` (`loopclosure.stripes.fuse`)."""
+    `verifiers`, each made unitless by `scaling` and averaged by `mean`
+    (`loopclosure.stripes.fuse`)."""
     t0 = time.perf_counter()
     d = fuse([*(r.distances for r in stripe_side), *(ranked[n].distances for n in verifiers)],
-             scaling=scaling, neighbour=cfg.neighbour)
+             scaling=scaling, neighbour=cfg.neighbour, mean=mean)
     secs = (sum(r.seconds for r in stripe_side) + sum(ranked[n].seconds for n in verifiers)
             + time.perf_counter() - t0)
     return evaluate(name, d, scanned.labels, scanned.objects, secs, cfg.k,
@@ -672,5 +682,6 @@ def _fused(
                      "normalisation": ("local scaling, neighbour "
                                        f"{cfg.neighbour}" if scaling == "local"
                                        else "per-query median"),
+                     "mean": mean,
                      "stripes": " + ".join(r.name for r in stripe_side),
                      "samples": cfg.profile.samples})

@@ -14,6 +14,7 @@ from loopclosure.stripes import (
     describe_canonical,
     describe_profiles,
 )
+from loopclosure.stripes.canonical import footprint_frame
 
 #: Cell spacings (row_m, column_m) of the simulated scanner's height maps (laser step
 #: along the sweep, one image column across) and the same swept the other way.
@@ -49,6 +50,18 @@ def banana(x, y):
 def _gap(a, b) -> float:
     """Largest absolute difference of two profiles, the better of both directions."""
     return min(np.abs(a.profile - b.profile).max(), np.abs(a.profile - b.profile[::-1]).max())
+
+
+def test_footprint_frame_of_a_turned_rectangle():
+    """A 4 x 1 grid of points turned by 30 deg and shifted: u, v are its own coordinates
+    (up to the axes' signs), by hand: u in -2..2 along the long side, v in -0.5..0.5."""
+    a, b = np.meshgrid(np.linspace(-2.0, 2.0, 41), np.linspace(-0.5, 0.5, 11))
+    a, b = a.ravel(), b.ravel()
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    u, v = footprint_frame(3.0 + c * a - s * b, -1.0 + s * a + c * b)
+    assert np.allclose(np.abs(u), np.abs(a), atol=1e-12)
+    assert np.allclose(np.abs(v), np.abs(b), atol=1e-12)
+    assert np.allclose(u * v, a * b, atol=1e-12)  # a turn, not a mirror
 
 
 @pytest.mark.parametrize("shape", [box, lying_cylinder, banana])

@@ -10,6 +10,7 @@ from loopclosure.polygon import Polygon
 from loopclosure.stripes import (
     FusedObjectDatabase,
     ProfileDatabase,
+    combine,
     database_scales,
     describe_profiles,
     fuse,
@@ -69,6 +70,38 @@ def test_local_scaling_is_invariant_to_scaling_one_part():
                                fuse([a], scaling="local"))
 
 
+def test_geometric_mean_counts_each_part_by_ratios():
+    # Two parts, three candidates.  Part 1 spreads widely (scores 0.5, 4, 8), part 2
+    # narrowly (2, 1, 0.9).  Arithmetic mean: 1.25, 2.5, 4.45.  Geometric: sqrt(0.5*2) = 1,
+    # sqrt(4*1) = 2, sqrt(8*0.9) = sqrt(7.2).
+    p1, p2 = np.array([0.5, 4.0, 8.0]), np.array([2.0, 1.0, 0.9])
+    w = np.array([0.5, 0.5])
+    np.testing.assert_allclose(combine([p1, p2], w, "arithmetic"), [1.25, 2.5, 4.45])
+    np.testing.assert_allclose(combine([p1, p2], w, "geometric"), [1.0, 2.0, np.sqrt(7.2)])
+    # Candidates c0 = (1, 5) and c1 = (8, 0.5): part 1 finds c0 8x nearer (a gap of 7),
+    # part 2 finds c1 10x nearer (a gap of 4.5).  Arithmetic: 3 < 4.25, part 1's wider
+    # gap decides; geometric: sqrt(5) > sqrt(4), the larger ratio decides.
+    c0c1 = [np.array([1.0, 8.0]), np.array([5.0, 0.5])]
+    np.testing.assert_allclose(combine(c0c1, w, "arithmetic"), [3.0, 4.25])
+    np.testing.assert_allclose(combine(c0c1, w, "geometric"), [np.sqrt(5.0), 2.0])
+    # Weights are exponents; a zero score is floored (0.01) unless every score is zero.
+    np.testing.assert_allclose(combine([p1, p2], np.array([1.0, 0.0]), "geometric"), p1)
+    np.testing.assert_allclose(combine([np.array([0.0, 0.0]), np.array([0.0, 4.0])], w,
+                                       "geometric"), [0.0, np.sqrt(0.01 * 4.0)])
+    # Scale-free as local scaling: one part times a constant leaves the fusion as it is.
+    rng = np.random.default_rng(4)
+    m1, m2 = rng.uniform(0.1, 1.0, (2, 10, 10))
+    np.fill_diagonal(m1, 0.0)
+    np.fill_diagonal(m2, 0.0)
+    ref = fuse([m1, m2], scaling="local", mean="geometric")
+    np.testing.assert_allclose(fuse([m1, 30.0 * m2], scaling="local", mean="geometric"), ref)
+    assert np.all(np.diag(ref) == 0.0)
+    with pytest.raises(UserError, match="unknown mean"):
+        fuse([m1, m2], scaling="local", mean="harmonic")
+    with pytest.raises(UserError, match="unknown mean"):
+        FusedObjectDatabase(*_objects(), mean="harmonic")
+
+
 def test_median_scaling_is_the_earlier_rule():
     a, b = np.array([1.0, 2.0, 3.0]), np.array([30.0, 20.0, 10.0])
     np.testing.assert_allclose(fuse([a, b], scaling="median"), (normalised(a) + normalised(b)) / 2)
@@ -100,14 +133,15 @@ def test_fused_database_local_and_median():
     own = [ProfileDatabase(profiles).pairwise(), m.pairwise([m.describe(p) for p in polys])]
     for i in (0, 5):
         parts = db.method_distances(profiles[i], polys[i])
-        want = fuse(parts, scaling="local", databases=own, neighbour=2)
+        want = fuse(parts, scaling="local", databases=own, neighbour=2, mean="geometric")
         np.testing.assert_allclose(db.distances(profiles[i], polys[i]), want)
         # A query that is in the database: its own zero distance is skipped, so its
         # scaled row is its row of the all-pairs local scaling.
-        np.testing.assert_allclose(want, fuse(own, scaling="local", neighbour=2)[i],
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            want, fuse(own, scaling="local", neighbour=2, mean="geometric")[i], atol=1e-9)
         assert db.query(profiles[i], polys[i], k=1)[0][0] == i
-    median = FusedObjectDatabase(profiles, polys, verifiers=("fft",), scaling="median")
+    median = FusedObjectDatabase(profiles, polys, verifiers=("fft",), scaling="median",
+                                 mean="arithmetic")
     assert median.scales is None
     parts = median.method_distances(profiles[2], polys[2])
     np.testing.assert_allclose(median.distances(profiles[2], polys[2]), fuse(parts))
@@ -141,3 +175,25 @@ def test_diagnosis_blocks_and_figures_by_hand():
     # Own scan nearest for query 0 only; ratios: 0.1 / 0.5, 0.3 / median(0.2, 0.1).
     assert own == 0.5
     np.testing.assert_allclose(ratio, [0.2, 0.3 / 0.15])
+
+
+def test_speed_benchmark_judges_decisions_by_hand():
+    from benchmarks.stripes_speed import decision_changes, nearest_other, relative_change
+
+    old = np.array([[0.0, 1.0, 2.0], [1.0, 0.0, 3.0], [2.0, 3.0, 0.0]])
+    # The diagonal (the query itself) is no answer: 0 -> 1, 1 -> 0, 2 -> 0.
+    np.testing.assert_array_equal(nearest_other(old), [0 + 1, 0, 0])
+    # Relative changes: |1.001 - 1| / 1 = 1e-3 is the largest; zeros stay zeros.
+    new = old.copy()
+    new[0, 1], new[2, 1] = 1.001, 3.0 * (1 + 1e-9)
+    assert relative_change(old, new) == pytest.approx(1e-3)
+    assert decision_changes(old, new) == 0
+    # Query 2 flips from object 0 (2.0) to object 1 (3.0 -> 1.9): one changed decision.
+    moved = old.copy()
+    moved[2, 1] = 1.9
+    assert decision_changes(old, moved) == 1
+    # Non-finite entries are never nearest; a matrix against itself changes nothing.
+    inf = old.copy()
+    inf[0, 1] = np.inf
+    np.testing.assert_array_equal(nearest_other(inf), [2, 0, 0])
+    assert decision_changes(inf, inf) == 0

@@ -121,7 +121,7 @@ def test_fused_database_with_reliefs_is_the_three_part_fusion():
              Polygon(np.array([[0, 0], [40, 0], [40, 40], [0, 40]], float)),
              Polygon(np.column_stack([30 * np.cos(u), 20 * np.sin(u)]))]
     db = FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs,
-                             scaling="median")
+                             scaling="median", mean="arithmetic")
     parts = db.method_distances(profiles[2], polys[2], reliefs[2])
     assert len(parts) == 3
     np.testing.assert_allclose(parts[0], ProfileDatabase(profiles).distances(profiles[2]))

@@ -110,14 +110,14 @@ def test_fused_database_with_reliefs_and_surfaces_is_the_four_part_fusion():
     assert len(parts) == 4
     np.testing.assert_allclose(parts[0], ProfileDatabase(profiles).distances(profiles[1]))
     np.testing.assert_allclose(parts[2], SurfaceDatabase(surfaces).distances(surfaces[1]))
-    # Default: each part locally scaled by the database's own distances.
+    # Default: each part locally scaled by the database's own distances, geometric mean.
     own = [ProfileDatabase(profiles).pairwise(), ReliefDatabase(reliefs).pairwise(),
            SurfaceDatabase(surfaces).pairwise(), db.matchers[0].pairwise(
                [db.matchers[0].describe(p) for p in polys])]
     np.testing.assert_allclose(db.distances(profiles[1], polys[1], reliefs[1], surfaces[1]),
-                               fuse(parts, scaling="local", databases=own))
+                               fuse(parts, scaling="local", databases=own, mean="geometric"))
     median = FusedObjectDatabase(profiles, polys, verifiers=("fft",), reliefs=reliefs,
-                                 surfaces=surfaces, scaling="median")
+                                 surfaces=surfaces, scaling="median", mean="arithmetic")
     np.testing.assert_allclose(
         median.distances(profiles[1], polys[1], reliefs[1], surfaces[1]), fuse(parts))
     assert db.query(profiles[1], polys[1], k=1, relief=reliefs[1],
@@ -155,15 +155,19 @@ def test_fused_row_is_profile_relief_surface_and_shape_context():
     surface, _ = surface_distances(res.scanned.scans, scanner)
     np.testing.assert_allclose(res.surface.distances, surface)
     three = [res.profile.distances, res.relief.distances, surface]
-    # fused-stripes: the three and the canonical profile, each locally scaled.
-    np.testing.assert_allclose(res.fused_stripes.distances,
-                               fuse([*three, res.canonical.distances], scaling="local"))
+    # fused-stripes: the three and the canonical profile, each locally scaled, their
+    # geometric mean.
+    np.testing.assert_allclose(
+        res.fused_stripes.distances,
+        fuse([*three, res.canonical.distances], scaling="local", mean="geometric"))
     # The fused row: the three and shape context on 50 points, same rule.
     polys = [silhouette_polygon(x, scanner) for x in res.scanned.scans]
     sc = baseline_distances("shape-context-50", polys)[0]
-    np.testing.assert_allclose(res.fused.distances, fuse([*three, sc], scaling="local"))
-    # The median rule is the earlier one.
-    old = run_stripes_benchmark(objs, replace(cfg, scaling="median"))
+    np.testing.assert_allclose(res.fused.distances,
+                               fuse([*three, sc], scaling="local", mean="geometric"))
+    assert res.to_json()["fused"]["options"]["mean"] == "geometric"
+    # The median rule with the arithmetic mean is the earlier one.
+    old = run_stripes_benchmark(objs, replace(cfg, scaling="median", mean="arithmetic"))
     np.testing.assert_allclose(old.fused.distances, fuse([*three, sc]))
     js = res.to_json()
     assert js["fused"]["options"]["verifiers"] == ["shape-context-50"]

@@ -40,14 +40,17 @@ from loopclosure.stripes.extraction import (
     thin,
 )
 from loopclosure.stripes.fusion import (
+    DEFAULT_MEAN,
     DEFAULT_SCALING,
     DEFAULT_VERIFIERS,
     FAST_VERIFIERS,
     FUSED_DESCRIPTOR,
     LOCAL_NEIGHBOUR,
+    MEANS,
     SC_VERIFIERS,
     SCALINGS,
     FusedObjectDatabase,
+    combine,
     database_scales,
     fuse,
     local_scaled,
@@ -89,12 +92,14 @@ from loopclosure.stripes.surface import (
 )
 
 __all__ = [
+    "DEFAULT_MEAN",
     "DEFAULT_SCALING",
     "DEFAULT_VERIFIERS",
     "FAST_VERIFIERS",
     "FUSED_DESCRIPTOR",
     "LAMBDA_PAPER",
     "LOCAL_NEIGHBOUR",
+    "MEANS",
     "PROFILE_SAMPLES",
     "SCALINGS",
     "SC_VERIFIERS",
@@ -116,6 +121,7 @@ __all__ = [
     "SurfaceDatabase",
     "bhattacharyya",
     "chain_pixels",
+    "combine",
     "database_scales",
     "describe_canonical",
     "describe_many",

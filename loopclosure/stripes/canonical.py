@@ -124,12 +124,20 @@ def footprint_frame(x: ArrayLike, y: ArrayLike) -> tuple[Array, Array]:
     ``s`` the central second moments of the points (the eigenvector of the largest
     eigenvalue of their covariance, in closed form):
     ``u = dx cos(theta) + dy sin(theta)``, ``v = -dx sin(theta) + dy cos(theta)``.
+
+    The three moments are `numpy.einsum` sums of products, not ``@``: a 1-D ``@`` is a
+    BLAS dot product, whose threads wait for busy cores (many times the arithmetic's
+    cost on a shared machine); einsum's own loop has no threads (its summation order
+    differs from BLAS's in the last bits).
     """
     dx = np.asarray(x, dtype=float)
     dy = np.asarray(y, dtype=float)
     dx = dx - dx.mean()
     dy = dy - dy.mean()
-    theta = 0.5 * np.arctan2(2.0 * (dx @ dy), dx @ dx - dy @ dy)
+    sxy = np.einsum("i,i->", dx, dy)
+    sxx = np.einsum("i,i->", dx, dx)
+    syy = np.einsum("i,i->", dy, dy)
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     c, s = np.cos(theta), np.sin(theta)
     return dx * c + dy * s, dy * c - dx * s
 

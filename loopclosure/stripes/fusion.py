@@ -24,8 +24,22 @@ place cascade's idea without learnt weights, which keeps it free of any data set
     object;
 
   both are invariant to multiplying one method's distances by a constant;
-- the fused distance is the weighted mean of the scores (`fuse`), equal weights by
-  default.
+- the fused distance is a weighted mean of the scores (`fuse`'s ``mean``), equal
+  weights by default:
+
+  - ``"geometric"`` (the fused matcher's rule, `DEFAULT_MEAN`): ``exp(sum_k w_k
+    log max(score_k, GEOMETRIC_FLOOR))``, 0 where every score is 0 (the object
+    itself).  Each part counts by *ratios*: one part
+    that finds the true object twice as near as a look-alike outweighs another that
+    finds the look-alike twice as near, whatever the two parts' absolute spreads.
+    Scaled scores of far objects spread much more in some parts than in others
+    (shape context's outline distances, the relief's flat-top crowd), and in an
+    arithmetic mean the part with the widest spread at the query's candidates decides
+    alone (a rectangular can taken for a wooden block by the outline, against the
+    profile, relief and surface context); the logarithm takes that leverage away.
+    With local scaling the query's own ``s_k(q)`` is one factor per query and drops
+    out of its ranking; the database objects' ``s_k(j)`` stay;
+  - ``"arithmetic"``: ``sum_k w_k score_k`` (the earlier rule, `fuse`'s default).
 
 The stripe side of the fusion is the stripe profile (`profile.ProfileDatabase`:
 every object resampled to 32 positions along the sweep, scale-free, order kept), the
@@ -47,7 +61,7 @@ scanned footprint in the table plane, millimetres).
 
 The default matcher (``fused`` in ``bench stripes``) is all four parts: profile,
 relief, surface context and shape context on 50 points (`DEFAULT_VERIFIERS`), each
-locally scaled, equal weights.  Each part reads what the others
+locally scaled, their geometric mean with equal weights.  Each part reads what the others
 miss: the profile where along its length the object is tall, round or flat (blind
 to the outline once resampled); the relief how deep the surface falls below the top
 (flat box tops against studded bricks, lids, domes and hollows); the surface context
@@ -115,6 +129,15 @@ FUSED_DESCRIPTOR = DescriptorConfig(stripe_count=FUSED_STRIPE_COUNT)
 SCALINGS: tuple[str, ...] = ("local", "median")
 #: The fused matcher's rule.
 DEFAULT_SCALING = "local"
+#: How the unitless parts are averaged (module docstring).
+MEANS: tuple[str, ...] = ("arithmetic", "geometric")
+#: The fused matcher's mean.
+DEFAULT_MEAN = "geometric"
+#: Smallest score the geometric mean takes the logarithm of [unitless]: one part's
+#: evidence is at most a factor 100 nearer than a typical neighbour, so two
+#: descriptions equal in one part (flat tops under the relief) do not zero the product
+#: whatever the other parts say.
+GEOMETRIC_FLOOR = 0.01
 #: Neighbour rank ``n`` of local scaling: ``s(x)`` is the distance to the n-th nearest.
 LOCAL_NEIGHBOUR = 5
 #: A distance at most this fraction of its row's largest finite distance is zero (the
@@ -238,16 +261,18 @@ def scaled(
 def fuse(
     parts: Sequence[ArrayLike], weights: Sequence[float] | None = None,
     scaling: str = "median", databases: Sequence[ArrayLike | None] | None = None,
-    neighbour: int = LOCAL_NEIGHBOUR,
+    neighbour: int = LOCAL_NEIGHBOUR, mean: str = "arithmetic",
 ) -> Array:
-    """Weighted mean of several methods' distances (same shape each), each made unitless
-    by `scaling` (`scaled`; ``"median"``: `normalised`; ``"local"``: `local_scaled`, with
-    `databases` the database's own distances per method, or None when the parts are
-    the database's all-pairs matrices themselves)."""
+    """Weighted `mean` (``"arithmetic"`` or ``"geometric"``, `combine`) of several
+    methods' distances (same shape each), each made unitless by `scaling` (`scaled`;
+    ``"median"``: `normalised`; ``"local"``: `local_scaled`, with `databases` the
+    database's own distances per method, or None when the parts are the database's
+    all-pairs matrices themselves)."""
     if not parts:
         raise UserError("fuse needs at least one method's distances")
     if scaling not in SCALINGS:
         raise UserError(f"unknown scaling {scaling!r}; known: {', '.join(SCALINGS)}")
+    _check_mean(mean)
     shapes = [np.shape(p) for p in parts]
     if any(sh != shapes[0] for sh in shapes):
         raise UserError(f"every method's distances must have one shape, got {shapes}")
@@ -256,8 +281,25 @@ def fuse(
         raise UserError(f"databases must hold one matrix per method: {len(own)} for "
                         f"{len(parts)}")
     arrays = [scaled(p, scaling, o, neighbour) for p, o in zip(parts, own, strict=True)]
-    w = _fusion_weights(weights, len(arrays))
-    return sum(wi * a for wi, a in zip(w, arrays, strict=True))
+    return combine(arrays, _fusion_weights(weights, len(arrays)), mean)
+
+
+def _check_mean(mean: str) -> None:
+    if mean not in MEANS:
+        raise UserError(f"unknown mean {mean!r}; known: {', '.join(MEANS)}")
+
+
+def combine(scores: Sequence[Array], weights: Array, mean: str = DEFAULT_MEAN) -> Array:
+    """The weighted `mean` of unitless scores (same shape each; `weights` summing to 1):
+    ``"arithmetic"``: ``sum_k w_k score_k``; ``"geometric"``: ``exp(sum_k w_k log
+    max(score_k, GEOMETRIC_FLOOR))``, 0 where every score is 0 (module docstring)."""
+    _check_mean(mean)
+    if mean == "arithmetic":
+        return sum(wi * a for wi, a in zip(weights, scores, strict=True))
+    logs = sum(wi * np.log(np.maximum(a, GEOMETRIC_FLOOR))
+               for wi, a in zip(weights, scores, strict=True))
+    zero = np.logical_and.reduce([np.asarray(a) == 0 for a in scores])
+    return np.where(zero, 0.0, np.exp(logs))
 
 
 def _fusion_weights(weights: Sequence[float] | None, parts: int) -> Array:
@@ -304,6 +346,7 @@ class FusedObjectDatabase:
             canonical-profile part.
         scaling: ``"local"`` (default) or ``"median"`` (module docstring).
         neighbour: ``n`` of local scaling (`LOCAL_NEIGHBOUR`).
+        mean: ``"geometric"`` (default) or ``"arithmetic"`` (module docstring).
 
     With ``scaling="local"`` the constructor computes every part's distances among the
     objects (all pairs, once) for the database scales ``s_k(j)``.
@@ -321,6 +364,7 @@ class FusedObjectDatabase:
         canonicals: Sequence[CanonicalProfile] | None = None,
         scaling: str = DEFAULT_SCALING,
         neighbour: int = LOCAL_NEIGHBOUR,
+        mean: str = DEFAULT_MEAN,
     ) -> None:
         if len(descriptors) != len(silhouettes):
             raise UserError(f"silhouettes must hold one polygon per object: {len(silhouettes)} "
@@ -334,6 +378,7 @@ class FusedObjectDatabase:
             raise UserError(f"unknown scaling {scaling!r}; known: {', '.join(SCALINGS)}")
         if neighbour < 1:
             raise UserError(f"local scaling's neighbour must be at least 1, got {neighbour}")
+        _check_mean(mean)
         parts = (1 + (reliefs is not None) + (surfaces is not None) + (canonicals is not None)
                  + len(verifiers))
         if weights is not None and len(weights) != parts:
@@ -359,6 +404,7 @@ class FusedObjectDatabase:
         self.verifier_names = tuple(verifiers)
         self.scaling = scaling
         self.neighbour = int(neighbour)
+        self.mean = mean
         described = [[m.describe(p) for p in silhouettes] for m in self.matchers]
         self.stacks = [m.stack(ds) for m, ds in zip(self.matchers, described, strict=True)]
         #: ``s_k(j)`` per part (module docstring), None with median scaling.
@@ -420,7 +466,7 @@ class FusedObjectDatabase:
     ) -> Array:
         """``(K,)`` fused distances of the query to every object (module docstring)."""
         parts = self.scaled_distances(descriptor, silhouette, relief, surface, canonical)
-        return sum(wi * p for wi, p in zip(self._w, parts, strict=True))
+        return combine(parts, self._w, self.mean)
 
     def query(
         self, descriptor: StripeProfile | StripeDescriptor, silhouette: Polygon, k: int = 10,
