@@ -167,6 +167,10 @@ class LoopBench:
             the reference (NaN without a proposal).
         reasons: ``(n,)`` the check's verdict text.
         recall_at_k: prefilter stage -> {K: recall@K}.
+        candidate_recall: share of the queries with a revisit whose verified
+            candidates (the database's K and the grids' extras, both views) hold a
+            true place: the most the fused and final rows can find.
+        candidate_count: mean number of candidates verified per query.
         reference: ``(keyframes, 3)`` reference poses (NaN rows: none).
         scan_index: ``(keyframes,)`` scan index of every keyframe.
         min_score: the detector's fused-score threshold (the pipeline's operating point).
@@ -187,6 +191,8 @@ class LoopBench:
     final_errors: Array
     reasons: list[str]
     recall_at_k: dict[str, dict[int, float]]
+    candidate_recall: float
+    candidate_count: float
     reference: Array
     scan_index: NDArray[np.intp]
     min_score: float
@@ -487,6 +493,8 @@ class _Raw:
     score: dict[str, list[float]] = field(default_factory=dict)
     seconds: dict[str, list[float]] = field(default_factory=dict)
     hits: dict[str, list[NDArray[np.bool_]]] = field(default_factory=dict)
+    candidate_hit: list[bool] = field(default_factory=list)
+    candidate_count: list[int] = field(default_factory=list)
     accepted: list[bool] = field(default_factory=list)
     final_match: list[int] = field(default_factory=list)
     final_score: list[float] = field(default_factory=list)
@@ -591,6 +599,8 @@ def _one_query(
             return
         for r in (*cfg.prefilter, "prefilter"):
             out.hits.setdefault(r, []).append(np.zeros(kmax, bool))
+        out.candidate_hit.append(False)
+        out.candidate_count.append(0)
         out.accepted.append(False)
         out.final_match.append(-1)
         out.final_score.append(-np.inf)
@@ -656,6 +666,8 @@ def _cascade_rows(
         matches = merge_views([matches, wide.db.query_stored(asked, allowed=wide_mask)])
     t_query = time.perf_counter() - t
     out.time("fused", t_query)
+    out.candidate_hit.append(bool(np.isin([int(m.key) for m in matches], keys[sel][near]).any()))
+    out.candidate_count.append(len(matches))
     best = matches[0]
     out.put("fused", int(best.key), best.score)
     timed = timing_every <= 1 or len(out.keys) % timing_every == 1
@@ -735,11 +747,15 @@ def _evaluate(
     for r in (*config.loops.database.prefilter, "prefilter"):
         hits = np.asarray(raw.hits.get(r, []), bool).reshape(len(q), max(RECALL_KS))
         recall_k[r] = recall_at_k(hits, has, RECALL_KS)
+    cand_hit = np.asarray(raw.candidate_hit, bool)
+    cand_count = np.asarray(raw.candidate_count, float)
     return LoopBench(
         name=name, keyframes=len(ref), covered=int(covered.sum()), query_keys=q,
         has_revisit=has, database_size=np.asarray(raw.size, np.intp), stages=stages,
         final=final, accepted=accepted, final_errors=errors, reasons=list(raw.reason),
-        recall_at_k=recall_k, reference=ref,
+        recall_at_k=recall_k,
+        candidate_recall=float(cand_hit[has].mean()) if has.any() else float("nan"),
+        candidate_count=float(cand_count.mean()) if len(cand_count) else 0.0, reference=ref,
         scan_index=np.array([kf.scan_index for kf in result.keyframes], np.intp),
         min_score=config.loops.min_score, tolerances=tol, config=config,
     )

@@ -8,9 +8,12 @@
                        "ms_per_query", "top1_precision", "top1_recall"}},
      "final": {... the same ..., "accepted", "precision_at_min_score",
                "recall_at_min_score", "min_score"},
-     "recall_at_k": {prefilter stage: {"1", "10", "50"}}, "wall_s", "reference"}
+     "recall_at_k": {prefilter stage: {"1", "10", "50"}},
+     "candidates": {"recall", "mean_count"}, "wall_s", "reference"}
 
-(the measures are defined in `evaluation.loop_bench_truth`; ``top1_precision`` and
+(the measures are defined in `evaluation.loop_bench_truth`; ``candidates``: the share
+of revisits with a true place among the candidates the verifiers saw, and their mean
+number; ``top1_precision`` and
 ``top1_recall`` are the curve's end point, every proposal accepted: correct proposals
 over proposals, and over queries with a revisit).
 `table_rows` gives the terminal / report table, one row per stage.  `write_outputs`
@@ -75,6 +78,7 @@ def json_document(bench: LoopBench) -> dict[str, Any]:
         "final": final,
         "recall_at_k": {n: {str(k): v for k, v in r.items()}
                         for n, r in bench.recall_at_k.items()},
+        "candidates": {"recall": bench.candidate_recall, "mean_count": bench.candidate_count},
         "tolerances": {"max_distance_m": bench.tolerances.max_distance,
                        "trans_tol_m": bench.tolerances.trans_tol,
                        "rot_tol_deg": bench.tolerances.rot_tol_deg},
@@ -110,6 +114,8 @@ def summary_lines(bench: LoopBench) -> list[str]:
     ]
     for name, r in bench.recall_at_k.items():
         lines.append(f"{name} recall@K: " + ", ".join(f"@{k} {v:.3f}" for k, v in r.items()))
+    lines.append(f"verified candidates: {bench.candidate_count:.1f} per query, a true place "
+                 f"among them for {bench.candidate_recall:.3f} of the revisits")
     lines.append(
         f"check accepted a proposal for {op['accepted']} queries; at fused score >= "
         f"{bench.min_score:g}: precision {op['precision_at_min_score']:.3f}, recall "

@@ -149,6 +149,7 @@ class CascadeConfig(PlaceDatabaseConfig):
     fusion: str = "auto"
     logistic: LogisticFusion = field(default_factory=lambda: CASCADE_LOGISTIC)
     n_headings: int = 0
+    grid_extra: int = 0  # K means K here: the benchmark's rows count the verified K
     fft_harmonics: int = 16
     ring_rings: int = 32
     verify_all_up_to: int = 1024

@@ -72,6 +72,11 @@ class PlaceDatabaseConfig:
         grid_rings: rings of the polar grid.
         grid_sectors: bearing sectors of the polar grid.
         grid_range: radius of the polar grid [m].
+        grid_extra: candidates added to the K by the grids' ranking of the prefilter's
+            shortlist (`loopclosure.grid_rerank`; 0: none; only with grid headings).
+        grid_shortlist: keyframes with the smallest prefilter distance that the grids
+            rank.
+        grid_weight: w of the shortlist score p - w c.
         fft_harmonics: FFT amplitudes kept by the FFT stage (`FFTConfig.n_harmonics`).
         ring_rings: circles of the ring stage (`RingConfig.n_rings`).
         scale_invariant: passed to every matcher (True for MPEG-7, never for places).
@@ -93,6 +98,9 @@ class PlaceDatabaseConfig:
     grid_rings: int = 20
     grid_sectors: int = 120
     grid_range: float = 20.0
+    grid_extra: int = 5
+    grid_shortlist: int = 50
+    grid_weight: float = 1.0
     fft_harmonics: int = 8
     ring_rings: int = 12
     scale_invariant: bool = False
@@ -151,6 +159,10 @@ class PlaceDatabaseConfig:
             )
         if not (np.isfinite(self.grid_range) and self.grid_range > 0):
             raise UserError("place database: grid_range must be a positive length [m]")
+        if self.grid_extra < 0 or self.grid_shortlist < 1:
+            raise UserError("place database: grid_extra >= 0 and grid_shortlist >= 1")
+        if not (np.isfinite(self.grid_weight) and self.grid_weight >= 0):
+            raise UserError("place database: grid_weight must be finite and >= 0")
 
     @property
     def stages(self) -> tuple[str, ...]:

@@ -24,7 +24,12 @@ and a query runs three steps:
    amplitudes + 12 rings when those are the stages, `fft_harmonics`, `ring_rings`).
    The K smallest p(j) (``top_k``, default 10) are the
    candidates; their stage distances and p are then recomputed exactly (float64) and
-   they are re-sorted: their prefilter rank is their order by p.
+   they are re-sorted: their prefilter rank is their order by p.  With the polar
+   grids of the heading hypotheses stored (below), the ``grid_shortlist`` (50)
+   smallest p are recomputed so, and up to ``grid_extra`` (5) more of them join the K:
+   the best by p - w c, c the similarity of the two places' polar occupancy grids
+   (`loopclosure.grid_rerank`: the pair histogram is blind to where things are, the
+   grid is not, and the two rankings miss different revisits).
 2. Verify: each verifier (any registered matcher; default FLIRT) computes
    its `distances` over the K candidates only
    (their descriptors stacked on demand: the database never holds a stacked copy
@@ -81,6 +86,7 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from loopclosure.fusion import LogisticFusion, reciprocal_rank_fusion
+from loopclosure.grid_rerank import grid_similarity, union_of_rankings
 from loopclosure.headings import (
     headings_from_polar_grids,
     headings_from_range_functions,
@@ -180,6 +186,39 @@ class CandidateSet:
     def order(self) -> NDArray[np.intp]:
         """Positions sorted by decreasing score, ties in prefilter order."""
         return np.lexsort((np.arange(len(self.scores)), -self.scores))
+
+
+@dataclass(slots=True, frozen=True)
+class _Shortlist:
+    """The rows a query chooses its candidates from (`PlaceDatabase._shortlist`), in
+    increasing p (ties by row): insertion rows, exact p, exact raw prefilter stage
+    distances, grid similarity c (None without the grids' candidates), and p of
+    every row when asked (`CandidateSet.prefilter_all`)."""
+
+    rows: NDArray[np.intp]
+    prefilter: Array
+    raw: dict[str, Array]
+    similarity: Array | None
+    prefilter_all: Array | None
+
+    def chosen(self, k: int, config: PlaceDatabaseConfig) -> NDArray[np.intp]:
+        """Positions of the candidates (`loopclosure.grid_rerank.union_of_rankings`;
+        the first K without grid similarities), in increasing p."""
+        if self.similarity is None:
+            return np.arange(min(k, len(self.rows)))
+        return union_of_rankings(self.prefilter, self.similarity, k, config.grid_extra,
+                                 config.grid_weight)
+
+    def merged(self, other: _Shortlist, size: int) -> _Shortlist:
+        """The shortlist of both shortlists' rows (disjoint): the `size` smallest p."""
+        rows = np.concatenate([self.rows, other.rows])
+        pre = np.concatenate([self.prefilter, other.prefilter])
+        keep = np.lexsort((rows, pre))[:size]
+        similarity = (None if self.similarity is None or other.similarity is None
+                      else np.concatenate([self.similarity, other.similarity])[keep])
+        return _Shortlist(rows[keep], pre[keep],
+                          {s: np.concatenate([d, other.raw[s]])[keep] for s, d in self.raw.items()},
+                          similarity, None)
 
 
 class PlaceDatabase:
@@ -463,28 +502,43 @@ class PlaceDatabase:
         """Prefilter, verify and fuse, as arrays (`query` wraps this in `PlaceMatch` objects).
 
         Same arguments as `query`; the candidates are in prefilter order.  Screening
-        uses float32 distances (`VectorStore.fast_distances`); the K candidates' stage
+        uses float32 distances (`VectorStore.fast_distances`); the shortlist's stage
         distances and p are then recomputed exactly in float64 and re-sorted.  With
-        `keep_prefilter` the result carries p of every stored keyframe (a copy).
+        grids (`PlaceDatabaseConfig.grid_extra`) the K smallest p are joined by up to
+        ``grid_extra`` more of the ``grid_shortlist`` smallest
+        (`loopclosure.grid_rerank`).  With `keep_prefilter` the result carries p of
+        every stored keyframe (a copy).
         """
         q = self._query_descriptors(polygon_or_descriptors)
         k = self.config.top_k if top_k is None else int(top_k)
         if k < 1:
             raise UserError(f"top_k must be >= 1, got {k}")
+        short = self._shortlist(q, self._selection(allowed, exclude_keys), k, keep_prefilter)
+        keep = short.chosen(k, self.config)
+        pick, pre = short.rows[keep], short.prefilter[keep]
+        dist = self._stage_distances(q, pick, {s: d[keep] for s, d in short.raw.items()})
+        return CandidateSet(pick, pre, dist, self._fuse(dist, pre), short.prefilter_all)
+
+    def _shortlist(
+        self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int, keep_prefilter: bool
+    ) -> _Shortlist:
+        """The rows a query chooses its candidates from: the K smallest p, or with
+        grids the ``grid_shortlist`` smallest and their grid similarities; exact p
+        and stage distances, in increasing p (ties by row)."""
         m = len(self)
-        mask = self._selection(allowed, exclude_keys)
+        n = self._shortlist_size(q, k)
         if mask is not None and mask.sum() * 4 < m:
             rows = np.flatnonzero(mask)
             part, _ = self.prefilter_distances(q, rows)
-            pick = rows[smallest_k(part, k)]
+            pick = rows[smallest_k(part, n)]
             combined = np.full(m, np.inf)
             combined[rows] = part
         else:
             screened = self._screen(q)
             if mask is not None:
                 screened[~mask] = np.inf
-                k = min(k, int(mask.sum()))
-            pick = smallest_k(screened, k)
+                n = min(n, int(mask.sum()))
+            pick = smallest_k(screened, n)
             combined = screened.astype(np.float64) if keep_prefilter else None
         raw = {
             s: self._stores[s].exact_distances(_vector(s, q[s]), pick)
@@ -492,10 +546,31 @@ class PlaceDatabase:
         }
         pre = self._combine(raw)
         order = np.lexsort((pick, pre))
-        pick, pre = pick[order], pre[order]
-        raw = {s: d[order] for s, d in raw.items()}
-        dist = self._stage_distances(q, pick, raw)
-        return CandidateSet(pick, pre, dist, self._fuse(dist, pre), combined)
+        similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
+        return _Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
+                          similarity, combined)
+
+    def _shortlist_size(self, q: Descriptors, k: int) -> int:
+        """Rows a query with K candidates ranks exactly: K, or the grids' shortlist."""
+        return max(k, self.config.grid_shortlist) if self._extra_on(q) else k
+
+    def _extra_on(self, q: Descriptors) -> bool:
+        """Whether a query adds the grids' candidates (module docstring, step 1)."""
+        return self._grid_on and self.config.grid_extra > 0 and q.get(GRID) is not None
+
+    def _grid_similarity(self, q: Descriptors, rows: NDArray[np.intp]) -> Array:
+        """``(len(rows),)`` grid similarity c of the query with those rows (0 where a
+        row has no grid)."""
+        grids = [self._descriptors[i].get(GRID) for i in rows.tolist()]
+        have = np.array([g is not None for g in grids], bool)
+        out = np.zeros(len(rows))
+        if have.any():
+            cfg = self.config
+            packed = np.stack([g for g, h in zip(grids, have, strict=True) if h])
+            stored = np.unpackbits(packed, axis=1, count=cfg.grid_rings * cfg.grid_sectors)
+            out[have] = grid_similarity(self._unpack(q[GRID]), stored.reshape(
+                -1, cfg.grid_rings, cfg.grid_sectors))
+        return out
 
     def query(
         self,
@@ -550,31 +625,53 @@ class PlaceDatabase:
         """`query` (no headings) of the stored keyframe `key`'s own descriptors over
         `allowed` (keys, a boolean mask over insertion order, or None: all).
 
-        The previous call's answer is kept.  When it was for the same `key`, with
-        the same normalisation scales, over rows that `allowed` still holds (a host
-        asking again as more keyframes become eligible), only the newly allowed
-        rows are queried: the K candidates are the K smallest prefilter distances of
-        the previous K and the new rows' K, which are those of a query over all the
-        allowed rows (candidates are ranked by exact prefilter distance; the fused
+        The previous call's shortlist and answer are kept.  When it was for the same
+        `key`, with the same normalisation scales, over rows that `allowed` still
+        holds (a host asking again as more keyframes become eligible), only the newly
+        allowed rows are screened: the shortlist of all allowed rows is the one of
+        the previous shortlist and the new rows' (candidates are chosen from the
+        smallest exact prefilter distances and each row's own grid similarity), and
+        only candidates the previous answer did not hold are verified (the fused
         score of a candidate does not depend on the others).
         """
         q = self.descriptors(key)
         self._refresh_scales()
         mask = self._selection(allowed, None)
         rows = np.arange(len(self)) if mask is None else np.flatnonzero(mask)
+        k = self.config.top_k
         last = self._last_stored
         if (last is None or last[0] != key or last[1] != self._scales_at
                 or not np.isin(last[2], rows, assume_unique=True).all()):
-            matches = self.query(q, allowed=_rows_mask(rows, len(self)), headings=False)
+            short = self._shortlist(q, _rows_mask(rows, len(self)), k, False)
+            known: dict[int, PlaceMatch] = {}
         else:
             new = np.setdiff1d(rows, last[2], assume_unique=True)
-            extra = (self.query(q, allowed=_rows_mask(new, len(self)), headings=False)
-                     if len(new) else [])
-            pool = sorted(last[3] + extra, key=lambda m: m.prefilter_distance)
-            pool = [replace(m, prefilter_rank=j)
-                    for j, m in enumerate(pool[: self.config.top_k])]
-            matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
-        self._last_stored = (key, self._scales_at, rows, matches)
+            short = last[3]
+            if len(new):
+                short = short.merged(self._shortlist(q, _rows_mask(new, len(self)), k, False),
+                                     self._shortlist_size(q, k))
+            known = last[4]
+        keep = short.chosen(k, self.config)
+        pick = short.rows[keep]
+        todo = np.array([i for i in pick.tolist() if i not in known], np.intp)
+        if len(todo):
+            by_row = np.argsort(short.rows)
+            at = by_row[np.searchsorted(short.rows, todo, sorter=by_row)]
+            raw = {s: d[at] for s, d in short.raw.items()}
+            dist = self._stage_distances(q, todo, raw)
+            scores = self._fuse(dist, short.prefilter[at])
+            names = self.config.stages
+            for j, i in enumerate(todo.tolist()):
+                known[i] = PlaceMatch(
+                    key=self._keys.key(i), prefilter_distance=float(short.prefilter[at[j]]),
+                    prefilter_rank=0,
+                    distances={s: float(dist[t, j]) for t, s in enumerate(names)},
+                    score=float(scores[j]), headings=(), stamp=self._stamps[i],
+                    pose=self._poses[i])
+        known = {i: known[i] for i in pick.tolist()}
+        pool = [replace(known[i], prefilter_rank=j) for j, i in enumerate(pick.tolist())]
+        matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
+        self._last_stored = (key, self._scales_at, rows, short, known)
         return matches
 
     def with_headings(

@@ -53,8 +53,10 @@ def places() -> tuple[list[Polygon], np.ndarray, np.ndarray]:
 
 
 def quick_db(**overrides: object) -> PlaceDatabase:
-    """FFT + ring prefilter, integral-invariant verifier (fast), rank fusion."""
-    cfg = dict(prefilter=("fft", "ring"), verifiers=("integral",), fusion="rank", top_k=5)
+    """FFT + ring prefilter, integral-invariant verifier (fast), rank fusion; the K
+    candidates are the K smallest prefilter distances (no grid candidates)."""
+    cfg = dict(prefilter=("fft", "ring"), verifiers=("integral",), fusion="rank", top_k=5,
+               grid_extra=0)
     cfg.update(overrides)
     return PlaceDatabase(PlaceDatabaseConfig(**cfg))  # type: ignore[arg-type]
 
@@ -352,24 +354,31 @@ def test_stored_descriptors_query_like_the_polygon(polygons: list[Polygon]) -> N
         db.descriptors(99)
 
 
-def test_a_stored_key_asked_again_queries_only_the_new_keys(polygons, monkeypatch) -> None:
+@pytest.mark.parametrize("shortlist", [8, 50])
+def test_a_stored_key_asked_again_queries_only_the_new_keys(
+    polygons, monkeypatch, shortlist
+) -> None:
     """`query_stored` over a growing allowed set (keys added between the calls) gives
-    `query`'s answer over all allowed keys, and on a repeat queries only the new ones."""
+    `query`'s answer over all allowed keys, and on a repeat screens only the new ones;
+    with a grid shortlist shorter than the allowed set too (rows drop out of it)."""
     stages = PlaceDatabaseConfig().stages
-    db = PlaceDatabase(top_k=5, fixed_scales=(1.0,) * len(stages))  # no re-estimates
+    db = PlaceDatabase(top_k=5, fixed_scales=(1.0,) * len(stages),  # no re-estimates
+                       grid_shortlist=shortlist)
     for i, p in enumerate(polygons[:30]):
         db.add(i, p)
     asked: list[int] = []
-    real_query = PlaceDatabase.query
+    real_shortlist = PlaceDatabase._shortlist
 
-    def counting(self, q, *, allowed=None, **kw):
-        asked.append(int(np.count_nonzero(allowed)) if allowed is not None else len(self))
-        return real_query(self, q, allowed=allowed, **kw)
+    def counting(self, q, mask, k, keep):
+        asked.append(int(np.count_nonzero(mask)) if mask is not None else len(self))
+        return real_shortlist(self, q, mask, k, keep)
 
-    monkeypatch.setattr(PlaceDatabase, "query", counting)
+    monkeypatch.setattr(PlaceDatabase, "_shortlist", counting)
     for n in (12, 13, 13, 20):  # the keys 0..n-1 are allowed; 30.. are added as it grows
         got = db.query_stored(25, allowed=np.arange(n))
-        want = real_query(db, db.descriptors(25), allowed=np.arange(n), headings=False)
+        want = db.query(db.descriptors(25), allowed=np.arange(n), headings=False)
+        asked.pop()  # the reference query's own screening
+        assert len(want) == min(n, 5 + min(5, shortlist - 5))  # K and the grids' extras
         assert [m.key for m in got] == [m.key for m in want]
         assert [m.score for m in got] == pytest.approx([m.score for m in want], rel=1e-12)
         assert sorted(m.prefilter_rank for m in got) == list(range(len(want)))
