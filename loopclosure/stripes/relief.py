@@ -56,7 +56,8 @@ when it is mirrored, or when it is scaled (depths and radii are divided by the
 object's own size); ``F`` changes with turns only as far as the grid-aligned square
 covers other cells (the square's corners reach ``sqrt(2) w / 2``, its sides ``w / 2``),
 not with mirrors, and, on purpose, does with size.  Distance of two reliefs: the mean
-absolute difference over the ring values, ``1/(2K) sum_k (|R[k] - R'[k]| + |F[k] - F'[k]|)`` (unitless).
+absolute difference over the ring values,
+``1/(2K) sum_k (|R[k] - R'[k]| + |F[k] - F'[k]|)`` (unitless).
 """
 
 from __future__ import annotations
