@@ -28,7 +28,8 @@ and over the different-pose columns.
 
 Rows:
 
-- the parts: ``profile`` (stripe profile), ``relief``, ``surface`` (surface context),
+- the parts: ``profile`` (stripe profile), ``relief`` (size-free and fine rings),
+  ``relief-coarse`` (size-free rings alone), ``surface`` (surface context),
   ``canonical`` (virtual stripes along the footprint's long axis) and ``sc50`` (shape
   context on 50 points, the fused matcher's verifier);
 - ``fused-stripes`` (profile + relief + surface + canonical) and ``fused`` (profile +
@@ -38,7 +39,9 @@ Rows:
   geometric mean (`loopclosure.stripes.combine`); and the earlier rules for
   comparison: ``/arith`` (the arithmetic mean of the same scaled parts), ``/median``
   (each part divided by its per-query median over the database, arithmetic mean)
-  and ``fused-stripes-3`` (without the canonical profile);
+  and ``fused-stripes-3`` (without the canonical profile); ``/coarse`` (the relief
+  without its fine half, ``relief-coarse``: the size-free rings alone, the relief
+  before the fine relief was added);
 - with ``--baselines``: shape context (100 points), MRM and FFT on the silhouettes, and
   the paper's stripe descriptor (``stripes``, Eq. 1-6).
 
@@ -106,6 +109,7 @@ from evaluation.stripes_objects import (  # noqa: E402
     silhouette_polygon,
 )
 from loopclosure.stripes import (  # noqa: E402
+    ReliefConfig,
     ReliefDatabase,
     StripeDatabase,
     SurfaceDatabase,
@@ -123,7 +127,7 @@ from loopclosure.stripes.fusion import GEOMETRIC_FLOOR  # noqa: E402
 from loopclosure.stripes.profile import _median_scale  # noqa: E402
 
 #: The fused matcher's parts, in the fusion's order.
-PARTS: tuple[str, ...] = ("profile", "relief", "surface", "canonical", "sc50")
+PARTS: tuple[str, ...] = ("profile", "relief", "relief-coarse", "surface", "canonical", "sc50")
 #: Fused rows: name -> (parts, scaling, mean).
 FUSED: dict[str, tuple[tuple[str, ...], str, str]] = {
     "fused-stripes": (("profile", "relief", "surface", "canonical"), "local", "geometric"),
@@ -136,7 +140,12 @@ FUSED: dict[str, tuple[tuple[str, ...], str, str]] = {
     "fused": (("profile", "relief", "surface", "sc50"), "local", "geometric"),
     "fused/arith": (("profile", "relief", "surface", "sc50"), "local", "arithmetic"),
     "fused/median": (("profile", "relief", "surface", "sc50"), "median", "arithmetic"),
+    "fused-stripes/coarse": (("profile", "relief-coarse", "surface", "canonical"), "local",
+                             "geometric"),
+    "fused/coarse": (("profile", "relief-coarse", "surface", "sc50"), "local", "geometric"),
 }
+#: The relief without its fine half (the size-free rings alone): the ``/coarse`` rows.
+COARSE = ReliefConfig(fine_window=0.0)
 #: Rows whose misses ``--failures`` lists.
 FAILURE_ROWS: tuple[str, ...] = ("fused-stripes", "fused", "fused/arith")
 #: Silhouette baselines of ``--baselines`` (names of `loopclosure.matchers`).
@@ -221,6 +230,7 @@ def pool(sets: list[ScannedSet], baselines: bool) -> Pooled:
     }
     matrices = {
         "relief": ReliefDatabase([describe_relief(*m) for m in maps]).pairwise(),
+        "relief-coarse": ReliefDatabase([describe_relief(*m, COARSE) for m in maps]).pairwise(),
         "surface": SurfaceDatabase([describe_surface(*m) for m in maps]).pairwise(),
     }
     polys = [silhouette_polygon(s, cfg, 1.0) for s in scans]

@@ -7,6 +7,7 @@ import pytest
 
 from data.errors import DataError, UserError
 from loopclosure.stripes import ReliefConfig, ReliefDatabase, describe_relief
+from loopclosure.stripes.relief import RELIEF_RINGS, local_top
 
 
 def dome(n: int = 41, radius: float = 0.05, lid: float = 0.0) -> np.ndarray:
@@ -24,18 +25,61 @@ def test_relief_hand_checked_square():
     # top (98th percentile) is 1, so three depths are 0 and one is 0.5 / r_eq.  Every
     # cell is sqrt(1/2) from the centroid = the RMS radius: rho = 1, and with 2 rings
     # over rho in [0, 2) all four fall in ring 1: mean depth (0.5 / r_eq) / 4.
-    r = describe_relief([[1.0, 1.0], [1.0, 0.5]], (1.0, 1.0), ReliefConfig(rings=2))
-    np.testing.assert_allclose(r.relief, [0.0, np.sqrt(np.pi) / 16])
+    r = describe_relief([[1.0, 1.0], [1.0, 0.5]], (1.0, 1.0),
+                        ReliefConfig(rings=2, fine_window=3.0))
+    # Fine relief (square of side 3 m: every cell sees the whole 2 x 2 grid, local top
+    # 1 m; cap 10 mm): depths 0, 0, 0, 0.5 m -> 0, 0, 0, 1 (capped), all in ring 1.
+    np.testing.assert_allclose(r.relief, [0.0, np.sqrt(np.pi) / 16, 0.0, 0.25])
+    coarse = describe_relief([[1.0, 1.0], [1.0, 0.5]], (1.0, 1.0),
+                             ReliefConfig(rings=2, fine_window=0.0))
+    np.testing.assert_allclose(coarse.relief, [0.0, np.sqrt(np.pi) / 16])
+
+
+def test_local_top_hand_checked():
+    # 1 x 5 grid of 1 mm cells, window 3 mm: each cell's top is the max of itself and
+    # its two neighbours; NaN never a top; a square with no seen cell is -inf.
+    z = np.array([[1.0, np.nan, 3.0, 2.0, np.nan, np.nan, np.nan]]) * 1e-3
+    top = local_top(z, (1e-3, 1e-3), 3e-3)
+    np.testing.assert_allclose(top[0, :5] * 1e3, [1.0, 3.0, 3.0, 3.0, 2.0])
+    assert top[0, 6] == -np.inf
+    # Rows 2 mm apart, columns 1 mm: a 5 mm square spans 5 columns but 3 rows.
+    z = np.zeros((5, 7))
+    z[0, 3] = z[2, 0] = 1.0
+    top = local_top(z, (2e-3, 1e-3), 5e-3)
+    assert top[1, 3] == 1.0 and top[2, 3] == 0.0  # row 0 is 2 rows from row 2
+    assert top[2, 2] == 1.0 and top[2, 3] == 0.0  # column 0 is 2 columns from 2, not 3
+
+
+def test_fine_relief_sees_studs_at_any_footprint_size():
+    # A flat plate with 2 mm studs every 4 mm, and the same plate 4 times larger (same
+    # studs): the size-free relief of the large one falls towards a flat box's, the
+    # fine relief (millimetres) stays; a flat box top has none.
+    def plate(n: int) -> np.ndarray:
+        z = np.full((n, n), 0.01)
+        for i in (0, 1):
+            for j in (0, 1):
+                z[i::8, j::8] = 0.012  # 0.5 mm cells: a 1 mm stud every 4 mm
+        return z
+
+    cell = (0.0005, 0.0005)
+    small, large = (describe_relief(plate(n), cell).relief for n in (40, 160))
+    box = describe_relief(np.full((160, 160), 0.01), cell).relief
+    k = RELIEF_RINGS
+    assert np.all(box == 0.0)
+    assert large[:k].mean() < 0.3 * small[:k].mean()  # size-free: the large plate flattens
+    np.testing.assert_allclose(large[k:k + 4], small[k:k + 4], atol=0.02)  # studs: mm stay
+    assert large[k:].mean() > 0.1  # 2 mm below a stud out of a 10 mm cap, most cells
 
 
 def test_relief_of_a_flat_top_is_zero_and_of_a_dome_grows_outwards():
     flat = np.full((10, 30), 0.04)
     flat[0, 0] = np.nan
     assert np.all(describe_relief(flat, (0.001, 0.002)).relief == 0.0)
-    r = describe_relief(dome(), (0.1 / 41, 0.1 / 41)).relief
-    seen = r[r > 0]
-    assert len(seen) >= 5 and np.all(np.diff(seen) > 0)  # deeper towards the rim
-    assert r[-1] == 0.0  # a disc does not reach 2 RMS radii
+    full = describe_relief(dome(), (0.1 / 41, 0.1 / 41)).relief
+    for r in (full[:RELIEF_RINGS], full[RELIEF_RINGS:]):  # size-free, then fine relief
+        seen = r[r > 0]
+        assert len(seen) >= 5 and np.all(np.diff(seen) > 0)  # deeper towards the rim
+        assert r[-1] == 0.0  # a disc does not reach 2 RMS radii
 
 
 def test_relief_is_yaw_mirror_and_scale_free():
@@ -45,8 +89,11 @@ def test_relief_is_yaw_mirror_and_scale_free():
     ref = describe_relief(z, cell).relief
     np.testing.assert_allclose(describe_relief(np.rot90(z), cell).relief, ref, atol=1e-12)
     np.testing.assert_allclose(describe_relief(z[:, ::-1], cell).relief, ref, atol=1e-12)
+    # Scale-free: the size-free half; the fine half measures millimetres on purpose.
+    k = RELIEF_RINGS
     big = describe_relief(3.0 * z, (3 * cell[0], 3 * cell[1])).relief
-    np.testing.assert_allclose(big, ref, atol=1e-12)
+    np.testing.assert_allclose(big[:k], ref[:k], atol=1e-12)
+    assert not np.allclose(big[k:], ref[k:])
 
 
 def test_relief_database_distances():
@@ -69,6 +116,10 @@ def test_relief_errors():
         describe_relief(np.ones((3, 3)), (0.0, 0.01))
     with pytest.raises(UserError, match="rings"):
         ReliefConfig(rings=0)
+    with pytest.raises(UserError, match="fine window"):
+        ReliefConfig(fine_window=-0.001)
+    with pytest.raises(UserError, match="fine cap"):
+        ReliefConfig(fine_cap=0.0)
     with pytest.raises(UserError, match="one shape"):
         ReliefDatabase([describe_relief(np.ones((2, 2)), (1.0, 1.0)),
                         describe_relief(np.ones((2, 2)), (1.0, 1.0), ReliefConfig(rings=3))])

@@ -32,10 +32,32 @@ few outlying pixels) and ``(x, y)`` the cell centres in metres:
   holds every cell beyond); the relief is ``R[k]`` = the mean depth ``q`` of ring
   ``k``, 0 for a ring without cells (the footprint does not reach it).
 
-It does not change when the object turns on the table (rings about the centroid),
+The fine relief (a second ring vector beside ``R``, in millimetres at a fixed
+physical scale): the size-free depth ``q`` makes a large studded baseplate (studs a few
+millimetres deep over a footprint of 15 cm) as flat as a box top, whose depth is the
+scanner's noise, because both divide by the footprint.  Surface texture has an absolute
+size (a stud, a lid's rim, a ridge), so the fine relief keeps it:
+
+- local top of a cell ``t = max z`` over the seen cells in the square of side ``w``
+  (`ReliefConfig.fine_window` [m]) centred on it, aligned with the grid (`local_top`);
+- fine depth ``f = min(t - z, c) / c`` (``c`` = `ReliefConfig.fine_cap` [m]; unitless,
+  in [0, 1]): 0 on a flat top and on any surface whose slope is small over ``w``,
+  growing with texture up to ``c`` deep; deeper falls (a cup's hollow, a ball's rim)
+  saturate at 1 and are left to ``R``;
+- ``F[k]`` = the mean ``f`` of ring ``k`` (same rings as ``R``).
+
+The descriptor is ``[R, F]`` (``2K`` values; ``R`` alone with ``fine_window = 0``).
+The window spans the gaps between studs and ridges a few millimetres apart and the cap
+keeps texture apart from shape (a few millimetres against the centimetres a dome or
+hollow falls).
+
+``R`` does not change when the object turns on the table (rings about the centroid),
 when it is mirrored, or when it is scaled (depths and radii are divided by the
-object's own size).  Distance of two reliefs: the mean absolute difference
-``1/K sum_k |R[k] - R'[k]|`` (unitless).
+object's own size); ``F`` changes with turns only as far as the grid-aligned square
+covers other cells (the square's corners reach ``sqrt(2) w / 2``, its sides ``w / 2``),
+not with mirrors, and, on purpose, does with size.  Distance of two reliefs: the mean
+absolute difference over the ring values,
+``1/(2K) sum_k (|R[k] - R'[k]| + |F[k] - F'[k]|)`` (unitless).
 """
 
 from __future__ import annotations
@@ -45,6 +67,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import maximum_filter
 
 from data.errors import DataError, UserError
 
@@ -56,6 +79,10 @@ RELIEF_RINGS = 8
 RELIEF_REACH = 2.0
 #: Percentile of the heights taken as the object's top.
 TOP_PERCENTILE = 98.0
+#: Side of the fine relief's local-top square [m] (module docstring).
+FINE_WINDOW = 0.012
+#: Depth at which the fine relief saturates [m] (module docstring).
+FINE_CAP = 0.010
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,11 +93,16 @@ class ReliefConfig:
         rings: number of rings ``K``.
         reach: the rings split ``rho`` in ``[0, reach)`` evenly (RMS radii).
         top_percentile: percentile of the heights that is the object's top [%].
+        fine_window: side of the fine relief's local-top square [m]; 0: no fine
+            relief (the descriptor is ``R`` alone).
+        fine_cap: depth at which the fine relief saturates [m].
     """
 
     rings: int = RELIEF_RINGS
     reach: float = RELIEF_REACH
     top_percentile: float = TOP_PERCENTILE
+    fine_window: float = FINE_WINDOW
+    fine_cap: float = FINE_CAP
 
     def __post_init__(self) -> None:
         if self.rings < 1:
@@ -79,11 +111,16 @@ class ReliefConfig:
             raise UserError(f"relief reach must be positive, got {self.reach}")
         if not 0.0 < self.top_percentile <= 100.0:
             raise UserError(f"top percentile must be in (0, 100], got {self.top_percentile}")
+        if self.fine_window < 0:
+            raise UserError(f"fine window must be >= 0, got {self.fine_window}")
+        if not self.fine_cap > 0:
+            raise UserError(f"fine cap must be positive, got {self.fine_cap}")
 
 
 @dataclass(frozen=True, slots=True)
 class StripeRelief:
-    """One object's relief: ``(K,)`` mean depths per ring (unitless), and a name."""
+    """One object's relief: ``(2K,)`` mean depths per ring, ``[R, F]`` (unitless; ``(K,)``
+    ``R`` alone without the fine relief), and a name."""
 
     relief: Array
     name: str | None = None
@@ -125,15 +162,40 @@ def describe_relief(
     rho = rad / rms if rms > 0 else np.zeros_like(rad)
     ring = np.minimum((rho * cfg.rings / cfg.reach).astype(np.int64), cfg.rings - 1)
     count = np.bincount(ring, minlength=cfg.rings)
-    total = np.bincount(ring, weights=depth, minlength=cfg.rings)
-    return StripeRelief(np.where(count > 0, total / np.maximum(count, 1), 0.0), name)
+
+    def ring_means(values: Array) -> Array:
+        total = np.bincount(ring, weights=values, minlength=cfg.rings)
+        return np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+    coarse = ring_means(depth)
+    if cfg.fine_window == 0:
+        return StripeRelief(coarse, name)
+    r0, c0 = rows.min(), cols.min()  # the seen cells' bounding box: an exact crop
+    box = z[r0:rows.max() + 1, c0:cols.max() + 1]
+    top = local_top(box, (dy, dx), cfg.fine_window)[rows - r0, cols - c0]
+    fine = np.minimum(top - h, cfg.fine_cap) / cfg.fine_cap
+    return StripeRelief(np.concatenate([coarse, ring_means(fine)]), name)
+
+
+def local_top(heights: ArrayLike, cell: tuple[float, float], window: float) -> Array:
+    """Highest seen height in the square of side `window` [m] centred on every cell
+    (axis-aligned on the ``(row_m, column_m)`` grid `cell`, an odd number of cells per
+    side, at least one) [m].  NaN cells are never the top; a cell whose square holds
+    no seen cell gets -inf.  A square, not a disc: the maximum filter is separable (one
+    pass per axis), a disc's is not and costs the square of the window in cells."""
+    z = np.asarray(heights, dtype=float)
+    dy, dx = (float(c) for c in cell)
+    size = (2 * int(window / 2 / dy) + 1, 2 * int(window / 2 / dx) + 1)
+    return maximum_filter(np.where(np.isfinite(z), z, -np.inf), size=size,
+                          mode="constant", cval=-np.inf)
 
 
 class ReliefDatabase:
     """Many objects' reliefs, queried in one vectorised pass.
 
     Args:
-        reliefs: one `StripeRelief` per object, all with the same ring count.
+        reliefs: one `StripeRelief` per object, all with the same length (ring count
+            and fine relief or not).
     """
 
     def __init__(self, reliefs: Sequence[StripeRelief]) -> None:
@@ -142,7 +204,7 @@ class ReliefDatabase:
         if len(shapes) > 1:
             raise UserError(f"every relief must have one shape, got {sorted(shapes)}")
         self.stack = (np.stack([r.relief for r in self.reliefs]) if self.reliefs
-                      else np.zeros((0, RELIEF_RINGS)))
+                      else np.zeros((0, 2 * RELIEF_RINGS)))
 
     def __len__(self) -> int:
         return len(self.reliefs)
