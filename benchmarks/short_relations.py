@@ -23,7 +23,12 @@ trajectory disagrees with it, the scans themselves do not support the reference
 more precisely than that: the error floor of these relations for a scan matcher
 (the reference's own noise, or a laser model it used that the log does not state).
 Errors as the metric computes them: translation [m] and rotation [deg] of
-``delta_est * delta_ref^-1``, mean and median.
+``delta_est * delta_ref^-1``, mean and median.  The last column, ``along``, is the
+median over relations longer than `MIN_ALONG_M` of ``(t_est - t_ref) . u / |t_ref|``
+(``t`` the relation's translation, ``u = t_ref / |t_ref|``): a relative length
+error of the estimate along the motion.  A scale that every estimate shares,
+pairwise ICP from the reference included, is a property of the reference (a range
+scale or a lever arm of the method that made it), not of the mapper.
 """
 
 from __future__ import annotations
@@ -42,6 +47,18 @@ from data.carmen import CarmenLog  # noqa: E402
 from data.relations import read_relations  # noqa: E402
 from data.trajectory_io import read_tum  # noqa: E402
 from loopclosure.registration import IcpConfig, RegistrationTarget, register  # noqa: E402
+
+#: Relations shorter than this [m] do not enter the along-track scale.
+MIN_ALONG_M = 0.05
+
+
+def _along(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """``(t_est - t_ref) . t_ref / |t_ref|^2`` (relative length error along the motion)."""
+    t = reference[:2]
+    length2 = float(t @ t)
+    if length2 < MIN_ALONG_M**2:
+        return float("nan")
+    return float((estimate[:2] - t) @ t / length2)
 
 
 def _xytheta(m: np.ndarray) -> np.ndarray:
@@ -80,17 +97,19 @@ def main() -> None:
         from_ours = register(source, target, ours, config=cfg).pose
         from_reference = register(source, target, reference, config=cfg).pose
         rows.append([*_error(ours, reference), *_error(from_ours, reference),
-                     *_error(from_reference, reference)])
+                     *_error(from_reference, reference), _along(ours, reference),
+                     _along(from_ours, reference), _along(from_reference, reference)])
     if not rows:
         sys.exit("no short relation matched both the trajectory and the log (stamps within 1 ms)")
     e = np.array(rows)
     print(f"{len(e)} relations under {args.max_dt:g} s (every {args.every}) of {len(short)}")
-    print(f"{'estimate':34s} {'trans mean':>10s} {'median':>8s} {'rot mean':>9s} {'median':>8s}")
+    print(f"{'estimate':34s} {'trans mean':>10s} {'median':>8s} {'rot mean':>9s} {'median':>8s} "
+          f"{'along':>8s}")
     for k, name in enumerate(("trajectory", "pairwise ICP from the trajectory",
                               "pairwise ICP from the reference")):
         t, r = e[:, 2 * k], e[:, 2 * k + 1]
         print(f"{name:34s} {t.mean():10.4f} {np.median(t):8.4f} {r.mean():9.3f} "
-              f"{np.median(r):8.3f}")
+              f"{np.median(r):8.3f} {np.nanmedian(e[:, 6 + k]):+8.2%}")
 
 
 if __name__ == "__main__":
