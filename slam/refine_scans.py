@@ -103,7 +103,10 @@ def refine_scan_poses(
     """Register every scan onto the map scans around it (module docstring).
 
     Args:
-        points: per scan, ``(N_i, 2)`` valid end points in its sensor frame [m].
+        points: per scan, ``(N_i, 2)`` valid end points in its sensor frame [m] (any
+            float dtype; each is converted and voxelised only when it is used, and
+            only the map scans of the current window are kept in the map frame, so
+            the extra memory is one window's, not a copy of every scan's).
         poses: ``(N, 3)`` sensor poses in the map frame (optimised keyframes and the
             scans placed between them).
         map_scans: increasing positions (into `points` / `poses`) of the scans that
@@ -125,20 +128,29 @@ def refine_scan_poses(
     refined = np.zeros(len(poses), dtype=bool)
     if len(members) < 2:
         return RefinedPoses(out, refined)
-    src = [voxel_downsample_fast(p, cfg.source_voxel) for p in points]
-    world = {int(m): se2.transform_points(poses[m], src[m]) for m in members}
     prior = np.square(np.asarray(cfg.prior_sigma, dtype=float))
+
+    def source(i: int) -> Array:
+        return voxel_downsample_fast(np.asarray(points[i], dtype=float), cfg.source_voxel)
+
+    # The map scans' points in the map frame, only those of the current window:
+    # windows move forward with i, so a scan that fell behind is never needed again.
+    world: dict[int, Array] = {}
     key: tuple[int, int, int] | None = None
     grid: GridTarget | None = None
     for i in range(len(poses)):
-        if len(src[i]) < cfg.min_points:
+        src = source(i)
+        if len(src) < cfg.min_points:
             continue
         k = min(int(np.searchsorted(members, i)), len(members) - 1)
         lo, hi = max(0, k - cfg.half_window), min(len(members), k + cfg.half_window)
         own = i if members[k] == i else -1
         if (lo, hi, own) != key:
             key = (lo, hi, own)
-            near = [world[int(m)] for m in members[lo:hi] if m != i]
+            window = [int(m) for m in members[lo:hi]]
+            world = {m: world[m] if m in world else se2.transform_points(poses[m], source(m))
+                     for m in window}
+            near = [world[m] for m in window if m != i]
             grid = None
             if near:
                 grid = GridTarget(voxel_downsample_fast(np.vstack(near), cfg.map_voxel), cfg.icp)
@@ -147,7 +159,7 @@ def refine_scan_poses(
             continue
         c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        res = register_fast(src[i], grid, poses[i], config=cfg.icp, prior=poses[i],
+        res = register_fast(src, grid, poses[i], config=cfg.icp, prior=poses[i],
                             prior_covariance=rot @ np.diag(prior) @ rot.T)
         step = se2.between(poses[i], res.pose)
         if (res.ok and res.inlier_ratio >= cfg.min_inlier_ratio and res.rms <= cfg.max_rms
