@@ -66,3 +66,16 @@ def test_noise_floor_is_millimetres_and_exact_without_noise() -> None:
         errors.append(bench.consecutive_error(poses, run.ground_truth.xytheta()[:8]))
     assert errors[0][0] < 2e-4 and errors[0][1] < 0.01
     assert 2e-4 < errors[1][0] < 5e-3
+
+
+def test_pipeline_consecutive_errors_by_hand() -> None:
+    """Four poses along x, the estimate's third step 1 cm too long and turned 0.3 deg:
+    mean errors over the three steps are 1 cm / 3 and 0.3 deg / 3 (the turn comes
+    after the step, so it moves no later position of that relation)."""
+    bench = _benchmark("pipeline")
+    truth = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    est = truth.copy()
+    est[3] = [0.31, 0.0, np.radians(0.3)]
+    row = bench.consecutive(est, truth, "c_")
+    assert abs(row["c_trans_m"] - 0.01 / 3) < 1e-12
+    assert abs(row["c_rot_deg"] - 0.1) < 1e-9
