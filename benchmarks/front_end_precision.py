@@ -3,7 +3,8 @@
 Run from the repository root::
 
     python benchmarks/front_end_precision.py [--data DIR] [--limit N] [--sim-scans N]
-        [--no-intel] [--no-sim] [--variant NAME:key=value,key=value ...]
+        [--no-intel] [--no-sim] [--corrected NAMES] [--log LOG:RELATIONS ...]
+        [--variant NAME:key=value,key=value ...]
 
 Each variant is the default `slam.config.PipelineConfig` with ``key=value``
 overrides in the syntax of ``loopclosure run --set`` (keys under ``icp2d.``, e.g.
@@ -17,7 +18,9 @@ scored by the relations metric (Kümmerle et al. 2009, `evaluation.relations_met
 on the *short* relations, ``|t2 - t1| < SHORT_S`` (1 s): consecutive or nearly
 consecutive scans, where the error is the registration's own, not drift.  Mean
 absolute translational [m] and rotational [deg] error, and the front end's wall
-seconds (``time.perf_counter``) and milliseconds per scan.
+seconds (``time.perf_counter``) and milliseconds per scan.  ``--log LOG:RELATIONS``
+(repeatable) scores any other CARMEN log with reference relations the same way
+(e.g. a building kept out of the repository, read where it lies).
 
 Simulation (`data.sim.simulate_run`, exact ground truth): a robot drives half a
 figure-eight (0.5 m/s, 5 Hz) through the ``box`` and the ``surface`` worlds with a
@@ -136,16 +139,21 @@ def noise_floor(run, scans: list[Scan], config: Icp2dConfig) -> np.ndarray:
 
 def intel_case(data: Path, limit: int | None):
     """The Intel scans and a scorer of a trajectory on its short relations, or None."""
-    log, rel_path = data / "carmen" / "intel.clf.bz2", data / "carmen" / "intel.relations"
+    return relations_case(data / "carmen" / "intel.clf.bz2",
+                          data / "carmen" / "intel.relations", limit, "Intel")
+
+
+def relations_case(log: Path, rel_path: Path, limit: int | None, label: str):
+    """A CARMEN log's scans and a scorer of a trajectory on its short relations, or None."""
     if not log.exists() or not rel_path.exists():
-        print(f"skipped Intel: {log} or {rel_path} not found")
+        print(f"skipped {label}: {log} or {rel_path} not found")
         return None
     scans = list(CarmenLog(log))[:limit]
     stamps = np.array([s.stamp for s in scans])
     short = [r for r in read_relations(rel_path)
              if abs(r.t2 - r.t1) < SHORT_S
              and min(r.t1, r.t2) >= stamps.min() and max(r.t1, r.t2) <= stamps.max()]
-    print(f"Intel: {len(scans)} scans, {len(short)} relations < {SHORT_S:g} s apart")
+    print(f"{label}: {len(scans)} scans, {len(short)} relations < {SHORT_S:g} s apart")
 
     def score(poses: np.ndarray, st: np.ndarray) -> tuple[float, float]:
         order = np.argsort(st, kind="stable")
@@ -207,6 +215,9 @@ def main() -> None:
     parser.add_argument("--no-sim", action="store_true", help="skip the simulated runs")
     parser.add_argument("--corrected", default="",
                         help="comma-separated GMapping-corrected logs, e.g. freiburg-101,seattle")
+    parser.add_argument("--log", action="append", default=[],
+                        help="LOG:RELATIONS, a CARMEN log scored on its short relations "
+                        "(repeatable)")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable; the first is the reference)")
     args = parser.parse_args()
@@ -216,6 +227,13 @@ def main() -> None:
         intel = intel_case(args.data, args.limit)
         if intel is not None:
             cases.append(("Intel short", *intel, None))
+    for spec in args.log:
+        log, _, rel_path = spec.rpartition(":")
+        if not log:
+            parser.error(f"--log needs LOG:RELATIONS, got {spec!r}")
+        case = relations_case(Path(log), Path(rel_path), args.limit, Path(log).name)
+        if case is not None:
+            cases.append((f"{Path(log).name.split('.')[0]} short", *case, None))
     if not args.no_sim:
         cases.extend(sim_cases(args.sim_scans))
     names = [n.strip() for n in args.corrected.split(",") if n.strip()]
