@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
-from loopclosure.registration import IcpConfig
+from loopclosure.registration import LINE_ANCHORS, IcpConfig
 
 if TYPE_CHECKING:
     from loopclosure.fast_icp import GridTarget
@@ -58,6 +58,11 @@ class RefineConfig:
         max_rms: and at most this RMS residual [m].
         max_correction: and a correction of at most (translation [m], rotation [rad]).
         icp: ICP parameters (the front end's defaults: clutter point to point at 0.3).
+        line_anchor: where a wall's line passes (`loopclosure.fast_icp.GridTarget`):
+            ``"point"``, the nearest map point, or ``"mean"``, the mean of the
+            neighbours its normal was fitted to (as `Icp2dConfig.line_anchor`).
+        line_anchor_radius: the neighbours of that mean are within this distance [m].
+        line_anchor_band: and within this distance of the point's line [m] (inf: all).
     """
 
     half_window: int = 8
@@ -71,8 +76,16 @@ class RefineConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(point_to_point_clutter=True, clutter_weight=0.3)
     )
+    line_anchor: str = "point"
+    line_anchor_radius: float = 0.2
+    line_anchor_band: float = float("inf")
 
     def __post_init__(self) -> None:
+        if self.line_anchor not in LINE_ANCHORS:
+            raise UserError(f"refine line_anchor must be one of {', '.join(LINE_ANCHORS)}, "
+                            f"got {self.line_anchor!r}")
+        if not (self.line_anchor_radius > 0 and self.line_anchor_band > 0):
+            raise UserError("refine line_anchor_radius and line_anchor_band must be positive")
         if self.half_window < 1:
             raise UserError(f"refine half_window must be >= 1, got {self.half_window}")
         if not self.map_voxel > 0 or self.source_voxel < 0:
@@ -153,7 +166,9 @@ def refine_scan_poses(
             near = [world[m] for m in window if m != i]
             grid = None
             if near:
-                grid = GridTarget(voxel_downsample_fast(np.vstack(near), cfg.map_voxel), cfg.icp)
+                grid = GridTarget(voxel_downsample_fast(np.vstack(near), cfg.map_voxel), cfg.icp,
+                                  anchor=cfg.line_anchor, anchor_radius=cfg.line_anchor_radius,
+                                  anchor_band=cfg.line_anchor_band)
                 grid = grid if len(grid) else None
         if grid is None:
             continue

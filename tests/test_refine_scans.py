@@ -91,3 +91,20 @@ def test_bounds_and_bad_input() -> None:
         refine_scan_poses(points, given, [4, 2])
     with pytest.raises(UserError, match="half_window"):
         RefineConfig(half_window=0)
+    with pytest.raises(UserError, match="line_anchor"):
+        RefineConfig(line_anchor="median")
+
+
+def test_mean_anchor_refines_noisy_scans_too() -> None:
+    """With lines through the mean of their neighbours, noisy scans also get closer
+    to the truth, and the result differs from the point anchor's (the option is used)."""
+    truth, points = _scans(noise=0.01)
+    rng = np.random.default_rng(1)
+    given = truth + rng.normal(0.0, [0.01, 0.01, 0.004], truth.shape)
+    mean = refine_scan_poses(points, given, np.arange(0, 40, 3),
+                             RefineConfig(line_anchor="mean", line_anchor_band=0.03))
+    point = refine_scan_poses(points, given, np.arange(0, 40, 3))
+    before = np.hypot(*(given - truth)[:, :2].T).mean()
+    after = np.hypot(*(mean.poses - truth)[:, :2].T).mean()
+    assert mean.refined.mean() > 0.9 and after < 0.5 * before
+    assert not np.array_equal(mean.poses, point.poses)
