@@ -221,7 +221,8 @@ def main() -> None:
         keys = [k for k in first if k.endswith("_s") and first[k] > 0]
         print(f"{'variant':<20}" + "".join(f"{k:>22}" for k in keys))
         for name, r in rows.items():
-            print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" for k in keys))
+            print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" if k in r else f"{'-':>22}"
+                                          for k in keys))
 
 
 if __name__ == "__main__":
