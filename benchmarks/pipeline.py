@@ -20,7 +20,14 @@ counts, peak memory of the process [MB], and the error:
 - a GMapping-corrected log (``freiburg-101``, ``seattle``, ``intel-corrected``,
   ``orebro``, ``belgioioso``, ``freiburg-campus``; whole): the ATE [m] against the
   logged poses, mapped from the simulator's drifting wheel odometry (seed 0) as
-  ``loopclosure bench slam LOG --odometry-noise 0 --reference-from-log`` does.
+  ``loopclosure bench slam LOG --odometry-noise 0 --reference-from-log`` does;
+- a simulated run ``sim-<world>-<beams>`` (``sim-box-361``, ``sim-surface-181``, ...;
+  `data.sim.simulate_run`, seed 3, two laps at 0.5 m/s and 5 Hz, a 180-degree laser
+  of that many beams, 1 cm range noise, 1 % dropout, 30 m range: the lasers of
+  ``benchmarks/front_end_precision.py``): the ATE [m] against the exact ground truth,
+  and the local precision of every scan's pose, the mean translation [m] and
+  rotation [deg] error of consecutive scans' relative poses (``consec_*``), also
+  for the refined scans with ``--refine``.
 
 Then, per log, the ratio of each variant's times to the first variant's.  The peak
 memory is the process's peak so far: it only grows from one variant to the next.
@@ -40,8 +47,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from data import se2
 from data.carmen import CarmenLog
 from data.relations import read_relations
+from data.sim import MotionConfig, simulate_run
 from data.types import Trajectory
 from evaluation.relations_metric import relations_metric
 from evaluation.slam_input import evaluation_stamps, load_input
@@ -57,6 +66,7 @@ CORRECTED = ("freiburg-101", "seattle", "intel-corrected", "orebro", "belgioioso
              "freiburg-campus")
 
 SHORT_S = 1.0
+SIM_PREFIX = "sim-"
 
 DEFAULT_VARIANTS = (
     "pose:loops.search=pose",
@@ -70,6 +80,13 @@ def scan_points(scan) -> np.ndarray:
     ok = scan.valid
     return np.column_stack([scan.ranges[ok] * np.cos(scan.angles[ok]),
                             scan.ranges[ok] * np.sin(scan.angles[ok])])
+
+
+def consecutive(poses: np.ndarray, truth: np.ndarray, prefix: str) -> dict[str, float]:
+    """Mean translation [m] and rotation [deg] error of consecutive relative poses."""
+    err = se2.between(se2.between(truth[:-1], truth[1:]), se2.between(poses[:-1], poses[1:]))
+    return {f"{prefix}trans_m": float(np.mean(np.hypot(err[:, 0], err[:, 1]))),
+            f"{prefix}rot_deg": float(np.degrees(np.mean(np.abs(se2.wrap_angle(err[:, 2])))))}
 
 
 def score(stamps: np.ndarray, poses: np.ndarray, relations: list, prefix: str) -> dict:
@@ -91,10 +108,18 @@ def score(stamps: np.ndarray, poses: np.ndarray, relations: list, prefix: str) -
     return row
 
 
+def map_scans(scans: list, result) -> list[int]:
+    """Positions in `scans` of the mapper's keyframes (the maps of `refine_scan_poses`)."""
+    position = {s.index: i for i, s in enumerate(scans)}
+    return sorted(position[k.scan_index] for k in result.keyframes)
+
+
 def run_variant(scans: list, overrides: list[str], relations: list | None,
-                refine: bool = False, reference: Trajectory | None = None) -> dict[str, float]:
+                refine: bool = False, reference: Trajectory | None = None,
+                truth: bool = False) -> dict[str, float]:
     """Map `scans` with the overridden defaults; timings, loop counts, peak memory and
-    the relations error (with `relations`) or the ATE against `reference`."""
+    the relations error (with `relations`) or the ATE against `reference` (and, when
+    it is the exact `truth` of every scan, the consecutive-scan errors)."""
     cfg = apply_overrides(PipelineConfig(), overrides)
     start = time.perf_counter()
     cpu = time.process_time()
@@ -116,21 +141,35 @@ def run_variant(scans: list, overrides: list[str], relations: list | None,
     if reference is not None:
         estimate = trajectory_at_stamps(evaluation_stamps(stamps)[0], result.scan_poses)
         row["ate_m"] = trajectory_errors(estimate, reference).ate_rmse
+        if truth:
+            row.update(consecutive(np.asarray(result.scan_poses), reference.xytheta(),
+                                   "consec_"))
+            if refine:
+                refined = refine_scan_poses([scan_points(s) for s in scans],
+                                            result.scan_poses, map_scans(scans, result))
+                row.update(consecutive(refined.poses, reference.xytheta(), "refined_consec_"))
         return row
     row.update(score(stamps, result.scan_poses, relations or [], "rel_"))
     if refine and len(stamps) == len(scans):
         start = time.perf_counter()
-        position = {s.index: i for i, s in enumerate(scans)}
-        map_scans = sorted(position[k.scan_index] for k in result.keyframes)
         refined = refine_scan_poses([scan_points(s) for s in scans], result.scan_poses,
-                                    map_scans)
+                                    map_scans(scans, result))
         row["refine_s"] = time.perf_counter() - start
         row.update(score(stamps, refined.poses, relations, "refined_"))
     return row
 
 
 def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Trajectory | None]:
-    """Scans of log `name` with its relations (Intel) or its reference (corrected logs)."""
+    """Scans of log `name` with its relations (Intel) or its reference (corrected logs,
+    simulated runs)."""
+    if name.startswith(SIM_PREFIX):
+        world, _, beams = name.removeprefix(SIM_PREFIX).partition("-")
+        if not beams.isdigit():
+            sys.exit(f"unknown log {name!r}: sim-<world>-<beams>, e.g. sim-box-361")
+        run = simulate_run(world, seed=3, fov_deg=180.0, beams=int(beams), max_range=30.0,
+                           noise_sigma=0.01, dropout=0.01,
+                           motion=MotionConfig(speed=0.5, rate_hz=5.0, laps=2.0))
+        return run.scans, None, run.ground_truth
     if name == "intel":
         log = data / "carmen" / "intel.clf.bz2"
         if not log.exists():
@@ -142,7 +181,8 @@ def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Traj
                 break
         return scans, read_relations(data / "carmen" / "intel.relations"), None
     if name not in CORRECTED:
-        sys.exit(f"unknown log {name!r}: intel or one of {', '.join(CORRECTED)}")
+        sys.exit(f"unknown log {name!r}: intel, sim-<world>-<beams> or one of "
+                 f"{', '.join(CORRECTED)}")
     log = data / "carmen-corrected" / f"{name.removesuffix('-corrected')}-corrected.log.gz"
     if not log.exists():
         sys.exit(f"{log} not found: pass --data with the shared data folder")
@@ -157,9 +197,10 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=4000,
                         help="Intel scans (0: the whole log)")
     parser.add_argument("--logs", default="intel",
-                        help=f"comma-separated: intel, {', '.join(CORRECTED)}")
+                        help=f"comma-separated: intel, sim-box-361 (sim-<world>-<beams>), "
+                        f"{', '.join(CORRECTED)}")
     parser.add_argument("--refine", action="store_true",
-                        help="also score the scans refined by slam.refine_scans (Intel)")
+                        help="also score the scans refined by slam.refine_scans (Intel, sim)")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable)")
     args = parser.parse_args()
@@ -170,7 +211,8 @@ def main() -> None:
         for spec in args.variant or DEFAULT_VARIANTS:
             name, _, sets = spec.partition(":")
             overrides = [s for s in sets.split(",") if s]
-            rows[name] = run_variant(scans, overrides, relations, args.refine, reference)
+            rows[name] = run_variant(scans, overrides, relations, args.refine, reference,
+                                     truth=log.startswith(SIM_PREFIX))
             r = rows[name]
             print(f"\n{name} ({', '.join(overrides) or 'defaults'})")
             print("  " + "  ".join(f"{k} {v:.4g}" for k, v in r.items()))
@@ -179,7 +221,8 @@ def main() -> None:
         keys = [k for k in first if k.endswith("_s") and first[k] > 0]
         print(f"{'variant':<20}" + "".join(f"{k:>22}" for k in keys))
         for name, r in rows.items():
-            print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" for k in keys))
+            print(f"{name:<20}" + "".join(f"{r[k] / first[k]:>22.3f}" if k in r else f"{'-':>22}"
+                                          for k in keys))
 
 
 if __name__ == "__main__":

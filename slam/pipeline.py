@@ -565,7 +565,7 @@ class Mapper:
         ):
             start = time.perf_counter()
             scan_poses = refine_scan_poses(
-                [p.astype(float) for p in self._scan_points], scan_poses,
+                self._scan_points, scan_poses,
                 self._keyframe_scans, self.config.refine,
             ).poses
             self.timings["refine_scans"] = time.perf_counter() - start

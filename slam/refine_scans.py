@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
-from loopclosure.registration import IcpConfig
+from loopclosure.registration import LINE_ANCHORS, IcpConfig
 
 if TYPE_CHECKING:
     from loopclosure.fast_icp import GridTarget
@@ -58,6 +58,11 @@ class RefineConfig:
         max_rms: and at most this RMS residual [m].
         max_correction: and a correction of at most (translation [m], rotation [rad]).
         icp: ICP parameters (the front end's defaults: clutter point to point at 0.3).
+        line_anchor: where a wall's line passes (`loopclosure.fast_icp.GridTarget`):
+            ``"point"``, the nearest map point, or ``"mean"``, the mean of the
+            neighbours its normal was fitted to (as `Icp2dConfig.line_anchor`).
+        line_anchor_radius: the neighbours of that mean are within this distance [m].
+        line_anchor_band: and within this distance of the point's line [m] (inf: all).
     """
 
     half_window: int = 8
@@ -71,8 +76,16 @@ class RefineConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(point_to_point_clutter=True, clutter_weight=0.3)
     )
+    line_anchor: str = "point"
+    line_anchor_radius: float = 0.2
+    line_anchor_band: float = float("inf")
 
     def __post_init__(self) -> None:
+        if self.line_anchor not in LINE_ANCHORS:
+            raise UserError(f"refine line_anchor must be one of {', '.join(LINE_ANCHORS)}, "
+                            f"got {self.line_anchor!r}")
+        if not (self.line_anchor_radius > 0 and self.line_anchor_band > 0):
+            raise UserError("refine line_anchor_radius and line_anchor_band must be positive")
         if self.half_window < 1:
             raise UserError(f"refine half_window must be >= 1, got {self.half_window}")
         if not self.map_voxel > 0 or self.source_voxel < 0:
@@ -103,7 +116,10 @@ def refine_scan_poses(
     """Register every scan onto the map scans around it (module docstring).
 
     Args:
-        points: per scan, ``(N_i, 2)`` valid end points in its sensor frame [m].
+        points: per scan, ``(N_i, 2)`` valid end points in its sensor frame [m] (any
+            float dtype; each is converted and voxelised only when it is used, and
+            only the map scans of the current window are kept in the map frame, so
+            the extra memory is one window's, not a copy of every scan's).
         poses: ``(N, 3)`` sensor poses in the map frame (optimised keyframes and the
             scans placed between them).
         map_scans: increasing positions (into `points` / `poses`) of the scans that
@@ -125,29 +141,40 @@ def refine_scan_poses(
     refined = np.zeros(len(poses), dtype=bool)
     if len(members) < 2:
         return RefinedPoses(out, refined)
-    src = [voxel_downsample_fast(p, cfg.source_voxel) for p in points]
-    world = {int(m): se2.transform_points(poses[m], src[m]) for m in members}
     prior = np.square(np.asarray(cfg.prior_sigma, dtype=float))
+
+    def source(i: int) -> Array:
+        return voxel_downsample_fast(np.asarray(points[i], dtype=float), cfg.source_voxel)
+
+    # The map scans' points in the map frame, only those of the current window:
+    # windows move forward with i, so a scan that fell behind is never needed again.
+    world: dict[int, Array] = {}
     key: tuple[int, int, int] | None = None
     grid: GridTarget | None = None
     for i in range(len(poses)):
-        if len(src[i]) < cfg.min_points:
+        src = source(i)
+        if len(src) < cfg.min_points:
             continue
         k = min(int(np.searchsorted(members, i)), len(members) - 1)
         lo, hi = max(0, k - cfg.half_window), min(len(members), k + cfg.half_window)
         own = i if members[k] == i else -1
         if (lo, hi, own) != key:
             key = (lo, hi, own)
-            near = [world[int(m)] for m in members[lo:hi] if m != i]
+            window = [int(m) for m in members[lo:hi]]
+            world = {m: world[m] if m in world else se2.transform_points(poses[m], source(m))
+                     for m in window}
+            near = [world[m] for m in window if m != i]
             grid = None
             if near:
-                grid = GridTarget(voxel_downsample_fast(np.vstack(near), cfg.map_voxel), cfg.icp)
+                grid = GridTarget(voxel_downsample_fast(np.vstack(near), cfg.map_voxel), cfg.icp,
+                                  anchor=cfg.line_anchor, anchor_radius=cfg.line_anchor_radius,
+                                  anchor_band=cfg.line_anchor_band)
                 grid = grid if len(grid) else None
         if grid is None:
             continue
         c, s = np.cos(poses[i, 2]), np.sin(poses[i, 2])
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        res = register_fast(src[i], grid, poses[i], config=cfg.icp, prior=poses[i],
+        res = register_fast(src, grid, poses[i], config=cfg.icp, prior=poses[i],
                             prior_covariance=rot @ np.diag(prior) @ rot.T)
         step = se2.between(poses[i], res.pose)
         if (res.ok and res.inlier_ratio >= cfg.min_inlier_ratio and res.rms <= cfg.max_rms

@@ -61,6 +61,20 @@ def test_noisy_scans_get_closer_to_the_truth() -> None:
     assert res.refined.mean() > 0.9 and after < 0.5 * before
 
 
+def test_float32_points_give_the_poses_of_their_float64_copies() -> None:
+    """The pipeline keeps scans as float32 and passes them as they are: each is
+    converted when used, so the result equals that of converting them all first."""
+    truth, points = _scans(noise=0.01)
+    rng = np.random.default_rng(2)
+    given = truth + rng.normal(0.0, [0.01, 0.01, 0.004], truth.shape)
+    single = [p.astype(np.float32) for p in points]
+    a = refine_scan_poses(single, given, np.arange(0, 40, 3))
+    b = refine_scan_poses([p.astype(float) for p in single], given, np.arange(0, 40, 3))
+    assert a.refined.sum() > 30
+    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_array_equal(a.refined, b.refined)
+
+
 def test_bounds_and_bad_input() -> None:
     truth, points = _scans()
     given = truth.copy()
@@ -77,3 +91,20 @@ def test_bounds_and_bad_input() -> None:
         refine_scan_poses(points, given, [4, 2])
     with pytest.raises(UserError, match="half_window"):
         RefineConfig(half_window=0)
+    with pytest.raises(UserError, match="line_anchor"):
+        RefineConfig(line_anchor="median")
+
+
+def test_mean_anchor_refines_noisy_scans_too() -> None:
+    """With lines through the mean of their neighbours, noisy scans also get closer
+    to the truth, and the result differs from the point anchor's (the option is used)."""
+    truth, points = _scans(noise=0.01)
+    rng = np.random.default_rng(1)
+    given = truth + rng.normal(0.0, [0.01, 0.01, 0.004], truth.shape)
+    mean = refine_scan_poses(points, given, np.arange(0, 40, 3),
+                             RefineConfig(line_anchor="mean", line_anchor_band=0.03))
+    point = refine_scan_poses(points, given, np.arange(0, 40, 3))
+    before = np.hypot(*(given - truth)[:, :2].T).mean()
+    after = np.hypot(*(mean.poses - truth)[:, :2].T).mean()
+    assert mean.refined.mean() > 0.9 and after < 0.5 * before
+    assert not np.array_equal(mean.poses, point.poses)

@@ -285,7 +285,7 @@ class Icp2dOdometry:
                 f"icp2d odometry needs planar laser scans, got {type(scan).__name__}; "
                 "use kiss-icp for point clouds"
             )
-        points = self._scan_points(scan)
+        points = self.scan_points(scan)
         odom = scan_odometry(scan)
         extra: dict[str, Any] = {"points": len(points)}
         if self._pose is None:
@@ -347,7 +347,9 @@ class Icp2dOdometry:
 
     # ----------------------------------------------------------------- private
 
-    def _scan_points(self, scan: Scan) -> Array:
+    def scan_points(self, scan: Scan) -> Array:
+        """``(N, 2)`` points the front end registers: end points (sensor frame) of the
+        beams within ``[min_range, max_range]``, voxel-downsampled to `source_voxel` [m]."""
         cfg = self.config
         valid = scan.valid
         r = scan.ranges
