@@ -19,10 +19,9 @@ solved.
 solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
 ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
 at the variance factor the winner's own loops support, found by starting from the
-candidate whose own factor is stiffest with confidence (smallest upper confidence bound)
-and moving to whichever candidate is cheapest there until the winner stays.  A stated
-winner whose false loops fold a loosely stated stretch then loses to a rung that
-rejected them.
+stated winner and moving to whichever candidate is cheapest there until the winner
+stays.  A stated winner whose false loops fold a loosely stated stretch then loses to a
+rung that rejected them.
 
 `recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
 one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
@@ -221,10 +220,6 @@ class Calibrated:
         kept: indices of the accepted loops.
         test: the `InnovationTest` of the accepted graph at `values` (None without
             accepted loops).
-        redundancy: the odometry's redundancy ``r_o`` at `values`
-            (`odometry_variance_step`; 0 without accepted loops).
-        estimate: the variance factor the odometry's residuals at `values` show,
-            ``s * step`` (equal to `s` at the fixed point; `s` without accepted loops).
     """
 
     s: float
@@ -233,18 +228,6 @@ class Calibrated:
     gains: _Gains | None
     kept: NDArray[np.int64]
     test: InnovationTest | None
-    redundancy: float = 0.0
-    estimate: float = 1.0
-
-    def upper_bound(self, probability: float = 0.99) -> float:
-        """Upper confidence bound of the odometry's variance factor at level
-        `probability`: ``estimate * r_o / chi2_{r_o}^-1(1 - p)`` (the estimate is
-        ``s chi2_{r_o} / r_o`` when the accepted loops are inliers); infinite without
-        redundancy."""
-        if self.redundancy <= 0.0:
-            return np.inf
-        return self.estimate * self.redundancy / chi2_quantile(1.0 - probability,
-                                                               self.redundancy)
 
 
 def own_factor(
@@ -268,18 +251,15 @@ def own_factor(
         accepted = _accepted(fixed, unit, w.astype(float))
         current = solver(accepted, current)
         if not w.any():
-            return Calibrated(s, current, fixed, None, kept, None, 0.0, s)
+            return Calibrated(s, current, fixed, None, kept, None)
         test = InnovationTest(accepted, current, keys, d)
-        traces = np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2)
-        rows, unknowns = d * accepted.size(), d * len(keys)
-        step = odometry_variance_step(sum(f.error(current) for f in odometry), rows,
-                                      unknowns, traces, d)
+        step = odometry_variance_step(
+            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
+            np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2), d)
         if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
                 or n == max_rounds - 1):
             gains = test.gains([unit[k] for k in kept]) if with_gains else None
-            redundancy = rows - unknowns - (d * len(traces) - float(np.sum(traces)))
-            return Calibrated(s, current, fixed, gains, kept, test, max(redundancy, 0.0),
-                              s * step)
+            return Calibrated(s, current, fixed, gains, kept, test)
         x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
         slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
         last = (x, y)
@@ -297,21 +277,15 @@ def calibrated_choice(
     """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
     the cheapest under the odometry calibrated by its own loops.
 
-    Every candidate's own variance factor ``s`` (`own_factor`) is estimated; start from
-    the candidate whose factor has the smallest upper confidence bound
-    (`Calibrated.upper_bound` at `probability`; ties, and candidates without redundancy:
-    lowest stated cost); with the odometry information divided by its ``s``, re-solve
-    every candidate with its loops and take the cheapest by the calibrated odometry's
-    error plus ``min(e_k, c)`` over every loop; repeat with the winner's own factor until
-    the winner is the candidate whose factor it was judged at (or a winner recurs).  A
-    candidate whose false loops bend the odometry shows a larger ``s`` than the
-    outlier-free one, and loses to it at the stiffer ``s`` that one supports.  Both can be
-    fixed points of the iteration (at the bent candidate's ``s`` the stiff one's
-    rejected loops cost more than the bending saves), so the start matters: the stated
-    winner is often the bent one.  A stiff start is safe only with confidence: a candidate
-    that rejected many true loops estimates ``s`` from little redundancy and can show a
-    small one by chance, which the upper bound (``s r / chi2_r^-1(1 - p)``, ``r`` the
-    odometry's redundancy) discounts.  Candidates with the same loops are judged once (ties keep
+    Start from the candidate of lowest stated cost; with the odometry information divided
+    by its own variance factor ``s`` (`own_factor`), re-solve every candidate with its
+    loops and take the cheapest by the calibrated odometry's error plus ``min(e_k, c)``
+    over every loop; repeat with the winner's own factor until the winner is the
+    candidate whose factor it was judged at (or a winner recurs).  A candidate whose
+    false loops bend the odometry shows a larger ``s`` than the outlier-free one, and loses
+    to it at the stiffer ``s`` that one supports; a candidate that rejected many true loops
+    supports a small ``s`` from little redundancy, which is why the factor is never the
+    smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
     the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
     odometry far stiffer than stated on a nearly noise-free graph).  `factor`, when given,
     receives the winner's own variance factor (a start for `recheck_loops`).
@@ -326,8 +300,7 @@ def calibrated_choice(
     if len(distinct) == 1:
         return 0
     try:
-        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit,
-                                     probability)
+        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return -1
     if factor is not None:
@@ -338,21 +311,16 @@ def calibrated_choice(
 def _self_consistent(
     graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
     which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
-    probability: float = 0.99,
 ) -> tuple[int, float]:
     """`calibrated_choice` among the candidates `which`, and the winner's own factor."""
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
-    owns = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit,
-                          solver=solve, with_gains=False) for n in which}
-    bounds = {n: owns[n].upper_bound(probability) for n in which}
-    chosen = min(which, key=lambda n: (bounds[n], candidates[n][2]))
-    if not np.isfinite(bounds[chosen]):
-        chosen = min(which, key=lambda n: candidates[n][2])
+    chosen = min(which, key=lambda n: candidates[n][2])
     judged: set[int] = set()
     start = 1.0
     while chosen not in judged:
         judged.add(chosen)
-        own = owns[chosen]
+        own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
+                         solver=solve, start=start, with_gains=False)
         start = own.s
         fixed, _ = _calibrated_fixed(graph, own.s, priors)
         best, best_cost = chosen, np.inf

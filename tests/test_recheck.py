@@ -10,7 +10,6 @@ from evaluation.robustness import aligned_position_error
 from slam.consistency import InnovationTest, tls_threshold
 from slam.optimize import optimize
 from slam.recheck import (
-    Calibrated,
     calibrated_choice,
     greedy_removal,
     odometry_variance_step,
@@ -83,17 +82,6 @@ def test_odometry_variance_step_matches_the_hand_computed_case(w: float) -> None
     step = odometry_variance_step(odometry_error, 3 * factors.size(), 6,
                                   np.trace(gains.M, axis1=1, axis2=2), 3)
     assert step == pytest.approx(w * gap**2 / (3 * (w + 1)), rel=1e-4)
-
-
-def test_upper_bound_of_the_variance_factor_matches_the_chi_square_table() -> None:
-    # An estimate 0.5 from 10 redundant rows: the true factor is below
-    # 0.5 * 10 / chi2_10^-1(0.01) = 5 / 2.558 (tables) with 99 % confidence.
-    cal = Calibrated(0.5, None, None, None, np.zeros(0, np.int64), None, 10.0, 0.5)
-    assert cal.upper_bound(0.99) == pytest.approx(5.0 / 2.558, rel=1e-3)
-    # Less redundancy, a looser bound for the same estimate; none without redundancy.
-    assert Calibrated(0.5, None, None, None, np.zeros(0, np.int64), None, 3.0,
-                      0.5).upper_bound(0.99) > cal.upper_bound(0.99)
-    assert Calibrated(1.0, None, None, None, np.zeros(0, np.int64), None).upper_bound() == np.inf
 
 
 def _loose_square_with_false_loop():
@@ -188,34 +176,3 @@ def test_polish_solves_a_graph_of_tiny_errors_as_far_as_any_other() -> None:
                       tiny.gtsam_values(start))
     plain = optimize(graph, "none", init="odometry").poses
     assert aligned_position_error(poses_from_values(polished, 2), plain, 2) < 3e-8
-
-
-def test_calibrated_choice_starts_stiff_when_the_bent_candidate_is_a_fixed_point(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    from slam import recheck
-    from slam.consistency import refine_tls, tls_cost
-
-    # Six false loops across the loosely stated square that agree on one wrong place
-    # (pose b moved by T): the odometry absorbs them, and at the variance factor their
-    # bending shows, rejecting them costs more than keeping them (a fixed point).
-    graph, truth = _square_graph(noise=0.02, laps=2)
-    loose = with_information_scaled(graph, 0.01)
-    n = len(loose.loops)
-    wrong = np.array([1.0, 0.5, 0.2])
-    for q in range(6):
-        a, b = 1 + q, 9 + q
-        loose.add_loop(a, b, se2.between(truth[a], se2.compose(wrong, truth[b])),
-                       loose.loops[0].information)
-    start = loose.gtsam_values(optimize(loose, "none", init="odometry").poses)
-    candidates = []
-    for w in (np.ones(len(loose.loops)), np.r_[np.ones(n), np.zeros(6)]):
-        values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else list(
-            range(n, n + 6)))
-        candidates.append((values, weights, tls_cost(loose, values)))
-    assert candidates[0][1].all() and not candidates[1][1][n:].any()
-    assert candidates[0][2] < candidates[1][2]
-    assert calibrated_choice(loose, candidates) == 1
-    # From the stated winner (no confidence bound to start from) the bent one stays.
-    monkeypatch.setattr(recheck.Calibrated, "upper_bound", lambda self, p=0.99: np.inf)
-    assert calibrated_choice(loose, candidates) == 0
