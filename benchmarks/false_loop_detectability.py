@@ -4,7 +4,8 @@ back end obeys.
 Run from the repository root::
 
     python benchmarks/false_loop_detectability.py [--data DIR] [--stated] [--no-segments]
-        [--no-groups] CASE [CASE ...]   # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
+        [--no-groups] [--candidates] CASE [CASE ...]
+        # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
 
 For each case the graph's odometry information is multiplied by ``scale``, false loops
 are injected as `eval robustness` does (`evaluation.outlier_policies.inject_false_loops`
@@ -32,6 +33,15 @@ obeys it.  Every obeyed false loop is listed.  Last, the largest leave-one-out
 innovation of the graph's own true loops at the clean optimum (``0.5 b^T (I - M)^-1 b``,
 `slam.recheck.removal_costs`): a false loop whose ``delta`` is below it is more
 consistent with the map than that true loop.
+
+With ``--candidates``, first the candidates the time-ordered admission chooses among
+(`slam.consistency.incremental_tls`'s rungs and gates, refined; the same loops listed
+once): stated TLS cost, false loops kept, true loops left out, ATE against the clean
+optimum [m], the odometry variance factor its own loops support (`slam.recheck.own_factor`:
+estimate, redundancy and 99 % upper bound, `Calibrated.upper_bound`), and the one
+`slam.recheck.calibrated_choice` picks.  A candidate bent by false loops shows a factor
+far above an outlier-free one's; when the choice still picks it, the bent candidate is a
+fixed point of the choice's iteration.
 """
 
 from __future__ import annotations
@@ -49,10 +59,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from data.g2o import read_g2o
 from evaluation.outlier_policies import inject_false_loops
 from evaluation.robustness import aligned_position_error, clean_optimum
-from slam.consistency import InnovationTest, admission_costs, tls_cost, tls_threshold
-from slam.optimize import default_outlier_residual, optimize
-from slam.pose_graph import PoseGraph, pose_dof, whitened_residual
-from slam.recheck import removal_costs, segment_recheck
+from slam.consistency import (
+    InnovationTest,
+    admission_costs,
+    incremental_tls,
+    tls_cost,
+    tls_threshold,
+)
+from slam.least_squares import StickySolver
+from slam.optimize import default_outlier_residual, initial_guess, optimize
+from slam.pose_graph import PoseGraph, pose_dof, poses_from_values, whitened_residual
+from slam.recheck import calibrated_choice, own_factor, removal_costs, segment_recheck
 from slam.variance_components import with_information_scaled
 
 
@@ -87,6 +104,35 @@ def _solved(
     return solution, res
 
 
+def _candidates(graph: PoseGraph, ref: dict, is_false: np.ndarray) -> None:
+    """Prints the admission's candidates and the calibrated choice (module docstring)."""
+    seen: dict = {}
+
+    def capture(g: PoseGraph, candidates: list, **kwargs) -> int:
+        seen.update(candidates=candidates, kwargs=kwargs)
+        seen["pick"] = calibrated_choice(g, candidates, **kwargs)
+        return seen["pick"]
+
+    incremental_tls(graph, graph.gtsam_values(initial_guess(graph, "odometry")), choose=capture)
+    if "candidates" not in seen:
+        print("  candidates: one run finished (nothing to choose)")
+        return
+    unit, solver = seen["kwargs"]["unit"], seen["kwargs"].get("solver") or StickySolver()
+    listed: set[bytes] = set()
+    for n, (values, weights, cost) in enumerate(seen["candidates"]):
+        kept = np.asarray(weights) > 0.5
+        if kept.tobytes() in listed:
+            continue
+        listed.add(kept.tobytes())
+        own = own_factor(graph, values, weights, unit=unit, solver=solver, with_gains=False)
+        ate = aligned_position_error(poses_from_values(values, graph.dim), ref, graph.dim)
+        print(f"  candidate {n}: stated TLS cost {cost:.2f}, false in {(kept & is_false).sum()}, "
+              f"true out {(~kept & ~is_false).sum()}, ATE {ate:.4f} m; own odometry factor "
+              f"{own.estimate:.3g} (redundancy {own.redundancy:.1f}, upper bound "
+              f"{own.upper_bound():.3g})")
+    print(f"  calibrated choice: candidate {seen['pick']}")
+
+
 def main() -> None:
     root = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -94,6 +140,7 @@ def main() -> None:
     parser.add_argument("--stated", action="store_true")
     parser.add_argument("--no-segments", action="store_true")
     parser.add_argument("--no-groups", action="store_true")
+    parser.add_argument("--candidates", action="store_true")
     parser.add_argument("cases", nargs="+")
     args = parser.parse_args()
     graphs: dict[tuple[str, float], tuple[PoseGraph, dict]] = {}
@@ -117,6 +164,9 @@ def main() -> None:
             graph, float(ratio), np.random.default_rng(int(seed)), policy, reference=ref)
         is_false = np.zeros(len(corrupted.loops), dtype=bool)
         is_false[false_idx] = True
+        if args.candidates:
+            print(f"{case} admission candidates:")
+            _candidates(corrupted, ref, is_false)
         solution, res = _solved(corrupted, ref, is_false, args.stated, False, case + " admission")
         if not args.no_segments:
             start = time.perf_counter()
