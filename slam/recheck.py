@@ -19,10 +19,9 @@ solved.
 solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
 ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
 at the variance factor the winner's own loops support, found by starting from the
-candidate whose own factor is stiffest with confidence (smallest upper confidence bound)
-and moving to whichever candidate is cheapest there until the winner stays.  A stated
-winner whose false loops fold a loosely stated stretch then loses to a rung that
-rejected them.
+stated winner and moving to whichever candidate is cheapest there until the winner
+stays.  A stated winner whose false loops fold a loosely stated stretch then loses to a
+rung that rejected them.
 
 `recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
 one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
@@ -297,21 +296,15 @@ def calibrated_choice(
     """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
     the cheapest under the odometry calibrated by its own loops.
 
-    Every candidate's own variance factor ``s`` (`own_factor`) is estimated; start from
-    the candidate whose factor has the smallest upper confidence bound
-    (`Calibrated.upper_bound` at `probability`; ties, and candidates without redundancy:
-    lowest stated cost); with the odometry information divided by its ``s``, re-solve
-    every candidate with its loops and take the cheapest by the calibrated odometry's
-    error plus ``min(e_k, c)`` over every loop; repeat with the winner's own factor until
-    the winner is the candidate whose factor it was judged at (or a winner recurs).  A
-    candidate whose false loops bend the odometry shows a larger ``s`` than the
-    outlier-free one, and loses to it at the stiffer ``s`` that one supports.  Both can be
-    fixed points of the iteration (at the bent candidate's ``s`` the stiff one's
-    rejected loops cost more than the bending saves), so the start matters: the stated
-    winner is often the bent one.  A stiff start is safe only with confidence: a candidate
-    that rejected many true loops estimates ``s`` from little redundancy and can show a
-    small one by chance, which the upper bound (``s r / chi2_r^-1(1 - p)``, ``r`` the
-    odometry's redundancy) discounts.  Candidates with the same loops are judged once (ties keep
+    Start from the candidate of lowest stated cost; with the odometry information divided
+    by its own variance factor ``s`` (`own_factor`), re-solve every candidate with its
+    loops and take the cheapest by the calibrated odometry's error plus ``min(e_k, c)``
+    over every loop; repeat with the winner's own factor until the winner is the
+    candidate whose factor it was judged at (or a winner recurs).  A candidate whose
+    false loops bend the odometry shows a larger ``s`` than the outlier-free one, and loses
+    to it at the stiffer ``s`` that one supports; a candidate that rejected many true loops
+    supports a small ``s`` from little redundancy, which is why the factor is never the
+    smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
     the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
     odometry far stiffer than stated on a nearly noise-free graph).  `factor`, when given,
     receives the winner's own variance factor (a start for `recheck_loops`).
@@ -326,8 +319,7 @@ def calibrated_choice(
     if len(distinct) == 1:
         return 0
     try:
-        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit,
-                                     probability)
+        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return -1
     if factor is not None:
@@ -338,21 +330,16 @@ def calibrated_choice(
 def _self_consistent(
     graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
     which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
-    probability: float = 0.99,
 ) -> tuple[int, float]:
     """`calibrated_choice` among the candidates `which`, and the winner's own factor."""
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
-    owns = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit,
-                          solver=solve, with_gains=False) for n in which}
-    bounds = {n: owns[n].upper_bound(probability) for n in which}
-    chosen = min(which, key=lambda n: (bounds[n], candidates[n][2]))
-    if not np.isfinite(bounds[chosen]):
-        chosen = min(which, key=lambda n: candidates[n][2])
+    chosen = min(which, key=lambda n: candidates[n][2])
     judged: set[int] = set()
     start = 1.0
     while chosen not in judged:
         judged.add(chosen)
-        own = owns[chosen]
+        own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
+                         solver=solve, start=start, with_gains=False)
         start = own.s
         fixed, _ = _calibrated_fixed(graph, own.s, priors)
         best, best_cost = chosen, np.inf
