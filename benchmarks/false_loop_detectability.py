@@ -4,7 +4,8 @@ back end obeys.
 Run from the repository root::
 
     python benchmarks/false_loop_detectability.py [--data DIR] [--stated] [--no-segments]
-        [--no-groups] CASE [CASE ...]   # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
+        [--no-groups] [--candidates] CASE [CASE ...]
+        # CASE = graph.g2o:scale:policy:ratio:seed, ratio in [0, 1)
 
 For each case the graph's odometry information is multiplied by ``scale``, false loops
 are injected as `eval robustness` does (`evaluation.outlier_policies.inject_false_loops`
@@ -32,6 +33,24 @@ obeys it.  Every obeyed false loop is listed.  Last, the largest leave-one-out
 innovation of the graph's own true loops at the clean optimum (``0.5 b^T (I - M)^-1 b``,
 `slam.recheck.removal_costs`): a false loop whose ``delta`` is below it is more
 consistent with the map than that true loop.
+
+With ``--candidates``, first the candidates the time-ordered admission chooses among
+(`slam.consistency.incremental_tls`'s rungs and gates, refined; the same loops listed
+once): stated TLS cost, false loops kept, true loops left out, ATE against the clean
+optimum [m], the odometry variance factor its own loops support (`slam.recheck.own_factor`:
+estimate, redundancy and 99 % upper bound, `Calibrated.upper_bound`), and the one
+`slam.recheck.calibrated_choice` picks.  A candidate bent by false loops shows a factor
+far above an outlier-free one's; when the choice still picks it, the bent candidate is a
+fixed point of the choice's iteration.  Then a trial of another choice (diagnostic only,
+not the back end's): ``A`` the calibrated choice's pick, ``B`` the candidate whose own
+factor has the smallest upper bound; ``A`` *bends* ``B``'s segments when, over the
+segments of 100 poses where ``B`` has redundancy (`slam.segment_variance`), the pooled
+factor of ``A``'s odometry residuals over ``B``'s exceeds Fisher's ``F`` 0.99 quantile;
+if so, ``B``'s loops are solved under merged segment factors (``B``'s where it has
+redundancy, ``A``'s elsewhere) and ``A``'s other loops offered back (innovation alone
+below ``c``, then `slam.consistency.greedy_admission`); printed: the F statistic, the
+loops offered and admitted (false among them) and the outcome's false loops kept and true
+loops left out.
 """
 
 from __future__ import annotations
@@ -46,13 +65,24 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from scipy.special import fdtri
+
 from data.g2o import read_g2o
 from evaluation.outlier_policies import inject_false_loops
 from evaluation.robustness import aligned_position_error, clean_optimum
-from slam.consistency import InnovationTest, admission_costs, tls_cost, tls_threshold
-from slam.optimize import default_outlier_residual, optimize
-from slam.pose_graph import PoseGraph, pose_dof, whitened_residual
-from slam.recheck import removal_costs, segment_recheck
+from slam.consistency import (
+    InnovationTest,
+    admission_costs,
+    greedy_admission,
+    incremental_tls,
+    tls_cost,
+    tls_threshold,
+)
+from slam.least_squares import StickySolver
+from slam.optimize import default_outlier_residual, initial_guess, optimize
+from slam.pose_graph import PoseGraph, pose_dof, poses_from_values, whitened_residual
+from slam.recheck import calibrated_choice, own_factor, removal_costs, segment_recheck
+from slam.segment_variance import SegmentFactors, calibrated_odometry, segment_factors
 from slam.variance_components import with_information_scaled
 
 
@@ -87,6 +117,88 @@ def _solved(
     return solution, res
 
 
+def _candidates(graph: PoseGraph, ref: dict, is_false: np.ndarray) -> None:
+    """Prints the admission's candidates and the calibrated choice (module docstring)."""
+    seen: dict = {}
+
+    def capture(g: PoseGraph, candidates: list, **kwargs) -> int:
+        seen.update(candidates=candidates, kwargs=kwargs)
+        seen["pick"] = calibrated_choice(g, candidates, **kwargs)
+        return seen["pick"]
+
+    incremental_tls(graph, graph.gtsam_values(initial_guess(graph, "odometry")), choose=capture)
+    if "candidates" not in seen:
+        print("  candidates: one run finished (nothing to choose)")
+        return
+    unit, solver = seen["kwargs"]["unit"], seen["kwargs"].get("solver") or StickySolver()
+    listed: set[bytes] = set()
+    owns = {}
+    for n, (values, weights, cost) in enumerate(seen["candidates"]):
+        kept = np.asarray(weights) > 0.5
+        if kept.tobytes() in listed:
+            continue
+        listed.add(kept.tobytes())
+        own = owns[n] = own_factor(graph, values, weights, unit=unit, solver=solver,
+                                   with_gains=False)
+        ate = aligned_position_error(poses_from_values(values, graph.dim), ref, graph.dim)
+        print(f"  candidate {n}: stated TLS cost {cost:.2f}, false in {(kept & is_false).sum()}, "
+              f"true out {(~kept & ~is_false).sum()}, ATE {ate:.4f} m; own odometry factor "
+              f"{own.estimate:.3g} (redundancy {own.redundancy:.1f}, upper bound "
+              f"{own.upper_bound():.3g})")
+    print(f"  calibrated choice: candidate {seen['pick']}")
+    _stiff_trial(graph, seen["candidates"], seen["pick"], owns, unit, solver, is_false)
+
+
+def _stiff_trial(
+    graph: PoseGraph, candidates: list, a: int, owns: dict, unit: list, solver: StickySolver,
+    is_false: np.ndarray,
+) -> None:
+    """The trial choice of the module docstring: stiffest candidate, F test, offer back."""
+    b = min(owns, key=lambda n: owns[n].upper_bound())
+    if b == a or (np.asarray(candidates[a][1]) > 0.5).tobytes() == (
+            np.asarray(candidates[b][1]) > 0.5).tobytes():
+        print(f"  stiffest candidate {b}: the same loops as the choice")
+        return
+    (va, wa, _), (vb, wb, _) = candidates[a], candidates[b]
+    wa, wb = np.asarray(wa) > 0.5, np.asarray(wb) > 0.5
+    fa, fb = segment_factors(graph, va, wa), segment_factors(graph, vb, wb)
+    on = (fb.redundancy >= 1.0) & (fa.redundancy > 0.0)
+    ra, rb = float(fa.redundancy[on].sum()), float(fb.redundancy[on].sum())
+    if not on.any():
+        print(f"  stiffest candidate {b}: no segment where both have redundancy")
+        return
+    sa = float((fa.raw[on] * fa.redundancy[on]).sum()) / ra
+    sb = float((fb.raw[on] * fb.redundancy[on]).sum()) / rb
+    quantile = float(fdtri(ra, rb, 0.99))
+    print(f"  stiffest candidate {b}: on its {on.sum()} calibrated segments the choice's "
+          f"factor {sa:.3g} vs {sb:.3g}, F {sa / sb:.2f} (0.99 quantile {quantile:.2f})")
+    if not sa / sb > quantile:
+        return
+    merged = SegmentFactors(np.where(fb.redundancy >= 1.0, fb.factors, fa.factors), fb.raw,
+                            fb.redundancy, fb.pooled, fb.segment)
+    fixed = gtsam.NonlinearFactorGraph()
+    for k in graph.anchor_keys():
+        fixed.add(graph.prior_factor(k))
+    for o in calibrated_odometry(graph, merged):
+        fixed.add(graph.between_factor(o))
+    for k in np.flatnonzero(wb):
+        fixed.add(unit[k])
+    test = InnovationTest(fixed, solver(fixed, vb), graph.keys, pose_dof(graph.dim))
+    offer = np.flatnonzero(wa & ~wb)
+    c = tls_threshold(graph.dim)
+    admitted = np.zeros(0, dtype=np.int64)
+    if len(offer):
+        offer = offer[admission_costs(test.gains([unit[k] for k in offer])) < c]
+    if len(offer):
+        picked, _ = greedy_admission(test.gains([unit[k] for k in offer]), c)
+        admitted = offer[picked]
+    kept = wb.copy()
+    kept[admitted] = True
+    print(f"  offered back {len(offer)} of the choice's other loops ({is_false[offer].sum()} "
+          f"false), admitted {len(admitted)} ({is_false[admitted].sum()} false): false in "
+          f"{(kept & is_false).sum()}, true out {(~kept & ~is_false).sum()}")
+
+
 def main() -> None:
     root = Path(__file__).resolve().parents[1]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -94,6 +206,7 @@ def main() -> None:
     parser.add_argument("--stated", action="store_true")
     parser.add_argument("--no-segments", action="store_true")
     parser.add_argument("--no-groups", action="store_true")
+    parser.add_argument("--candidates", action="store_true")
     parser.add_argument("cases", nargs="+")
     args = parser.parse_args()
     graphs: dict[tuple[str, float], tuple[PoseGraph, dict]] = {}
@@ -117,6 +230,9 @@ def main() -> None:
             graph, float(ratio), np.random.default_rng(int(seed)), policy, reference=ref)
         is_false = np.zeros(len(corrupted.loops), dtype=bool)
         is_false[false_idx] = True
+        if args.candidates:
+            print(f"{case} admission candidates:")
+            _candidates(corrupted, ref, is_false)
         solution, res = _solved(corrupted, ref, is_false, args.stated, False, case + " admission")
         if not args.no_segments:
             start = time.perf_counter()

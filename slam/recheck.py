@@ -220,6 +220,10 @@ class Calibrated:
         kept: indices of the accepted loops.
         test: the `InnovationTest` of the accepted graph at `values` (None without
             accepted loops).
+        redundancy: the odometry's redundancy ``r_o`` at `values`
+            (`odometry_variance_step`; 0 without accepted loops).
+        estimate: the variance factor the odometry's residuals at `values` show,
+            ``s * step`` (equal to `s` at the fixed point; `s` without accepted loops).
     """
 
     s: float
@@ -228,6 +232,18 @@ class Calibrated:
     gains: _Gains | None
     kept: NDArray[np.int64]
     test: InnovationTest | None
+    redundancy: float = 0.0
+    estimate: float = 1.0
+
+    def upper_bound(self, probability: float = 0.99) -> float:
+        """Upper confidence bound of the odometry's variance factor at level
+        `probability`: ``estimate * r_o / chi2_{r_o}^-1(1 - p)`` (the estimate is
+        ``s chi2_{r_o} / r_o`` when the accepted loops are inliers); infinite without
+        redundancy."""
+        if self.redundancy <= 0.0:
+            return np.inf
+        return self.estimate * self.redundancy / chi2_quantile(1.0 - probability,
+                                                               self.redundancy)
 
 
 def own_factor(
@@ -251,15 +267,18 @@ def own_factor(
         accepted = _accepted(fixed, unit, w.astype(float))
         current = solver(accepted, current)
         if not w.any():
-            return Calibrated(s, current, fixed, None, kept, None)
+            return Calibrated(s, current, fixed, None, kept, None, 0.0, s)
         test = InnovationTest(accepted, current, keys, d)
-        step = odometry_variance_step(
-            sum(f.error(current) for f in odometry), d * accepted.size(), d * len(keys),
-            np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2), d)
+        traces = np.trace(test.blocks([unit[k] for k in kept])[1], axis1=1, axis2=2)
+        rows, unknowns = d * accepted.size(), d * len(keys)
+        step = odometry_variance_step(sum(f.error(current) for f in odometry), rows,
+                                      unknowns, traces, d)
         if ((step >= 1.0 and s == 1.0) or abs(step - 1.0) < FACTOR_TOLERANCE
                 or n == max_rounds - 1):
             gains = test.gains([unit[k] for k in kept]) if with_gains else None
-            return Calibrated(s, current, fixed, gains, kept, test)
+            redundancy = rows - unknowns - (d * len(traces) - float(np.sum(traces)))
+            return Calibrated(s, current, fixed, gains, kept, test, max(redundancy, 0.0),
+                              s * step)
         x, y = np.log(s), np.log(max(step, BOUNDS[0]))  # a noise-free odometry: step 0
         slope = (y - last[1]) / (x - last[0]) if last is not None and x != last[0] else -1.0
         last = (x, y)

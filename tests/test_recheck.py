@@ -10,6 +10,7 @@ from evaluation.robustness import aligned_position_error
 from slam.consistency import InnovationTest, tls_threshold
 from slam.optimize import optimize
 from slam.recheck import (
+    Calibrated,
     calibrated_choice,
     greedy_removal,
     odometry_variance_step,
@@ -82,6 +83,17 @@ def test_odometry_variance_step_matches_the_hand_computed_case(w: float) -> None
     step = odometry_variance_step(odometry_error, 3 * factors.size(), 6,
                                   np.trace(gains.M, axis1=1, axis2=2), 3)
     assert step == pytest.approx(w * gap**2 / (3 * (w + 1)), rel=1e-4)
+
+
+def test_upper_bound_of_the_variance_factor_matches_the_chi_square_table() -> None:
+    # An estimate 0.5 from 10 redundant rows: the true factor is below
+    # 0.5 * 10 / chi2_10^-1(0.01) = 5 / 2.558 (tables) with 99 % confidence.
+    cal = Calibrated(0.5, None, None, None, np.zeros(0, np.int64), None, 10.0, 0.5)
+    assert cal.upper_bound(0.99) == pytest.approx(5.0 / 2.558, rel=1e-3)
+    # Less redundancy, a looser bound for the same estimate; none without redundancy.
+    assert Calibrated(0.5, None, None, None, np.zeros(0, np.int64), None, 3.0,
+                      0.5).upper_bound(0.99) > cal.upper_bound(0.99)
+    assert Calibrated(1.0, None, None, None, np.zeros(0, np.int64), None).upper_bound() == np.inf
 
 
 def _loose_square_with_false_loop():
