@@ -133,7 +133,8 @@ class PlaceMatch:
     Attributes:
         key: the stored keyframe's key.
         prefilter_distance: combined normalised prefilter distance p (unitless).
-        prefilter_rank: 0-based rank among all allowed keyframes by p.
+        prefilter_rank: 0-based rank among the query's candidates by p (the K best
+            are the K best of all allowed keyframes; the grids' extras follow).
         distances: raw distance per stage name (prefilter stages and verifiers),
             in each matcher's unit.
         score: fused score, higher = more likely the same place (a probability in
@@ -165,13 +166,14 @@ class PlaceMatch:
 
 @dataclass(slots=True, frozen=True)
 class CandidateSet:
-    """The K candidates of one query as arrays, in prefilter order.
+    """The candidates of one query (the K best by p and the grids' extras) as
+    arrays, in prefilter order.
 
     Attributes:
-        indices: ``(K,)`` insertion indices of the candidates.
-        prefilter: ``(K,)`` combined normalised prefilter distance p (increasing).
-        distances: ``(S, K)`` raw distance of every stage (`PlaceDatabaseConfig.stages`).
-        scores: ``(K,)`` fused scores in [0, 1].
+        indices: ``(C,)`` insertion indices of the C candidates.
+        prefilter: ``(C,)`` combined normalised prefilter distance p (increasing).
+        distances: ``(S, C)`` raw distance of every stage (`PlaceDatabaseConfig.stages`).
+        scores: ``(C,)`` fused scores in [0, 1].
         prefilter_all: ``(M,)`` p of every stored keyframe (inf where not allowed;
             float32 screening values, relative error ~1e-6), or None unless asked
             for (`PlaceDatabase.candidates` ``keep_prefilter``).
