@@ -77,8 +77,8 @@ def grid_similarity(query_grid: ArrayLike, stored_grids: ArrayLike) -> Array:
     gb = dilate_polar(gb)
     q, g = qb.astype(np.float32), gb.astype(np.float32)
     sectors = q.shape[-1]
-    # float32 FFTs (scipy keeps the precision; counts of at most R x S cells are exact
-    # to about 1e-4 of a cell); the ring sum is taken in frequency space.
+    # float32 FFTs (scipy keeps the precision: a correlation of a few thousand cells
+    # comes out within about 1e-3 of a cell); the ring sum is taken in frequency space.
     spec = (np.conj(scipy.fft.rfft(g, axis=2)) * scipy.fft.rfft(q, axis=1)[None]).sum(axis=1)
     best = scipy.fft.irfft(spec, n=sectors, axis=1).max(axis=1).astype(float)
     denom = np.sqrt(float(np.count_nonzero(qb)) * np.count_nonzero(gb, axis=(1, 2)))
