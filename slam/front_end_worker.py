@@ -13,7 +13,11 @@ exactly what calling ``step`` (the mapper's `_worker_step`) here would have retu
 unread) and so has time for work the mapper would otherwise do itself.  The
 worker is a ``fork`` of this process: it inherits the front end and the scan
 iterator as they are (nothing is pickled on the way in) and sends the results back
-in batches through a pipe, whose buffer bounds how far ahead it runs.  An exception
+in batches through a pipe.  A reader thread here empties the pipe into an inbox of
+up to `AHEAD` batches, so the worker blocks only when it is that far ahead (a pipe's
+own buffer holds a batch or two: the worker used to wait there, idle, while the
+mapper was the slower process, and the mapper then waited for it where the worker
+was slower).  An exception
 in the worker (a malformed log under ``--strict``) is raised again here.  Where
 ``fork`` is missing (Windows), or in a daemon process or a thread other than the
 main one (a cluster's task), `worker_available` is False and the mapper runs the
@@ -27,20 +31,26 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from slam.memory import peak_rss_mb
 
-__all__ = ["BATCH", "map_in_worker", "worker_available"]
+__all__ = ["AHEAD", "BATCH", "map_in_worker", "worker_available"]
 
 BATCH = 16
 """Scans per message: one pipe round trip per batch, not per scan."""
 
+AHEAD = 64
+"""Batches the worker may run ahead of the mapper (1,024 scans: a few tens of MB of
+scans, estimates and place descriptions waiting)."""
+
 _DONE = "done"
 _ERROR = "error"
 _ITEMS = "items"
+_GONE = "gone"  # the pipe closed without a last message
 
 
 def worker_available() -> bool:
@@ -96,26 +106,50 @@ def map_in_worker(
                          name="loopclosure-front-end")
     worker.start()
     send.close()  # the worker holds the only writing end: EOF when it is gone
+    inbox: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=AHEAD)
+    stop = threading.Event()
+    reader = threading.Thread(target=_read, args=(receive, inbox, stop), daemon=True,
+                              name="loopclosure-front-end-reader")
+    reader.start()
     try:
         while True:
-            try:
-                kind, payload = receive.recv()
-            except EOFError:
-                raise RuntimeError(
-                    f"the front end worker stopped without a result (exit code "
-                    f"{worker.exitcode})") from None
+            kind, payload = inbox.get()
             if kind == _ITEMS:
                 for item in payload:
                     yield item
                     consumed.value += 1
             elif kind == _ERROR:
                 raise payload
+            elif kind == _GONE:
+                raise RuntimeError(
+                    f"the front end worker stopped without a result (exit code "
+                    f"{worker.exitcode})")
             else:
                 if stats is not None:
                     stats["peak_rss_mb"] = payload
                 return
     finally:
-        receive.close()
+        stop.set()
         if worker.is_alive():
             worker.terminate()
         worker.join()
+        reader.join()  # the worker's end is closed: the reader's recv returns
+        receive.close()
+
+
+def _read(receive: Any, inbox: queue.Queue, stop: threading.Event) -> None:
+    """The reader thread: every message of the pipe into `inbox` (blocking while it
+    holds `AHEAD` batches), until the last one, the pipe's end, or `stop`."""
+    while not stop.is_set():
+        try:
+            message = receive.recv()
+        except (EOFError, OSError):
+            message = (_GONE, None)
+        while not stop.is_set():
+            try:
+                inbox.put(message, timeout=0.1)
+                break
+            except queue.Full:
+                continue
+        if message[0] != _ITEMS:
+            return
