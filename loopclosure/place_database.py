@@ -604,23 +604,16 @@ class PlaceDatabase:
         if len(c.indices) == 0:
             return []
         hyps = self._hypotheses(q, c.indices) if headings else [()] * len(c.indices)
-        names = self.config.stages
-        out = []
-        for j in c.order().tolist():
-            i = int(c.indices[j])
-            out.append(
-                PlaceMatch(
-                    key=self._keys.key(i),
-                    prefilter_distance=float(c.prefilter[j]),
-                    prefilter_rank=j,
-                    distances={s: float(c.distances[t, j]) for t, s in enumerate(names)},
-                    score=float(c.scores[j]),
-                    headings=hyps[j],
-                    stamp=self._stamps[i],
-                    pose=self._poses[i],
-                )
-            )
-        return out
+        return [self._match(int(c.indices[j]), float(c.prefilter[j]), j, c.distances[:, j],
+                            float(c.scores[j]), hyps[j]) for j in c.order().tolist()]
+
+    def _match(self, row: int, prefilter: float, rank: int, distances: Array, score: float,
+               headings: tuple[tuple[float, float], ...]) -> PlaceMatch:
+        """The `PlaceMatch` of stored row `row` (`distances`: one per stage)."""
+        return PlaceMatch(
+            key=self._keys.key(row), prefilter_distance=prefilter, prefilter_rank=rank,
+            distances={s: float(distances[t]) for t, s in enumerate(self.config.stages)},
+            score=score, headings=headings, stamp=self._stamps[row], pose=self._poses[row])
 
     def query_stored(self, key: Hashable, *, allowed: ArrayLike | None = None
                      ) -> list[PlaceMatch]:
@@ -662,14 +655,9 @@ class PlaceDatabase:
             raw = {s: d[at] for s, d in short.raw.items()}
             dist = self._stage_distances(q, todo, raw)
             scores = self._fuse(dist, short.prefilter[at])
-            names = self.config.stages
             for j, i in enumerate(todo.tolist()):
-                known[i] = PlaceMatch(
-                    key=self._keys.key(i), prefilter_distance=float(short.prefilter[at[j]]),
-                    prefilter_rank=0,
-                    distances={s: float(dist[t, j]) for t, s in enumerate(names)},
-                    score=float(scores[j]), headings=(), stamp=self._stamps[i],
-                    pose=self._poses[i])
+                known[i] = self._match(i, float(short.prefilter[at[j]]), 0, dist[:, j],
+                                       float(scores[j]), ())
         known = {i: known[i] for i in pick.tolist()}
         pool = [replace(known[i], prefilter_rank=j) for j, i in enumerate(pick.tolist())]
         matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
