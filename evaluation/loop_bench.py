@@ -45,14 +45,17 @@ Protocol
      over the whole database (stacked once, rows selected per query), no prefilter;
    * **final**: the database's candidates through the geometric check exactly as the
      global search runs it (`LoopClosureDetector.verify_places`), whatever their
-     scores: the best ``loops.global_verify`` distinct places in fused order, checked
-     with no prior until ``loops.max_loops`` are accepted, accepted ones that put the
+     scores: the places `LoopClosureDetector.places` picks (the best
+     ``loops.global_verify`` distinct places of the prefilter's K in fused order, then
+     the grids' extras), checked with no prior until ``loops.max_loops`` are accepted, accepted ones that put the
      query in places farther apart than ``loops.agree_distance`` rejected (the
      map's poses of the database keyframes, the front end's here, say where each
      place is; the query's own pose is never used).  The proposal is the accepted
      candidate whose checked relative pose is the shortest (of two verified places
      of one query the nearer overlaps more: the place the query is in), score = its
-     fused score (none accepted: no proposal).
+     fused score (none accepted: no proposal).  A check that finds the query nearer
+     another keyframe moves to it only among the database's keyframes (those with a
+     reference pose).
 
 4. **Truth and measures**: `evaluation.loop_bench_truth` (revisit within 2 m; a
    proposal is correct within 2 m, after the check also within 0.2 m / 2 degrees).
@@ -683,7 +686,7 @@ def _cascade_rows(
             out.time(r, t_pre + time.perf_counter() - t)
     t = time.perf_counter()
     checked = detector.verify_places(k, detector.places(matches, poses), poses,
-                                     mapper.query_submaps.get(k))
+                                     mapper.query_submaps.get(k), allowed=keys[sel])
     out.time("final", t_query + time.perf_counter() - t)
     accepted = [c for c in checked if c.accepted]
     # Of several accepted places, the one the check measures nearest (protocol step 3).

@@ -697,13 +697,32 @@ class LoopClosureDetector:
         return merge_views(per_view)
 
     def places(self, matches: Sequence[PlaceMatch], poses: ArrayLike) -> list[PlaceMatch]:
-        """The places the global search checks among `matches` (best first): the first
-        `global_verify` distinct ones, a match within `place_separation` of one taken
-        in the map (`poses` ``(n, 3)``, keyframes ``0..n-1``) being the same place."""
+        """The places the global search checks among `matches` (best fused score
+        first): the first `global_verify` distinct places among the prefilter's K best
+        of their view (``prefilter_rank < top_k``), then the grids' extras
+        (`PlaceDatabaseConfig.grid_extra`) that are places distinct from those; a
+        match within `place_separation` of one taken in the map (`poses` ``(n, 3)``,
+        keyframes ``0..n-1``) being the same place.
+
+        The extras come after the K's places, whatever their fused score: the fused
+        score (pairs and FLIRT) does not see the layout that made the grids choose an
+        extra, so a wrong extra can outscore the K's true place of a corridor
+        look-alike and take its slot; so ordered, the extras only add checks, made
+        when the K's places were not enough."""
         cfg = self.config
         xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
-        return distinct_places(matches, cfg.global_verify, xy, self._frames,
-                               cfg.place_separation)
+        views = [db.config.top_k for db in (self.database, self.wide_database) if db is not None]
+
+        def in_k(m: PlaceMatch) -> bool:
+            return m.prefilter_rank < views[min(m.view, len(views) - 1)]
+
+        taken = distinct_places([m for m in matches if in_k(m)], cfg.global_verify, xy,
+                                self._frames, cfg.place_separation)
+        extras = [m for m in matches if not in_k(m)]
+        if not extras:
+            return taken
+        return distinct_places([*taken, *extras], len(taken) + len(extras), xy,
+                               self._frames, cfg.place_separation)
 
     def appearance_matches(self, key: int) -> list[PlaceMatch]:
         """The place database's matches of `key` over its eligible keyframes, as
@@ -788,7 +807,7 @@ class LoopClosureDetector:
 
     def verify_places(
         self, key: int, matches: Sequence[PlaceMatch], poses: ArrayLike,
-        query_points: ArrayLike | None = None,
+        query_points: ArrayLike | None = None, allowed: ArrayLike | None = None,
     ) -> list[LoopCandidate]:
         """The geometric checks of several appearance candidates with no pose prior.
 
@@ -800,8 +819,10 @@ class LoopClosureDetector:
         `query_points` is the query's submap (``(N, 2)`` [m], its sensor frame;
         default ``submap(key)``).  Each check starts from the match's heading
         hypotheses and a centroid-aligned translation, as for a candidate outside the
-        pose gate.  For benchmarks that judge the appearance search alone (no search,
-        no counters).
+        pose gate.  `allowed` (keys; None: every eligible keyframe) bounds the
+        keyframes a check may move to when it finds the query nearer another one
+        (`_nearer_place`): a benchmark's keyframes with a reference pose.  For
+        benchmarks that judge the appearance search alone (no search, no counters).
         """
         self._check_key(key)
         for m in matches:
@@ -809,13 +830,15 @@ class LoopClosureDetector:
         pts = self._submap_points(key) if query_points is None else np.asarray(
             query_points, dtype=float).reshape(-1, 2)
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        return self._verify_free(key, list(matches), pts, poses, self.config.max_loops)
+        return self._verify_free(key, list(matches), pts, poses, self.config.max_loops,
+                                 allowed)
 
     def _verify_free(
         self, key: int, matches: list[PlaceMatch], query_points: Array, poses: Array | None,
-        budget: int,
+        budget: int, allowed: ArrayLike | None = None,
     ) -> list[LoopCandidate]:
-        """Checks with no prior of `matches`, in order, until `budget` are accepted;
+        """Checks with no prior of `matches`, in order, until `budget` are accepted
+        (`allowed`: as `verify_places`);
         then accepted candidates in one frame that put the query more than
         `agree_distance` apart (``poses[match] * relative``) are all rejected."""
         out: list[LoopCandidate] = []
@@ -825,7 +848,7 @@ class LoopClosureDetector:
             if not m.headings:  # a query made without them (`_appearance`)
                 db, asked = self.views(key)[m.view]
                 m = db.with_headings(db.descriptors(asked), [m])[0]
-            out.append(self._check_global(key, m, query_points, poses))
+            out.append(self._check_global(key, m, query_points, poses, allowed))
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
             return out
@@ -842,7 +865,8 @@ class LoopClosureDetector:
         return out
 
     def _check_global(
-        self, key: int, m: PlaceMatch, query_points: Array, poses: Array | None = None
+        self, key: int, m: PlaceMatch, query_points: Array, poses: Array | None = None,
+        allowed: ArrayLike | None = None,
     ) -> LoopCandidate:
         """The check of an appearance candidate from its heading hypotheses alone."""
         cfg = self.config
@@ -868,7 +892,8 @@ class LoopClosureDetector:
             max_distance=cfg.max_distance, config=cfg.check,
         )
         if result.reason.startswith(NOT_A_REVISIT) and poses is not None:
-            cand, result = self._nearer_place(key, cand, result, query_points, poses)
+            cand, result = self._nearer_place(key, cand, result, query_points, poses,
+                                              allowed)
         distance = (float("nan") if poses is None or self._frames[cand] != self._frames[key]
                     else self._distance(poses, cand, key))
         return LoopCandidate.checked(
@@ -877,7 +902,7 @@ class LoopClosureDetector:
 
     def _nearer_place(
         self, key: int, cand: int, result: LoopVerification, query_points: Array,
-        poses: Array,
+        poses: Array, allowed: ArrayLike | None = None,
     ) -> tuple[int, LoopVerification]:
         """A check that fits the query `result.relative` beyond `max_distance` of
         `cand` has found where the query is: the map's pose of `cand` composed with
@@ -886,13 +911,16 @@ class LoopClosureDetector:
         checked the same way as `cand`, with no prior, its heading hypothesis the
         heading that position implies in its frame (the same search and thresholds:
         a check from that pose as a prior would judge by the stricter fitness of
-        a pose-gated ICP); its result, if accepted, replaces `cand`'s."""
+        a pose-gated ICP); its result, if accepted, replaces `cand`'s.  `allowed`
+        (keys, None: all) bounds the keyframes it may move to."""
         cfg = self.config
         at = se2.compose(poses[cand], result.relative)
         eligible = self.eligible(key)
         ids = np.flatnonzero(eligible & np.asarray(self._described[: len(eligible)])
                              & (np.asarray(self._frames[: len(eligible)])
                                 == self._frames[cand]))
+        if allowed is not None:
+            ids = ids[np.isin(ids, np.asarray(allowed, dtype=np.int64))]
         if len(ids) == 0:
             return cand, result
         d = np.hypot(*(poses[ids, :2] - at[:2]).T)

@@ -265,6 +265,30 @@ def test_distinct_places_by_map_position_keep_a_neighbour_key_far_enough() -> No
     assert [m.key for m in distinct_places([match(k) for k in (0, 3, 7)], 2, xy)] == [0, 3]
 
 
+def test_places_check_the_grids_extras_after_the_prefilters_places() -> None:
+    """An extra of the grids (prefilter rank >= K) with a higher fused score than every
+    place of the K is checked after them, and only when it is a place of its own; the
+    K's distinct places are capped at `global_verify`, the extras come on top."""
+    det = _detector([float(k) for k in range(12)])
+    det.config = dataclasses.replace(det.config, global_verify=2)
+    k = det.database.config.top_k
+
+    def match(key: int, score: float, rank: int) -> PlaceMatch:
+        return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=rank,
+                          distances={}, score=score, headings=())
+
+    poses = np.zeros((12, 3))
+    poses[:, 0] = 3.0 * np.arange(12)  # every keyframe a place of its own
+    poses[9, 0] = poses[1, 0] + 0.3  # keyframe 9 is keyframe 1's place
+    matches = [match(8, 0.95, k), match(9, 0.9, k + 1), match(1, 0.6, 0),
+               match(2, 0.5, 1), match(3, 0.4, 2), match(7, 0.3, k + 2)]
+    got = [m.key for m in det.places(matches, poses)]
+    assert got == [1, 2, 8, 7]  # 3: beyond global_verify; 9: keyframe 1's place
+    only_k = [m for m in matches if m.prefilter_rank < k]
+    assert [m.key for m in det.places(only_k, poses)] == [1, 2]
+    assert det.places([], poses) == []
+
+
 def test_a_negative_place_separation_is_a_user_error() -> None:
     with pytest.raises(UserError, match="place_separation"):
         LoopClosureConfig(place_separation=-1.0)
