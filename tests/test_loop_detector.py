@@ -439,3 +439,9 @@ def test_a_check_that_fits_beyond_a_revisit_is_repeated_at_the_nearest_keyframe(
     (far,) = det.verify_places(11, [_match(2, 0.9)], poses + [[0.0, 5.0, 0.0]] * (
         np.arange(12)[:, None] != 2))
     assert not far.accepted and far.match == 2 and len(calls) == 1
+    # Keyframe 5 not allowed (a benchmark's keyframe without a reference pose): the
+    # nearest allowed one, keyframe 6 at 0.7 m from where the query is, is re-checked.
+    calls.clear()
+    (cand,) = det.verify_places(11, [_match(2, 0.9)], poses,
+                                allowed=[k for k in range(12) if k != 5])
+    assert cand.accepted and cand.match == 6 and len(calls) == 2
