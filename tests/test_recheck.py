@@ -188,3 +188,34 @@ def test_polish_solves_a_graph_of_tiny_errors_as_far_as_any_other() -> None:
                       tiny.gtsam_values(start))
     plain = optimize(graph, "none", init="odometry").poses
     assert aligned_position_error(poses_from_values(polished, 2), plain, 2) < 3e-8
+
+
+def test_calibrated_choice_starts_stiff_when_the_bent_candidate_is_a_fixed_point(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from slam import recheck
+    from slam.consistency import refine_tls, tls_cost
+
+    # Six false loops across the loosely stated square that agree on one wrong place
+    # (pose b moved by T): the odometry absorbs them, and at the variance factor their
+    # bending shows, rejecting them costs more than keeping them (a fixed point).
+    graph, truth = _square_graph(noise=0.02, laps=2)
+    loose = with_information_scaled(graph, 0.01)
+    n = len(loose.loops)
+    wrong = np.array([1.0, 0.5, 0.2])
+    for q in range(6):
+        a, b = 1 + q, 9 + q
+        loose.add_loop(a, b, se2.between(truth[a], se2.compose(wrong, truth[b])),
+                       loose.loops[0].information)
+    start = loose.gtsam_values(optimize(loose, "none", init="odometry").poses)
+    candidates = []
+    for w in (np.ones(len(loose.loops)), np.r_[np.ones(n), np.zeros(6)]):
+        values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else list(
+            range(n, n + 6)))
+        candidates.append((values, weights, tls_cost(loose, values)))
+    assert candidates[0][1].all() and not candidates[1][1][n:].any()
+    assert candidates[0][2] < candidates[1][2]
+    assert calibrated_choice(loose, candidates) == 1
+    # From the stated winner (no confidence bound to start from) the bent one stays.
+    monkeypatch.setattr(recheck.Calibrated, "upper_bound", lambda self, p=0.99: np.inf)
+    assert calibrated_choice(loose, candidates) == 0
