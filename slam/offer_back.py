@@ -29,6 +29,14 @@ graph's information; `slam.consistency`); loops are admitted greedily, smallest
 with the admitted loops and the rounds repeat until one admits nothing (at most
 `ROUNDS`).
 
+B's factors are its segments' own estimates, ``s_k = r_k^T W_k r_k / red_k``, not shrunk
+toward the pooled factor (`slam.segment_variance`'s prior, here of `OWN_PRIOR_DOF`
+degrees of freedom; segments without redundancy take A's factor anyway): once the
+noisy stretch's loops are admitted, B's pooled factor is the noisy stretch's, and the
+default prior of 3 degrees of freedom would pull a quiet segment's factor up by an
+order of magnitude (hand-made laps, odometry 30 times noisier on one stretch than on the
+others: 0.0015 to 0.024), enough to let a false loop there pass in the next round.
+
 Cost: per round, B's segment factors (a few sparse LUs with 64-column solves), one
 calibrated solve and one sparse solve per offered loop; nothing when A and B agree.
 """
@@ -50,6 +58,7 @@ from slam.segment_variance import PRIOR_DOF, SEGMENT, SegmentFactors, segment_fa
 Array = NDArray[np.float64]
 ROUNDS = 5  # at most this many rounds of offers, each with B's factors re-estimated
 MIN_REDUNDANCY = PRIOR_DOF  # a segment's own redundancy that outweighs the pooled prior
+OWN_PRIOR_DOF = 1e-6  # B's factors: its own evidence, not shrunk toward its pooled factor
 
 
 def mixed_factors(own: SegmentFactors, other: SegmentFactors,
@@ -100,7 +109,7 @@ def offer_back(
         offered = offered[w[offered] < 0.5]
         if not len(offered):
             break
-        own = segment_factors(graph, current, w, length=length)
+        own = segment_factors(graph, current, w, length=length, prior_dof=OWN_PRIOR_DOF)
         accepted = _segment_calibrated(graph, mixed_factors(own, other, min_redundancy),
                                        unit, w)
         current = solve(accepted, current)
