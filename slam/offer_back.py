@@ -12,9 +12,10 @@ stretch's loops look inconsistent.  A, calibrated on its own loops, kept them.
 `offer_back` therefore offers the loops A kept and B left out back to B, each judged
 against B's graph under odometry calibrated per segment of consecutive poses
 (`slam.segment_variance`): a segment's factor is B's own where B's loops give that
-segment redundancy (at least `MIN_REDUNDANCY`), and A's elsewhere, where B has no
-evidence of its own.  A loop of the noisy stretch is judged against that stretch's
-(A's, large) factor; a false loop that A kept by bending a stretch B's loops cover is
+segment any redundancy (at least `MIN_REDUNDANCY`; a stretch no loop spans has none, as
+its odometry rows are fully determined), and A's elsewhere, where B has no evidence of
+its own.  A loop of the noisy stretch is judged against that stretch's (A's, large)
+factor; a false loop that A kept by bending a stretch B's loops span is
 judged against B's stiff factor there.  With the calibrated graph solved (B's loops and
 the ones admitted so far) and linearised at its solution, every offered loop's
 innovation is, in gtsam error units::
@@ -29,16 +30,15 @@ graph's information; `slam.consistency`); loops are admitted greedily, smallest
 with the admitted loops and the rounds repeat until one admits nothing (at most
 `ROUNDS`).
 
-B's factors are its segments' own estimates, ``s_k = r_k^T W_k r_k / red_k``, not shrunk
-toward the pooled factor (`slam.segment_variance`'s prior, here of `OWN_PRIOR_DOF`
-degrees of freedom; segments without redundancy take A's factor anyway): once the
-noisy stretch's loops are admitted, B's pooled factor is the noisy stretch's, and the
-default prior of 3 degrees of freedom would pull a quiet segment's factor up by an
-order of magnitude (hand-made laps, odometry 30 times noisier on one stretch than on the
-others: 0.0015 to 0.024), enough to let a false loop there pass in the next round.
-
-Cost: per round, B's segment factors (a few sparse LUs with 64-column solves), one
-calibrated solve and one sparse solve per offered loop; nothing when A and B agree.
+B's factors are its segments' own estimates shrunk toward B's pooled factor *before any
+offer* (`shrunk`, the prior of `slam.segment_variance` with a fixed target): a segment
+that few of B's loops span then keeps about the pooled factor of B's loops, not a
+noisy estimate of its own, and once the noisy stretch's loops are admitted, the pooled
+factor, now the noisy stretch's, does not lift the quiet segments by an order of
+magnitude (as `slam.segment_variance`'s own prior would, enough to let a false loop
+there pass in the next round).  Why any redundancy rather than several dof: on a graph
+with few, long loops, false loops bend stretches that B's loops span only thinly, and
+A's factors there, inflated by that very bending, would admit them.
 """
 
 from __future__ import annotations
@@ -53,11 +53,17 @@ from slam.consistency import InnovationTest, greedy_admission, tls_threshold
 from slam.least_squares import StickySolver
 from slam.pose_graph import PoseGraph, pose_dof
 from slam.recheck import _quadratic, _segment_calibrated, calibrated_choices
-from slam.segment_variance import PRIOR_DOF, SEGMENT, SegmentFactors, segment_factors
+from slam.segment_variance import (
+    FLOOR,
+    PRIOR_DOF,
+    SEGMENT,
+    SegmentFactors,
+    segment_factors,
+)
 
 Array = NDArray[np.float64]
 ROUNDS = 5  # at most this many rounds of offers, each with B's factors re-estimated
-MIN_REDUNDANCY = PRIOR_DOF  # a segment's own redundancy that outweighs the pooled prior
+MIN_REDUNDANCY = 0.5  # dof: B's loops say something about the segment (0 without loops)
 OWN_PRIOR_DOF = 1e-6  # B's factors: its own evidence, not shrunk toward its pooled factor
 
 
@@ -70,6 +76,19 @@ def mixed_factors(own: SegmentFactors, other: SegmentFactors,
                           np.where(mine, own.raw, other.raw),
                           np.where(mine, own.redundancy, other.redundancy),
                           own.pooled, own.segment)
+
+
+def shrunk(factors: SegmentFactors, target: float, prior_dof: float = PRIOR_DOF
+           ) -> SegmentFactors:
+    """`factors` with every segment's factor shrunk toward `target` with a prior of
+    `prior_dof` degrees of freedom, ``(q_k + nu t) / (red_k + nu)`` (``q_k = raw_k red_k``,
+    the segment's ``r^T W r`` in stated units), clipped to ``[FLOOR, 1]`` as
+    `slam.segment_variance.segment_factors` does toward its own pooled factor."""
+    red = factors.redundancy
+    q = np.where(red > 0, np.where(red > 0, factors.raw, 0.0) * red, 0.0)
+    value = (q + prior_dof * target) / (red + prior_dof)
+    return SegmentFactors(np.clip(value, FLOOR, 1.0), factors.raw, factors.redundancy,
+                          target, factors.segment)
 
 
 def offer_back(
@@ -104,12 +123,14 @@ def offer_back(
     d, keys = pose_dof(graph.dim), graph.keys
     c = tls_threshold(graph.dim, probability)
     other = segment_factors(graph, other_values, other_weights, length=length)
-    current = values
+    current, pooled = values, None
     for _ in range(rounds):
         offered = offered[w[offered] < 0.5]
         if not len(offered):
             break
         own = segment_factors(graph, current, w, length=length, prior_dof=OWN_PRIOR_DOF)
+        pooled = own.pooled if pooled is None else pooled  # B's own, before any offer
+        own = shrunk(own, pooled)
         accepted = _segment_calibrated(graph, mixed_factors(own, other, min_redundancy),
                                        unit, w)
         current = solve(accepted, current)

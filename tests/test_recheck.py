@@ -264,7 +264,7 @@ def _offer_back_case():
 
 def test_offer_back_returns_the_noisy_stretch_loops_and_not_the_false_one() -> None:
     from slam.least_squares import StickySolver
-    from slam.offer_back import OWN_PRIOR_DOF, mixed_factors, offer_back
+    from slam.offer_back import OWN_PRIOR_DOF, mixed_factors, offer_back, shrunk
     from slam.recheck import _quadratic, _segment_calibrated
     from slam.segment_variance import segment_factors
 
@@ -273,6 +273,7 @@ def test_offer_back_returns_the_noisy_stretch_loops_and_not_the_false_one() -> N
     assert len(offered) == 30  # 29 true loops of poses 100-215 and the false one
     fa = segment_factors(graph, a_values, a)
     fb = segment_factors(graph, b_values, b, prior_dof=OWN_PRIOR_DOF)
+    fb = shrunk(fb, fb.pooled)
     # B's loops give no redundancy to poses 100-199: that segment takes A's factor, near
     # the actual 1 (0.1 m as stated); the quiet ones B's, near (0.003 / 0.1)^2 = 9e-4.
     assert fb.redundancy[1] < 1e-9 and fb.redundancy[[0, 2]].min() > 20
@@ -301,3 +302,16 @@ def test_offer_back_returns_the_noisy_stretch_loops_and_not_the_false_one() -> N
     weights = offer_back(graph, b_values, b, a_values, a)
     np.testing.assert_array_equal(weights[:-1], 1.0)
     assert weights[-1] == 0.0
+
+
+def test_shrunk_factors_match_the_hand_computed_prior() -> None:
+    from slam.offer_back import shrunk
+    from slam.segment_variance import SegmentFactors
+
+    # Segment 0: raw 0.01 from 7 dof, shrunk with 3 dof toward 0.002:
+    # (0.07 + 0.006) / 10 = 0.0076; segment 1 without redundancy: the target.
+    f = SegmentFactors(np.array([0.01, 0.5]), np.array([0.01, np.inf]), np.array([7.0, 0.0]),
+                       0.3, np.array([0, 1]))
+    out = shrunk(f, 0.002, 3.0)
+    np.testing.assert_allclose(out.factors, [0.0076, 0.002])
+    assert out.pooled == 0.002
