@@ -15,14 +15,16 @@ estimate of `slam.variance_components`, capped at 1, so odometry is never made l
 than stated); the odometry information is divided by ``s`` and the accepted graph
 solved.
 
-`calibrated_choice` (used by `slam.optimize` by default) picks among the candidate
+`calibrated_choice` (`calibrated_choices`' stiff start; `slam.optimize` uses both starts
+through `slam.offer_back`) picks among the candidate
 solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
 ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
 at the variance factor the winner's own loops support, found by starting from the
 candidate whose own factor is stiffest with confidence (smallest upper confidence bound)
 and moving to whichever candidate is cheapest there until the winner stays.  A stated
 winner whose false loops fold a loosely stated stretch then loses to a rung that
-rejected them.
+rejected them.  The winner from the stated winner is kept too: the loops it has and the
+stiff one lacks are offered back (`slam.offer_back`).
 
 `recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
 one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
