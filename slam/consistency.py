@@ -871,7 +871,7 @@ def incremental_tls(
     ladder: Sequence[float] = ODOMETRY_LADDER,
     tries: int = BAR_TRIES,
     prefix_solver: str = "auto",
-    choose: Callable[..., int] | None = None,
+    choose: Callable[..., int | tuple[int, Array | None]] | None = None,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -898,7 +898,9 @@ def incremental_tls(
     `choose`: picks the winner among the refined runs instead of the lowest stated cost,
     called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
     solver=..., unit=...)`` and returning an index, or -1 to keep the lowest stated cost
-    (`slam.recheck.calibrated_choice`).
+    (`slam.recheck.calibrated_choice`); or ``(index, weights)``, weights (or None) that
+    replace the chosen run's loop decisions (`slam.offer_back.choose_and_offer_back`),
+    the stated graph re-solved with them.
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -945,8 +947,15 @@ def incremental_tls(
     if choose is not None and len(finished) > 1:
         pick = choose(graph, [(a.values, a.weights, a.tls_cost) for a, _ in finished],
                       probability=probability, solver=solver, unit=unit)
+        pick, offered = pick if isinstance(pick, tuple) else (pick, None)
         if pick >= 0:
             best, decided = finished[pick]
+        if pick >= 0 and offered is not None:
+            kept = _with_loops(stated, offered)
+            refined = solver(kept, best.values)
+            best = Admission(refined, np.asarray(offered, dtype=float),
+                             tls_cost(graph, refined, probability, stated), best.blocks,
+                             f"{best.gate}-offered")
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
@@ -973,18 +982,24 @@ def polish(
     at ``1e-6``, or at gtsam's default absolute decrease of ``1e-5``, can end visibly
     short of the optimum (MITb with odometry information scaled by 0.01: decimetres).
     """
-    base, loop_index = factors
-    kept = gtsam.NonlinearFactorGraph()
-    for k in range(base.size() - len(loop_index)):
-        kept.add(base.at(k))
-    for k in np.flatnonzero(np.asarray(weights) > 0.5):
-        kept.add(base.at(loop_index[k]))
+    kept = _with_loops(factors, weights)
     params = gtsam.DoglegParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(POLISH_TOLERANCE)
     params.setAbsoluteErrorTol(0.0)
     params.setLinearSolverType("MULTIFRONTAL_QR")
     return gtsam.DoglegOptimizer(kept, values, params).optimize()
+
+
+def _with_loops(factors: StatedFactors, weights: Array) -> gtsam.NonlinearFactorGraph:
+    """The stated graph `factors` with only the loops of ``weights > 0.5``."""
+    base, loop_index = factors
+    kept = gtsam.NonlinearFactorGraph()
+    for k in range(base.size() - len(loop_index)):
+        kept.add(base.at(k))
+    for k in np.flatnonzero(np.asarray(weights) > 0.5):
+        kept.add(base.at(loop_index[k]))
+    return kept
 
 
 def _odometry_scaled(graph: PoseGraph, factor: float) -> PoseGraph:

@@ -42,6 +42,7 @@ from slam.consistency import (
     tls_threshold,
 )
 from slam.least_squares import StickySolver, conditioning, dogleg_qr, lm_params, solve
+from slam.offer_back import choose_and_offer_back
 from slam.pose_graph import (
     Constraint,
     PoseGraph,
@@ -53,7 +54,7 @@ from slam.pose_graph import (
     to_gtsam_pose,
     whitened_residual,
 )
-from slam.recheck import calibrated_choice, recheck_loops, segment_recheck
+from slam.recheck import recheck_loops, segment_recheck
 
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
@@ -196,7 +197,7 @@ def optimize(
             factor: list[float] = []  # the chosen candidate's odometry factor, if any
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
-                choose=partial(calibrated_choice, factor=factor) if calibrated else None,
+                choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
             )
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"

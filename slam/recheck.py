@@ -15,13 +15,16 @@ estimate of `slam.variance_components`, capped at 1, so odometry is never made l
 than stated); the odometry information is divided by ``s`` and the accepted graph
 solved.
 
-`calibrated_choice` (used by `slam.optimize` by default) picks among the candidate
+`calibrated_choice` (`calibrated_choices`' stiff start; `slam.optimize` uses both starts
+through `slam.offer_back`) picks among the candidate
 solutions of the time-ordered admission (`slam.consistency.incremental_tls`'s odometry
 ladder and gates) by their TLS cost under calibrated odometry instead of the stated one:
 at the variance factor the winner's own loops support, found by starting from the
-stated winner and moving to whichever candidate is cheapest there until the winner
-stays.  A stated winner whose false loops fold a loosely stated stretch then loses to a
-rung that rejected them.
+candidate whose own factor is stiffest with confidence (smallest upper confidence bound)
+and moving to whichever candidate is cheapest there until the winner stays.  A stated
+winner whose false loops fold a loosely stated stretch then loses to a rung that
+rejected them.  The winner from the stated winner is kept too: the loops it has and the
+stiff one lacks are offered back (`slam.offer_back`).
 
 `recheck_loops` (``optimize(..., recheck=True)``) then re-decides the chosen loops one by
 one.  At the calibrated solution ``x*`` (whitened Jacobian ``A``, information
@@ -288,26 +291,47 @@ def own_factor(
     raise AssertionError("unreachable")
 
 
-def calibrated_choice(
+@dataclass(slots=True)
+class Choices:
+    """The calibrated choice among admission candidates from its two starts
+    (`calibrated_choices`): indices into the candidates and the winners' own odometry
+    variance factors (`own_factor`)."""
+
+    stated: int  # from the candidate of lowest stated cost
+    stiff: int  # from the candidate of smallest upper confidence bound: the choice
+    stated_factor: float
+    stiff_factor: float
+
+
+def calibrated_choices(
     graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]], *,
     probability: float = 0.99, solver: StickySolver | None = None,
-    unit: Sequence[gtsam.NonlinearFactor] | None = None, factor: list[float] | None = None,
-) -> int:
-    """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
-    the cheapest under the odometry calibrated by its own loops.
+    unit: Sequence[gtsam.NonlinearFactor] | None = None,
+) -> Choices | None:
+    """The calibrated choice among candidate TLS solutions (values, loop weights, stated
+    TLS cost) from two starts; None when a calibrated solve fails (gtsam finds the
+    system indeterminate: odometry far stiffer than stated on a nearly noise-free graph).
 
-    Start from the candidate of lowest stated cost; with the odometry information divided
-    by its own variance factor ``s`` (`own_factor`), re-solve every candidate with its
-    loops and take the cheapest by the calibrated odometry's error plus ``min(e_k, c)``
-    over every loop; repeat with the winner's own factor until the winner is the
-    candidate whose factor it was judged at (or a winner recurs).  A candidate whose
-    false loops bend the odometry shows a larger ``s`` than the outlier-free one, and loses
-    to it at the stiffer ``s`` that one supports; a candidate that rejected many true loops
-    supports a small ``s`` from little redundancy, which is why the factor is never the
-    smallest of all candidates'.  Candidates with the same loops are judged once (ties keep
-    the first); -1 when a calibrated solve fails (gtsam finds the system indeterminate:
-    odometry far stiffer than stated on a nearly noise-free graph).  `factor`, when given,
-    receives the winner's own variance factor (a start for `recheck_loops`).
+    Every candidate's own variance factor ``s`` (`own_factor`) is estimated.  From a
+    start, with the odometry information divided by the current candidate's ``s``, every
+    candidate is re-solved with its loops and the cheapest by the calibrated odometry's
+    error plus ``min(e_k, c)`` over every loop wins; this repeats with the winner's own
+    factor until the winner is the candidate whose factor it was judged at (or a winner
+    recurs).  A candidate whose false loops bend the odometry shows a larger ``s`` than
+    the outlier-free one, and loses to it at the stiffer ``s`` that one supports.  Both
+    can be fixed points (at the bent candidate's ``s`` the stiff one's rejected loops
+    cost more than the bending saves), so the start matters:
+
+    - *stated*: the candidate of lowest stated cost (often the bent one);
+    - *stiff*: the candidate whose factor has the smallest upper confidence bound
+      (`Calibrated.upper_bound` at `probability`: ``s r / chi2_r^-1(1 - p)``, ``r`` the
+      odometry's redundancy, so a candidate that shows a small ``s`` by chance from
+      little redundancy is discounted; ties, and no finite bound: lowest stated cost).
+
+    The stiff start's winner is the choice; the stated start's keeps the loops a stiff
+    candidate may have left out on a stretch noisier than the rest (`slam.offer_back`).
+    Candidates with the same loops are judged once (ties keep the first); each judgement
+    (one calibrated solve per candidate) is shared by both starts.
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -316,43 +340,85 @@ def calibrated_choice(
     distinct: dict[bytes, int] = {}
     for n, (_, w, _) in enumerate(candidates):
         distinct.setdefault((np.asarray(w) > 0.5).tobytes(), n)
-    if len(distinct) == 1:
-        return 0
+    which = list(distinct.values())
+    if len(which) == 1:
+        return Choices(0, 0, 1.0, 1.0)
     try:
-        chosen, s = _self_consistent(graph, candidates, list(distinct.values()), c, solve, unit)
+        owns = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit,
+                              solver=solve, with_gains=False) for n in which}
+        bounds = {n: owns[n].upper_bound(probability) for n in which}
+        stated = min(which, key=lambda n: candidates[n][2])
+        stiff = min(which, key=lambda n: (bounds[n], candidates[n][2]))
+        if not np.isfinite(bounds[stiff]):
+            stiff = stated
+        step: dict[int, int] = {}  # candidate judged at -> winner there
+        judge = _Judge(graph, candidates, which, c, solve, unit, owns, step)
+        a, b = judge.fixed_point(stated), judge.fixed_point(stiff)
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return None
+    return Choices(a, b, owns[a].s, owns[b].s)
+
+
+def calibrated_choice(
+    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]], *,
+    probability: float = 0.99, solver: StickySolver | None = None,
+    unit: Sequence[gtsam.NonlinearFactor] | None = None, factor: list[float] | None = None,
+) -> int:
+    """Index of the candidate TLS solution (values, loop weights, stated TLS cost) that is
+    the cheapest under the odometry calibrated by its own loops: the stiff start's winner
+    of `calibrated_choices`; -1 when a calibrated solve fails.  `factor`, when given,
+    receives the winner's own variance factor (a start for `recheck_loops`)."""
+    choices = calibrated_choices(graph, candidates, probability=probability, solver=solver,
+                                 unit=unit)
+    if choices is None:
         return -1
     if factor is not None:
-        factor.append(s)
-    return chosen
+        factor.append(choices.stiff_factor)
+    return choices.stiff
 
 
-def _self_consistent(
-    graph: PoseGraph, candidates: Sequence[tuple[gtsam.Values, Array, float]],
-    which: list[int], c: float, solve: StickySolver, unit: Sequence[gtsam.NonlinearFactor],
-) -> tuple[int, float]:
-    """`calibrated_choice` among the candidates `which`, and the winner's own factor."""
-    priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
-    chosen = min(which, key=lambda n: candidates[n][2])
-    judged: set[int] = set()
-    start = 1.0
-    while chosen not in judged:
-        judged.add(chosen)
-        own = own_factor(graph, candidates[chosen][0], candidates[chosen][1], unit=unit,
-                         solver=solve, start=start, with_gains=False)
-        start = own.s
-        fixed, _ = _calibrated_fixed(graph, own.s, priors)
+@dataclass(slots=True)
+class _Judge:
+    """The iteration of `calibrated_choices` among the candidates `which`."""
+
+    graph: PoseGraph
+    candidates: Sequence[tuple[gtsam.Values, Array, float]]
+    which: list[int]
+    c: float
+    solve: StickySolver
+    unit: Sequence[gtsam.NonlinearFactor]
+    owns: dict[int, Calibrated]
+    step: dict[int, int]
+
+    def winner_at(self, chosen: int) -> int:
+        """The cheapest candidate with the odometry calibrated by `chosen`'s own factor."""
+        if chosen in self.step:
+            return self.step[chosen]
+        own = self.owns[chosen]
+        priors = [self.graph.prior_factor(k) for k in self.graph.anchor_keys()]
+        fixed, _ = _calibrated_fixed(self.graph, own.s, priors)
         best, best_cost = chosen, np.inf
-        for n in which:
-            w = np.asarray(candidates[n][1], dtype=float)
-            x = own.values if n == chosen else solve(_accepted(fixed, unit, w), candidates[n][0])
-            cost = fixed.error(x) + float(np.minimum([f.error(x) for f in unit], c).sum())
+        for n in self.which:
+            w = np.asarray(self.candidates[n][1], dtype=float)
+            x = own.values if n == chosen else self.solve(_accepted(fixed, self.unit, w),
+                                                          self.candidates[n][0])
+            cost = fixed.error(x) + float(np.minimum([f.error(x) for f in self.unit],
+                                                     self.c).sum())
             if cost < best_cost * (1.0 - 1e-9):
                 best, best_cost = n, cost
-        if best == chosen:
-            break
-        chosen = best
-    return chosen, start
+        self.step[chosen] = best
+        return best
+
+    def fixed_point(self, chosen: int) -> int:
+        """Judge at the winner's own factor from `chosen` until it stays (or recurs)."""
+        judged: set[int] = set()
+        while chosen not in judged:
+            judged.add(chosen)
+            best = self.winner_at(chosen)
+            if best == chosen:
+                break
+            chosen = best
+        return chosen
 
 
 def _accepted(

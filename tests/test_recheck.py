@@ -188,3 +188,130 @@ def test_polish_solves_a_graph_of_tiny_errors_as_far_as_any_other() -> None:
                       tiny.gtsam_values(start))
     plain = optimize(graph, "none", init="odometry").poses
     assert aligned_position_error(poses_from_values(polished, 2), plain, 2) < 3e-8
+
+
+def test_calibrated_choice_starts_stiff_when_the_bent_candidate_is_a_fixed_point(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from slam import recheck
+    from slam.consistency import refine_tls, tls_cost
+
+    # Six false loops across the loosely stated square that agree on one wrong place
+    # (pose b moved by T): the odometry absorbs them, and at the variance factor their
+    # bending shows, rejecting them costs more than keeping them (a fixed point).
+    graph, truth = _square_graph(noise=0.02, laps=2)
+    loose = with_information_scaled(graph, 0.01)
+    n = len(loose.loops)
+    wrong = np.array([1.0, 0.5, 0.2])
+    for q in range(6):
+        a, b = 1 + q, 9 + q
+        loose.add_loop(a, b, se2.between(truth[a], se2.compose(wrong, truth[b])),
+                       loose.loops[0].information)
+    start = loose.gtsam_values(optimize(loose, "none", init="odometry").poses)
+    candidates = []
+    for w in (np.ones(len(loose.loops)), np.r_[np.ones(n), np.zeros(6)]):
+        values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else list(
+            range(n, n + 6)))
+        candidates.append((values, weights, tls_cost(loose, values)))
+    assert candidates[0][1].all() and not candidates[1][1][n:].any()
+    assert candidates[0][2] < candidates[1][2]
+    assert calibrated_choice(loose, candidates) == 1
+    # From the stated winner (no confidence bound to start from) the bent one stays.
+    monkeypatch.setattr(recheck.Calibrated, "upper_bound", lambda self, p=0.99: np.inf)
+    assert calibrated_choice(loose, candidates) == 0
+
+
+def test_mixed_factors_take_the_own_factor_where_its_loops_give_redundancy() -> None:
+    from slam.offer_back import mixed_factors
+    from slam.segment_variance import SegmentFactors
+
+    segment = np.array([0, 0, 1, 2])
+    own = SegmentFactors(np.array([0.01, 0.02, 0.03]), np.array([0.01, np.inf, 0.03]),
+                         np.array([10.0, 0.0, 3.0]), 0.02, segment)
+    other = SegmentFactors(np.array([0.5, 0.6, 0.7]), np.array([0.5, 0.6, 0.7]),
+                           np.array([20.0, 30.0, 40.0]), 0.6, segment)
+    mixed = mixed_factors(own, other, min_redundancy=3.0)
+    np.testing.assert_array_equal(mixed.factors, [0.01, 0.6, 0.03])
+    np.testing.assert_array_equal(mixed.redundancy, [10.0, 30.0, 3.0])
+    np.testing.assert_array_equal(mixed.per_odometry(), [0.01, 0.01, 0.6, 0.03])
+
+
+def _offer_back_case():
+    """The laps with odometry noise 0.1 m on poses 100-199 and 0.003 m elsewhere, all
+    stated as 0.1 m, a loop every fourth pose, and a false loop 210 -> 221 (5.25 cm,
+    3.5 cm, 0.007 rad off); A keeps every loop, B none whose later pose is in 100-215
+    and not the false one.  Returns the graph, A's and B's weights and stated
+    solutions."""
+    from slam.pose_graph import PoseGraph
+    from tests.test_segment_variance import _laps
+
+    graph, truth = _laps(noisy=0.1, stated=0.1, every=4)
+    wrong = se2.compose(se2.between(truth[210], truth[221]), np.array([0.0525, 0.035, 0.007]))
+    graph.add_loop(210, 221, wrong, graph.loops[0].information)
+    later = np.array([max(lp.i, lp.j) for lp in graph.loops])
+    a = np.ones(len(graph.loops))
+    b = ((later < 100) | (later >= 216)).astype(float)
+    b[-1] = 0.0
+
+    def solved(w):
+        sub = PoseGraph(graph.dim, dict(graph.initial), list(graph.odometry),
+                        [lp for lp, x in zip(graph.loops, w, strict=True) if x > 0.5],
+                        set(graph.fixed))
+        return graph.gtsam_values(optimize(sub, "none", init="odometry").poses)
+
+    return graph, a, solved(a), b, solved(b)
+
+
+def test_offer_back_returns_the_noisy_stretch_loops_and_not_the_false_one() -> None:
+    from slam.least_squares import StickySolver
+    from slam.offer_back import OWN_PRIOR_DOF, mixed_factors, offer_back, shrunk
+    from slam.recheck import _quadratic, _segment_calibrated
+    from slam.segment_variance import segment_factors
+
+    graph, a, a_values, b, b_values = _offer_back_case()
+    offered = np.flatnonzero((a > 0.5) & (b < 0.5))
+    assert len(offered) == 30  # 29 true loops of poses 100-215 and the false one
+    fa = segment_factors(graph, a_values, a)
+    fb = segment_factors(graph, b_values, b, prior_dof=OWN_PRIOR_DOF)
+    fb = shrunk(fb, fb.pooled)
+    # B's loops give no redundancy to poses 100-199: that segment takes A's factor, near
+    # the actual 1 (0.1 m as stated); the quiet ones B's, near (0.003 / 0.1)^2 = 9e-4.
+    assert fb.redundancy[1] < 1e-9 and fb.redundancy[[0, 2]].min() > 20
+    mixed = mixed_factors(fb, fa)
+    assert mixed.factors[1] == fa.factors[1] > 0.5
+    assert np.all(mixed.factors[[0, 2]] < 3e-3)
+    assert np.all(fa.factors[[0, 2]] > 0.01)  # A's, pulled up by the noisy stretch
+    # Each offered loop's innovation against B's graph (c = 0.5 chi2_3^-1(0.99) =
+    # 0.5 * 11.345, tables): under the mixed factors the true ones pass and the false one
+    # fails; under A's factors alone the false one would pass, under B's alone (the noisy
+    # stretch as stiff as the pooled quiet ones) no true one would.
+    c = tls_threshold(2)
+    assert c == pytest.approx(0.5 * 11.345, abs=1e-3)
+    unit = [graph.between_factor(lp) for lp in graph.loops]
+
+    def innovations(factors):
+        accepted = _segment_calibrated(graph, factors, unit, b)
+        test = InnovationTest(accepted, StickySolver()(accepted, b_values), graph.keys, 3)
+        return _quadratic(*test.blocks([unit[k] for k in offered]))
+
+    under_mixed, under_a, under_b = (innovations(f) for f in (mixed, fa, fb))
+    assert under_mixed[:-1].max() < c < under_mixed[-1]
+    assert under_a[-1] < c
+    assert under_b[:-1].min() > c
+    # offer_back: every true loop back, the false one not, B's own loops untouched.
+    weights = offer_back(graph, b_values, b, a_values, a)
+    np.testing.assert_array_equal(weights[:-1], 1.0)
+    assert weights[-1] == 0.0
+
+
+def test_shrunk_factors_match_the_hand_computed_prior() -> None:
+    from slam.offer_back import shrunk
+    from slam.segment_variance import SegmentFactors
+
+    # Segment 0: raw 0.01 from 7 dof, shrunk with 3 dof toward 0.002:
+    # (0.07 + 0.006) / 10 = 0.0076; segment 1 without redundancy: the target.
+    f = SegmentFactors(np.array([0.01, 0.5]), np.array([0.01, np.inf]), np.array([7.0, 0.0]),
+                       0.3, np.array([0, 1]))
+    out = shrunk(f, 0.002, 3.0)
+    np.testing.assert_allclose(out.factors, [0.0076, 0.002])
+    assert out.pooled == 0.002

@@ -1,0 +1,92 @@
+"""Benchmark: where the time of one robustness cell goes, stage by stage.
+
+Run from the repository root::
+
+    python benchmarks/robust_cell_time.py [--graph input_INTEL_g2o.g2o] [--scale 1]
+        [--policy random] [--ratio 0.5] [--seed 0] [--repeat 1]
+
+Builds the cell as `benchmarks/robustness.py` does (`evaluation.robustness`: the graph
+with its odometry information scaled, false loops injected by the policy), solves it
+with the default robust back end (``optimize(..., "gnc", gnc_start=GNC_START)``) under
+cProfile and prints the wall time and the cumulative seconds of each stage: the
+time-ordered admission passes, the calibrated choice (its own-factor estimates and
+judgements), the offer back, the bar search, the segment re-check, and every
+least-squares solve.  Stages nest (the bar search runs admission passes), so the
+seconds do not add up.  Under cProfile a run is slower than the sweep's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from data.g2o import read_g2o
+from evaluation.robustness import GNC_START, _prepared, inject_false_loops
+from slam.optimize import optimize
+from slam.pose_graph import PoseGraph
+
+STAGES = {
+    "admission passes": ("consistency.py", "advance"),
+    "calibrated choice": ("recheck.py", "calibrated_choices"),
+    "  own factors": ("recheck.py", "own_factor"),
+    "  judgements": ("recheck.py", "winner_at"),
+    "offer back": ("offer_back.py", "offer_back"),
+    "bar search": ("consistency.py", "bar_search"),
+    "refine_tls": ("consistency.py", "refine_tls"),
+    "segment re-check": ("recheck.py", "segment_recheck"),
+    "least-squares solves": ("least_squares.py", "__call__"),
+    "polish": ("consistency.py", "polish"),
+}
+
+
+def stage_seconds(stats: pstats.Stats) -> dict[str, tuple[int, float]]:
+    """(calls, cumulative seconds) of every stage of `STAGES` in `stats`."""
+    out = {}
+    for name, (file, func) in STAGES.items():
+        calls, cum = 0, 0.0
+        for (path, _, f), (_, nc, _, ct, _) in stats.stats.items():  # type: ignore[attr-defined]
+            if path.endswith(file) and f == func:
+                calls, cum = calls + nc, cum + ct
+        out[name] = (calls, cum)
+    return out
+
+
+def main() -> None:
+    root = Path(__file__).resolve().parents[1]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=root.parent / "shared" / "data" / "g2o")
+    parser.add_argument("--graph", default="input_INTEL_g2o.g2o")
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--policy", default="random")
+    parser.add_argument("--ratio", type=float, default=0.5)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--repeat", type=int, default=1)
+    args = parser.parse_args()
+    graph = PoseGraph.from_g2o(read_g2o(args.data / args.graph))
+    graph, reference = _prepared(graph, ["gnc"], [args.policy], args.scale, None)
+    corrupted, _ = inject_false_loops(graph, args.ratio, np.random.default_rng(args.seed),
+                                      args.policy, group_size=10, reference=reference)
+    for _ in range(args.repeat):
+        start = time.perf_counter()
+        solution = optimize(corrupted, "none", "gnc", init="odometry", gnc_start=GNC_START)
+        plain = time.perf_counter() - start
+        profile = cProfile.Profile()
+        profile.enable()
+        optimize(corrupted, "none", "gnc", init="odometry", gnc_start=GNC_START)
+        profile.disable()
+        print(f"{args.graph} x{args.scale:g} {args.policy} {100 * args.ratio:.0f}% seed "
+              f"{args.seed}: {plain:.2f} s ({solution.solver})")
+        for name, (calls, seconds) in stage_seconds(pstats.Stats(profile)).items():
+            print(f"  {name:22s} {calls:5d} calls {seconds:7.2f} s (profiled)")
+
+
+if __name__ == "__main__":
+    main()
