@@ -11,7 +11,9 @@ syntax of ``loopclosure run --set``).  The scans are read once, before any timin
 For each log and variant the script prints wall-clock seconds and the CPU seconds of
 the mapper's process, seconds per stage (odometry, keyframes, loop detection, iSAM2
 updates, final GNC; the stages a worker process ran overlap the others), loop
-counts, peak memory of the process [MB], and the error:
+counts (with the candidates from a prior rejected without ICP: ``screened`` by the
+coarse screen, ``bounded`` by the overlap bound), peak memory of the process [MB],
+and the error:
 
 - ``intel`` (``carmen/intel.clf.bz2``, the first `--limit` scans, all with
   ``--limit 0``): the relations metric (Kümmerle et al. 2009) of the per-scan
@@ -137,6 +139,12 @@ def run_variant(scans: list, overrides: list[str], relations: list | None,
         e.candidate.source == "appearance" for e in result.accepted_loops
     )
     row["gnc_rejected"] = sum(e.rejected_by_gnc for e in result.loops)
+    # Candidates from a prior rejected without ICP: by the coarse screen at the prior,
+    # and by the overlap bound (`loopclosure.geometric_check`).
+    row["screened"] = sum(e.candidate.reason.startswith("no overlap at the prior")
+                          for e in result.loops)
+    row["bounded"] = sum(e.candidate.reason.startswith("no fit within reach")
+                         for e in result.loops)
     stamps = result.scan_stamps
     if reference is not None:
         estimate = trajectory_at_stamps(evaluation_stamps(stamps)[0], result.scan_poses)

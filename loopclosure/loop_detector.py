@@ -55,7 +55,11 @@ and calls, for every keyframe:
    - **pose** (pose-gated, not in ``appearance`` mode): older keyframes whose
      estimated position lies within the gate ``local_radius + local_sigmas * sigma``
      of the query (sigma: the largest standard deviation of the query's position
-     from `covariance`), nearest first, at most `local_max`.
+     from `covariance`), nearest first, at most `local_max`.  While sigma exceeds
+     `prior_max_sigma` the gate is empty: the pose search proposes nothing and every
+     candidate is outside the gate (a gate that wide covers much of the map, and a
+     prior that loose makes each check a wide search: the check with no prior is
+     cheaper and no weaker).
 
    A candidate inside the pose gate is checked from the predicted relative pose (the
    prior); one outside it (a revisit the odometry cannot explain: large drift, a
@@ -171,6 +175,11 @@ class LoopClosureConfig:
             or ``pose`` (the pose-gated search alone).
         local_radius: base radius of the pose gate [m].
         local_sigmas: the gate grows by this many position standard deviations.
+        prior_max_sigma: while the query's position standard deviation exceeds this
+            [m], its pose estimate is no prior: the pose search proposes nothing and
+            every appearance candidate is checked as one outside the gate (a gate of
+            ``local_radius + local_sigmas * sigma`` would then cover much of the map,
+            and each check from such a loose prior is a wide multi-start search).
         local_max: candidates proposed per query by the pose search.
         global_every: ask the place database every this many keyframes (1: at every
             keyframe; 0: never, as ``search = pose``).
@@ -221,6 +230,7 @@ class LoopClosureConfig:
     search: str = "both"
     local_radius: float = 1.5
     local_sigmas: float = 3.0
+    prior_max_sigma: float = 1.5
     local_max: int = 2
     global_every: int = 1
     min_score: float = 0.5
@@ -259,6 +269,9 @@ class LoopClosureConfig:
             raise UserError(f"loops.wide_keyframes must be >= 0, got {self.wide_keyframes}")
         if self.wide_every < 1:
             raise UserError(f"loops.wide_every must be >= 1, got {self.wide_every}")
+        if not self.prior_max_sigma > 0:
+            raise UserError(
+                f"loops.prior_max_sigma must be > 0 m, got {self.prior_max_sigma}")
 
 
 
@@ -640,10 +653,14 @@ class LoopClosureDetector:
     def _gate(self, covariance: ArrayLike | None) -> tuple[Array | None, float, float]:
         """``(covariance, sigma, gate)``: the query's covariance as an array (or None),
         the largest standard deviation of its position [m] and the pose gate's radius
-        ``local_radius + local_sigmas * sigma`` [m]."""
+        ``local_radius + local_sigmas * sigma`` [m], or ``-inf`` (no keyframe is
+        inside) when ``sigma > prior_max_sigma``: the pose estimate is then no prior."""
+        cfg = self.config
         cov = None if covariance is None else np.asarray(covariance, dtype=float)
         sigma = 0.0 if cov is None else float(np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2]))))
-        return cov, sigma, self.config.local_radius + self.config.local_sigmas * sigma
+        if sigma > cfg.prior_max_sigma:
+            return cov, sigma, -np.inf
+        return cov, sigma, cfg.local_radius + cfg.local_sigmas * sigma
 
     def _supported(self, key: int, match: int) -> bool:
         """The appearance searches of the `sequence_keyframes` keyframes before `key`

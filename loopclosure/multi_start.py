@@ -19,6 +19,7 @@ the best `keep` refined.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,6 +33,9 @@ from loopclosure.registration import (
     as_points,
     register,
 )
+
+if TYPE_CHECKING:
+    from loopclosure.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
 
@@ -126,6 +130,7 @@ def register_multi(
     keep: int | None = None,
     prescreen_tolerance: float = 0.2,
     compiled: bool = False,
+    grid: GridTarget | None = None,
 ) -> MultiResult:
     """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
 
@@ -135,7 +140,9 @@ def register_multi(
     `overlap_scores` (tolerance `prescreen_tolerance` [m]) and ICP runs from the
     best `keep` only (`MultiResult.results` and `guesses` then hold those).  One
     Python loop over the hypotheses that run ICP (not over points).  With `compiled`
-    each ICP is `loopclosure.fast_icp.register_target` (the same maths, numba).
+    each ICP is `loopclosure.fast_icp.register_target` (the same maths, numba), on
+    `grid` (a `loopclosure.fast_icp.GridTarget` of `target`) when the caller has made
+    it (e.g. for `loopclosure.fast_icp.overlap_bound`).
     """
     g = np.asarray(guesses, dtype=float).reshape(-1, 3)
     if len(g) == 0:
@@ -147,7 +154,7 @@ def register_multi(
     if compiled:
         from loopclosure import fast_icp  # numba loads on first use
 
-        results = fast_icp.register_target(src, target, g, config=config)
+        results = fast_icp.register_target(src, target, g, config=config, grid=grid)
     else:
         results = [register(src, target, guess, config=config) for guess in g]
     best = results[0]

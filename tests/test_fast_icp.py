@@ -17,6 +17,7 @@ from loopclosure.fast_icp import (
     KIND_CLUTTER,
     KIND_LINE,
     GridTarget,
+    overlap_bound,
     register_fast,
     register_target,
     voxel_downsample_fast,
@@ -266,3 +267,19 @@ def test_anchor_band_ignores_the_other_face_of_a_thin_wall() -> None:
     assert np.abs(wide.anchors[on_a, 1]).max() > 0.01
     with pytest.raises(UserError, match="band"):
         GridTarget(pts, anchor="mean", anchor_band=0.0)
+
+
+def test_overlap_bound_counts_points_within_reach_of_the_map_at_each_guess() -> None:
+    # A wall along y = 0 (x in [0, 10], every 0.1 m); four query points.
+    grid = GridTarget(np.column_stack([np.linspace(0, 10, 101), np.zeros(101)]), cell=0.5)
+    src = np.array([[1.0, 0.3], [2.0, 0.3], [3.0, 1.5], [4.0, 5.0]])
+    guesses = np.array([[0.0, 0.0, 0.0],     # (1, .3), (2, .3) within 0.5: 2 of 4
+                        [0.0, -1.8, 0.0],    # (3, -.3) only: 1 of 4
+                        [0.0, 0.0, np.pi],   # (-1, -.3), ...: 1.04 m from (0, 0) and farther
+                        [20.0, 0.0, 0.0]])   # off the map
+    np.testing.assert_allclose(overlap_bound(src, grid, guesses, 0.5), [0.5, 0.25, 0.0, 0.0])
+    # A reach of 2 m also counts (3, 1.5) at the first guess, (-1, -.3) at the third.
+    np.testing.assert_allclose(overlap_bound(src, grid, guesses[:3], 2.0)[[0, 2]],
+                               [0.75, 0.25])
+    assert overlap_bound(np.zeros((0, 2)), grid, guesses, 0.5).tolist() == [0.0] * 4
+

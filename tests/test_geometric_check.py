@@ -76,7 +76,7 @@ def test_a_prior_where_the_submaps_do_not_overlap_runs_no_icp() -> None:
     assert screened.reason.startswith("no overlap at the prior (0.000 <")
     # Off, ICP runs from every guess (and fails: nothing within its gate).
     off = verify(query, target, prior=np.zeros(3), prior_covariance=cov,
-                 config=GeometricCheckConfig(min_prior_overlap=0.0))
+                 config=GeometricCheckConfig(min_prior_overlap=0.0, bound_reach=0.0))
     assert not off.accepted and off.hypotheses > 0
     # A true revisit 0.3 m off the prior scores far above the screen and is accepted.
     b = np.array([1.6, 0.8, 0.4])
@@ -106,9 +106,35 @@ def test_the_screen_skips_only_fits_that_could_not_pass() -> None:
     screened = verify(query, target, prior=np.zeros(3), prior_covariance=cov)
     assert screened.hypotheses == 0 and screened.reason.startswith("no overlap at the prior")
     full = verify(query, target, prior=np.zeros(3), prior_covariance=cov,
-                  config=GeometricCheckConfig(min_prior_overlap=0.0))
+                  config=GeometricCheckConfig(min_prior_overlap=0.0, bound_reach=0.0))
     assert full.hypotheses > 0 and not full.accepted
     assert full.fitness < cfg.min_fitness_gated
+
+
+def test_the_overlap_bound_skips_a_fit_below_the_inlier_threshold() -> None:
+    """A quarter of the query's points (after its 0.1 m voxels) lie on the candidate's
+    walls at the prior, the rest 30 m away: the screen (0.25 > 0.15) lets it through,
+    the overlap bound
+    (0.25 < max(0.3, 0.35)) rejects it without ICP, and ICP (bound off) rejects it
+    too.  A true revisit gets the same verdict and pose with the bound on and off."""
+    a = np.array([1.0, 1.0, 0.0])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    shared = _seen_from(ROOM, a)
+    query = np.vstack([shared[::15], shared + np.array([30.0, 0.0])])  # 0.3 and 0.1 m voxels
+    cov = np.diag([0.1, 0.1, 0.02]) ** 2
+    bounded = verify(query, target, prior=np.zeros(3), prior_covariance=cov)
+    assert bounded.hypotheses == 0, bounded.reason
+    assert bounded.reason.startswith("no fit within reach (overlap bound 0.2")
+    full = verify(query, target, prior=np.zeros(3), prior_covariance=cov,
+                  config=GeometricCheckConfig(bound_reach=0.0))
+    assert full.hypotheses > 0 and not full.accepted
+    b = np.array([1.6, 0.8, 0.4])
+    prior = se2.compose(se2.between(a, b), np.array([0.3, -0.2, 0.05]))
+    on = verify(_seen_from(ROOM, b), target, prior=prior, prior_covariance=cov * 4)
+    off = verify(_seen_from(ROOM, b), target, prior=prior, prior_covariance=cov * 4,
+                 config=GeometricCheckConfig(bound_reach=0.0))
+    assert on.accepted and off.accepted
+    np.testing.assert_array_equal(on.relative, off.relative)
 
 
 def test_rejects_a_corridor_as_degenerate() -> None:

@@ -201,6 +201,45 @@ def test_a_revisit_the_odometry_cannot_explain_is_found_by_appearance_alone(revi
     assert not [c for cs in unsupported.values() for c in cs if c.match <= 30 < c.query]
 
 
+def test_the_gate_grows_with_sigma_up_to_prior_max_sigma_then_is_empty() -> None:
+    det = LoopClosureDetector(LoopClosureConfig(local_radius=1.5, local_sigmas=3.0,
+                                                prior_max_sigma=1.5))
+    # sigma is the largest standard deviation of the position: sqrt(max eig) of x, y.
+    _, sigma, gate = det._gate(np.diag([1.0, 0.25, 0.01]))
+    assert sigma == pytest.approx(1.0) and gate == pytest.approx(1.5 + 3.0 * 1.0)
+    _, sigma, gate = det._gate(np.diag([0.25, 2.25, 0.01]))  # sigma 1.5: still a prior
+    assert sigma == pytest.approx(1.5) and gate == pytest.approx(6.0)
+    _, sigma, gate = det._gate(np.diag([4.0, 1.0, 0.01]))  # sigma 2 > 1.5: no prior
+    assert sigma == pytest.approx(2.0) and gate == -np.inf
+    assert det._gate(None)[2] == pytest.approx(1.5)
+    with pytest.raises(UserError, match=r"loops\.prior_max_sigma"):
+        LoopClosureConfig(prior_max_sigma=0.0)
+
+
+def _detect_with_covariance(kfs, submap, poses, config, covariance):
+    det = LoopClosureDetector(config, submap=submap)
+    found = []
+    for key, scan in enumerate(kfs):
+        det.add_keyframe(key, scan.stamp, scan)
+        found += det.detect(key, poses[: key + 1], covariance)
+    return found
+
+
+def test_a_loose_pose_estimate_is_no_prior(revisit):
+    """A position standard deviation above `prior_max_sigma`: the pose search proposes
+    nothing, and the appearance candidates are checked as outside the gate."""
+    kfs, poses, submap = revisit
+    loose = np.diag([4.0, 4.0, 0.01])  # sigma 2 m
+    pose_only = LoopClosureConfig(search="pose")
+    assert _detect_with_covariance(kfs, submap, poses, pose_only, loose) == []
+    wide = dataclasses.replace(pose_only, prior_max_sigma=1e9)  # the old rule: a 7.5 m gate
+    gated = _detect_with_covariance(kfs, submap, poses, wide, loose)
+    assert gated and all(c.prior for c in gated)
+    both = _detect_with_covariance(kfs, submap, poses, LoopClosureConfig(free_every=1), loose)
+    assert both and all(c.source == "appearance" and not c.prior for c in both)
+    assert any(c.accepted for c in both)
+
+
 def test_search_values_and_small_databases(keyframes) -> None:
     with pytest.raises(UserError, match=r"loops\.search"):
         LoopClosureConfig(search="global")

@@ -82,6 +82,7 @@ Motion distortion (the robot moving during one sweep) is ignored: at Intel's spe
 
 from __future__ import annotations
 
+import statistics
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -323,7 +324,7 @@ class Icp2dOdometry:
         self._describe(res, extra)
         if jump and self._good(res) and self._recent_fitness:
             # A jump needs a match as good as the recent ones, not just a passable one.
-            usual = float(np.median(np.asarray(self._recent_fitness)))
+            usual = float(statistics.median(self._recent_fitness))
             if res.fitness < cfg.jump_fitness_ratio * usual:
                 extra["rejected_fitness"] = res.fitness
                 return self._kidnap(scan, pred, u, points, extra, t0)
@@ -367,7 +368,11 @@ class Icp2dOdometry:
             u = se2.between(self._odom, odom)
             step, turn = float(np.hypot(u[0], u[1])), float(abs(u[2]))
             if self._recent_steps:
-                med_step, med_turn = np.median(np.asarray(self._recent_steps), axis=0)
+                # A few dozen numbers: plain Python (np.median's per-call overhead is
+                # tens of microseconds, paid at every scan); the same mean of the two
+                # middle values for an even count.
+                med_step = statistics.median(s for s, _ in self._recent_steps)
+                med_turn = statistics.median(t for _, t in self._recent_steps)
             else:
                 med_step = med_turn = 0.0
             jump = bool(step > max(cfg.max_step, cfg.jump_ratio * med_step)
