@@ -49,8 +49,9 @@ Protocol
      ``loops.global_verify`` distinct places of the prefilter's K in fused order, then
      the grids' extras), checked with no prior until ``loops.max_loops`` are accepted,
      accepted ones that put the query in places farther apart than
-     ``loops.agree_distance`` rejected (the map's poses of the database keyframes, the front end's here, say where each
-     place is; the query's own pose is never used).  The proposal is the accepted
+     ``loops.agree_distance`` rejected (the map's poses of the database keyframes,
+     the front end's here, say where each place is; the query's own pose is never
+     used).  The proposal is the accepted
      candidate whose checked relative pose is the shortest (of two verified places
      of one query the nearer overlaps more: the place the query is in), score = its
      fused score (none accepted: no proposal).  A check that finds the query nearer
