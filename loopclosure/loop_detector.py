@@ -728,10 +728,11 @@ class LoopClosureDetector:
         when the K's places were not enough."""
         cfg = self.config
         xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
-        views = [db.config.top_k for db in (self.database, self.wide_database) if db is not None]
+        top_k = [db.config.top_k for db in (self.database, self.wide_database)
+                 if db is not None]  # per view
 
         def in_k(m: PlaceMatch) -> bool:
-            return m.prefilter_rank < views[min(m.view, len(views) - 1)]
+            return m.prefilter_rank < top_k[min(m.view, len(top_k) - 1)]
 
         taken = distinct_places([m for m in matches if in_k(m)], cfg.global_verify, xy,
                                 self._frames, cfg.place_separation)
