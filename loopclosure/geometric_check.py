@@ -253,6 +253,16 @@ def _floored(cov: Array, floor: tuple[float, float, float]) -> Array:
     return floored + np.diag(sig**2)
 
 
+def _rejected_early(reason: str, relative: Array, cfg: GeometricCheckConfig
+                    ) -> LoopVerification:
+    """The verdict of a check rejected before any ICP ran: `relative` (the starting
+    pose) with the failed variance as its covariance, every figure 0."""
+    return LoopVerification(
+        accepted=False, reason=reason, relative=relative,
+        covariance=_floored(FAILED_VARIANCE * np.eye(3), cfg.covariance_floor),
+        fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0, hypotheses=0)
+
+
 def required_margin(fitness: float, cfg: GeometricCheckConfig) -> float:
     """The fitness margin a best fit of `fitness` needs over a runner-up at another
     pose: ``min(min_fitness_margin, min_relative_margin * fitness)``."""
@@ -367,13 +377,9 @@ def verify(
         gate = cfg.icp.max_correspondence_distance
         overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
         if overlap < cfg.min_prior_overlap:
-            return LoopVerification(
-                accepted=False,
-                reason=f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})",
-                relative=base, covariance=_floored(FAILED_VARIANCE * np.eye(3),
-                                                   cfg.covariance_floor),
-                fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0,
-                hypotheses=0)
+            return _rejected_early(
+                f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})", base,
+                cfg)
     gated = prior is not None and prior_covariance is not None
     min_fitness = cfg.min_fitness_gated if gated else cfg.min_fitness
     min_inliers = cfg.min_inlier_ratio_gated if gated else cfg.min_inlier_ratio
@@ -387,13 +393,8 @@ def verify(
                           .max(initial=0.0))
             needed = max(min_fitness, min_inliers)
             if bound < needed:
-                return LoopVerification(
-                    accepted=False,
-                    reason=f"no fit within reach (overlap bound {bound:.3f} < {needed})",
-                    relative=base, covariance=_floored(FAILED_VARIANCE * np.eye(3),
-                                                       cfg.covariance_floor),
-                    fitness=0.0, inlier_ratio=0.0, rms=0.0, degeneracy=0.0, margin=0.0,
-                    hypotheses=0)
+                return _rejected_early(
+                    f"no fit within reach (overlap bound {bound:.3f} < {needed})", base, cfg)
     multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep,
                            compiled=cfg.compiled_icp, grid=grid)
     best: IcpResult = multi.best
