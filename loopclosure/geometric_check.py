@@ -82,7 +82,12 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   best fit needs a margin of only `min_relative_margin` times its own fitness (the
   runner-up fits at most half as well, by default): outdoors, or where two passes
   see a place from different sides, the overlap fraction of true revisits is often
-  0.05-0.2, and a margin in absolute fitness units would reject every such fit;
+  0.05-0.2, and a margin in absolute fitness units would reject every such fit.
+  Without a prior (the correlative check) a runner-up counts only when it is a
+  plausible answer (`implausible_runner_up`): one that fails the free-space bar on
+  its own, with a conflict share above the best's by more than the bar's allowance
+  ``1 - min_consistency``, is not (a corridor turned round fits nearly as well, but
+  its openings then face walls the other pass saw, and its walls lie in free space);
 - a loop closure is a revisit: when the caller gives `max_distance` (the loop
   detector's `LoopClosureConfig.max_distance`), a relative pose longer than that
   is rejected, "not a revisit (D m apart)": the two keyframes see overlapping but
@@ -101,6 +106,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
+from loopclosure.free_space import Consistency
 from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
 from loopclosure.prior_free import PriorFreeConfig, match_prior_free
 from loopclosure.registration import (
@@ -164,6 +170,8 @@ class GeometricCheckConfig:
             with 8-10% of its points in the other's free space; true revisits of real
             logs nearly all stay under 8% (people, doors).  Each query checks several
             places, so the bar sits above the look-alikes'.
+        plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
+            that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
         covariance_floor: standard deviations (x [m], y [m], theta [deg]) below which
             the loop constraint's covariance never goes.
@@ -195,6 +203,7 @@ class GeometricCheckConfig:
     method: str = "correlative"
     min_fitness_partial: float = 0.05
     min_consistency: float = 0.92
+    plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
     icp: IcpConfig = field(
@@ -277,6 +286,16 @@ def _different(a: Array, b: Array, cfg: GeometricCheckConfig) -> bool:
     )
 
 
+def implausible_runner_up(runner_up: Consistency, best: Consistency,
+                          cfg: GeometricCheckConfig) -> bool:
+    """A runner-up the free space rules out as the other answer of an ambiguity: it
+    fails the consistency bar on its own, and its conflict share exceeds the best's by
+    more than clutter (people, doors) may cause, the bar's own allowance
+    ``1 - min_consistency``."""
+    return (runner_up.consistency < cfg.min_consistency
+            and best.consistency - runner_up.consistency >= 1.0 - cfg.min_consistency)
+
+
 def _verify_correlative(
     query_points: ArrayLike,
     candidate: RegistrationTarget,
@@ -296,7 +315,9 @@ def _verify_correlative(
             hypotheses=0, consistency=0.0, conflict_ratio=0.0)
     best = multi.results[0]
     free = multi.consistency[0]
-    others = [r.fitness for r in multi.results[1:] if r.ok and _different(r.pose, best.pose, cfg)]
+    others = [r.fitness for r, c in zip(multi.results[1:], multi.consistency[1:], strict=True)
+              if r.ok and _different(r.pose, best.pose, cfg)
+              and not (cfg.plausible_runner_up and implausible_runner_up(c, free, cfg))]
     margin = best.fitness - (max(others) if others else 0.0)
     reason = "accepted"
     partial = best.fitness < cfg.min_fitness or best.inlier_ratio < cfg.min_inlier_ratio

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from data import se2
-from loopclosure.geometric_check import GeometricCheckConfig, required_margin, verify
+from loopclosure.free_space import Consistency
+from loopclosure.geometric_check import (
+    GeometricCheckConfig,
+    implausible_runner_up,
+    required_margin,
+    verify,
+)
 from loopclosure.registration import RegistrationTarget
 
 
@@ -235,3 +241,22 @@ def test_required_margin_is_absolute_for_good_fits_and_relative_for_weak_ones(
     # min(0.1, 0.5 * fitness): a runner-up must fit at most half as well as a weak best.
     cfg = GeometricCheckConfig(min_fitness_margin=0.1, min_relative_margin=0.5)
     assert required_margin(fitness, cfg) == pytest.approx(expected)
+
+
+@pytest.mark.parametrize(
+    ("runner_up", "best", "expected"),
+    [(0.86, 0.97, True),     # fails the bar, 0.11 more conflict than the best: ruled out
+     (0.85, 0.925, False),   # fails the bar, but only 0.075 more: clutter may explain it
+     (0.93, 0.99, False),    # passes the bar on its own: a plausible other answer
+     (0.83, 0.92, True)],    # 0.09 apart, the best at the bar itself
+)
+def test_a_runner_up_is_implausible_when_free_space_rules_it_out(
+    runner_up: float, best: float, expected: bool
+) -> None:
+    # Bar 0.92: the allowance for clutter is 1 - 0.92 = 0.08 of conflict share.
+    cfg = GeometricCheckConfig(min_consistency=0.92)
+
+    def c(v: float) -> Consistency:
+        return Consistency(consistency=v, conflict_ratio=1 - v, hits=100, conflicts=0)
+
+    assert implausible_runner_up(c(runner_up), c(best), cfg) is expected
