@@ -14,6 +14,7 @@ keyframe, so after optimisation each scan gets a pose (see
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -91,6 +92,7 @@ class KeyframeSelector:
         last = self.keyframes[-1] if self.keyframes else None
         new = None
         if usable and (last is None or self._due(last, estimate)):
+            scan = _share_angles(scan, last)
             new = Keyframe(
                 id=len(self.keyframes),
                 stamp=float(scan.stamp),
@@ -135,6 +137,17 @@ class KeyframeSelector:
         if abs(np.degrees(moved[2])) >= cfg.rotation_deg:
             return True
         return cfg.max_interval > 0 and abs(estimate.stamp - last.stamp) >= cfg.max_interval
+
+
+def _share_angles(scan: Scan, last: Keyframe | None) -> Scan:
+    """`scan`, with the bearings array of the `last` keyframe's scan when they are equal
+    (a laser's bearings rarely change: one array for all keyframes, not a copy each)."""
+    if last is None or last.scan.angles is scan.angles:
+        return scan
+    if last.scan.angles.shape == scan.angles.shape and np.array_equal(last.scan.angles,
+                                                                     scan.angles):
+        return dataclasses.replace(scan, angles=last.scan.angles)
+    return scan
 
 
 class GrowingRows:

@@ -536,6 +536,17 @@ class Mapper:
         start = self.config.backend.final_start
         return "given" if start == "incremental" and not has_odometry_spine(graph) else start
 
+    def _release_incremental_solver(self) -> None:
+        """Before the final batch GNC, which re-solves the whole graph from the poses
+        estimated so far: iSAM2's factorisation (its Bayes tree and linearisation
+        points, tens of MB on thousands of keyframes) is not needed any more, so a
+        fresh smoother holding the same `PoseGraph` replaces it and it is freed, not
+        resident under the GNC's own transients."""
+        fresh = self._new_smoother()
+        fresh.graph = self.smoother.graph
+        self.smoother = fresh
+        release_free_memory()
+
     def finish(self, interrupted: bool = False) -> MappingResult:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
@@ -547,6 +558,7 @@ class Mapper:
         poses = {k: self._estimate[k] if k < known else graph.initial[k] for k in graph.initial}
         rejected: set[int] = set()
         if graph.loops and self.config.backend.final_gnc and not interrupted:
+            self._release_incremental_solver()
             result = optimize(
                 graph, method="gnc", initial=poses,
                 gnc_probability=self.config.backend.gnc_probability,
