@@ -12,7 +12,10 @@ For each log and variant the script prints wall-clock seconds and the CPU second
 the mapper's process, seconds per stage (odometry, keyframes, loop detection, iSAM2
 updates, final GNC; the stages a worker process ran overlap the others), loop
 counts (with the candidates from a prior rejected without ICP: ``screened`` by the
-coarse screen, ``bounded`` by the overlap bound), peak memory of the process [MB],
+coarse screen, ``bounded`` by the overlap bound), peak resident memory [MB] of the
+mapper's process during the variant (``peak_mb``; the scans read before it included)
+and of its front-end worker (``worker_peak_mb``, a forked child: the pages it shares
+with the mapper are counted in both),
 and the error:
 
 - ``intel`` (``carmen/intel.clf.bz2``, the first `--limit` scans, all with
@@ -32,7 +35,8 @@ and the error:
   for the refined scans with ``--refine``.
 
 Then, per log, the ratio of each variant's times to the first variant's.  The peak
-memory is the process's peak so far: it only grows from one variant to the next.
+is reset before each variant (Linux ``/proc/self/clear_refs``; elsewhere it is the
+process's peak so far, which only grows from one variant to the next).
 
 Without ``--variant`` it compares the three loop searches (``loops.search`` =
 ``pose``, the default ``both``, ``appearance``).
@@ -60,7 +64,7 @@ from evaluation.slam_reference import logged_reference, trajectory_at_stamps
 from evaluation.trajectory_error import trajectory_errors
 from slam.config import PipelineConfig
 from slam.config_io import apply_overrides
-from slam.memory import peak_rss_mb
+from slam.memory import peak_rss_mb, release_free_memory
 from slam.pipeline import Mapper
 from slam.refine_scans import refine_scan_poses
 
@@ -75,6 +79,26 @@ DEFAULT_VARIANTS = (
     "defaults:",
     "appearance:loops.search=appearance",
 )
+
+
+def reset_peak_rss() -> bool:
+    """Reset this process's peak resident memory (Linux ``clear_refs``); False where
+    that cannot be done."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def variant_peak_rss_mb(reset: bool) -> float:
+    """Peak resident memory [MB] since `reset_peak_rss` (VmHWM), else of the process."""
+    if reset:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return peak_rss_mb()
 
 
 def scan_points(scan) -> np.ndarray:
@@ -123,12 +147,15 @@ def run_variant(scans: list, overrides: list[str], relations: list | None,
     the relations error (with `relations`) or the ATE against `reference` (and, when
     it is the exact `truth` of every scan, the consecutive-scan errors)."""
     cfg = apply_overrides(PipelineConfig(), overrides)
+    release_free_memory()
+    reset = reset_peak_rss()
     start = time.perf_counter()
     cpu = time.process_time()
     result = Mapper(cfg).run(scans)
     wall = time.perf_counter() - start
     row: dict[str, float] = {"wall_s": wall, "cpu_s": time.process_time() - cpu}
-    row["peak_mb"] = peak_rss_mb()
+    row["peak_mb"] = variant_peak_rss_mb(reset)
+    row["worker_peak_mb"] = result.worker_peak_rss_mb
     row.update({f"{k}_s": v for k, v in result.timings.items()})
     row["keyframes"] = len(result.keyframes)
     row["candidates"] = len(result.loops)

@@ -14,10 +14,11 @@ keyframe, so after optimisation each scan gets a pose (see
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.types import Scan
@@ -74,10 +75,9 @@ class KeyframeSelector:
     def __init__(self, config: KeyframeConfig | None = None) -> None:
         self.config = config or KeyframeConfig()
         self.keyframes: list[Keyframe] = []
-        # Per scan, in source order: keyframe before it and the pose relative to it.
-        self.scan_stamps: list[float] = []
-        self.scan_keyframe: list[int] = []
-        self.scan_offset: list[Array] = []
+        # Per scan, in source order: stamp, keyframe before it and the pose relative to
+        # it, one row each (`GrowingRows`: no Python object per scan).
+        self._scans = GrowingRows(5)
         self._delta = np.zeros(3)
         self._cov = np.zeros((3, 3))
 
@@ -92,6 +92,7 @@ class KeyframeSelector:
         last = self.keyframes[-1] if self.keyframes else None
         new = None
         if usable and (last is None or self._due(last, estimate)):
+            scan = _share_angles(scan, last)
             new = Keyframe(
                 id=len(self.keyframes),
                 stamp=float(scan.stamp),
@@ -104,14 +105,29 @@ class KeyframeSelector:
             )
             self.keyframes.append(new)
             self._delta, self._cov = np.zeros(3), np.zeros((3, 3))
-        self.scan_stamps.append(float(scan.stamp))
         if self.keyframes:
-            self.scan_keyframe.append(self.keyframes[-1].id)
-            self.scan_offset.append(se2.between(self.keyframes[-1].odom_pose, estimate.pose))
+            kf_id = self.keyframes[-1].id
+            offset = se2.between(self.keyframes[-1].odom_pose, estimate.pose)
         else:  # scans before the first usable one hang off keyframe 0 once it exists
-            self.scan_keyframe.append(-1)
-            self.scan_offset.append(np.asarray(estimate.pose, dtype=float).copy())
+            kf_id, offset = -1, np.asarray(estimate.pose, dtype=float)
+        self._scans.append((float(scan.stamp), kf_id, offset[0], offset[1], offset[2]))
         return new
+
+    @property
+    def scan_stamps(self) -> Array:
+        """``(N,)`` stamp of every scan pushed so far [s], in source order (a view)."""
+        return self._scans.data[:, 0]
+
+    @property
+    def scan_keyframe(self) -> NDArray[np.int64]:
+        """``(N,)`` id of the keyframe before every scan (-1 before the first keyframe)."""
+        return self._scans.data[:, 1].astype(np.int64)
+
+    @property
+    def scan_offset(self) -> Array:
+        """``(N, 3)`` pose of every scan relative to `scan_keyframe` (before the first
+        keyframe: its odometry pose), ``(x, y, theta)`` [m, m, rad] (a view)."""
+        return self._scans.data[:, 2:]
 
     def _due(self, last: Keyframe, estimate: OdometryEstimate) -> bool:
         cfg = self.config
@@ -121,6 +137,44 @@ class KeyframeSelector:
         if abs(np.degrees(moved[2])) >= cfg.rotation_deg:
             return True
         return cfg.max_interval > 0 and abs(estimate.stamp - last.stamp) >= cfg.max_interval
+
+
+def _share_angles(scan: Scan, last: Keyframe | None) -> Scan:
+    """`scan`, with the bearings array of the `last` keyframe's scan when they are equal
+    (a laser's bearings rarely change: one array for all keyframes, not a copy each)."""
+    if last is None or last.scan.angles is scan.angles:
+        return scan
+    if last.scan.angles.shape == scan.angles.shape and np.array_equal(last.scan.angles,
+                                                                     scan.angles):
+        return dataclasses.replace(scan, angles=last.scan.angles)
+    return scan
+
+
+class GrowingRows:
+    """A float64 ``(N, D)`` array grown by amortised doubling: appending a row never
+    re-stacks the stored ones, and a row costs ``8 D`` bytes (a list of per-row arrays
+    costs about 120 bytes more per row)."""
+
+    def __init__(self, dim: int, capacity: int = 1024) -> None:
+        self._data = np.zeros((capacity, dim))
+        self._size = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def append(self, row: ArrayLike) -> None:
+        """Store one ``(D,)`` row."""
+        if self._size == len(self._data):
+            grown = np.zeros((2 * len(self._data), self._data.shape[1]))
+            grown[: self._size] = self._data[: self._size]
+            self._data = grown
+        self._data[self._size] = row
+        self._size += 1
+
+    @property
+    def data(self) -> Array:
+        """``(N, D)`` view of the stored rows."""
+        return self._data[: self._size]
 
 
 def scan_poses_from_keyframes(
@@ -138,8 +192,8 @@ def scan_poses_from_keyframes(
     n = len(selector.scan_stamps)
     if not kfs:
         return np.zeros((n, 3))
-    kf_of = np.array(selector.scan_keyframe)
-    offsets = np.array(selector.scan_offset).reshape(n, 3)
+    kf_of = selector.scan_keyframe
+    offsets = selector.scan_offset
     opt = np.array([keyframe_poses[k.id] for k in kfs])
     odom = np.array([k.odom_pose for k in kfs])
     out = np.zeros((n, 3))

@@ -57,7 +57,7 @@ from loopclosure.warm_up import warm_up
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.front_end_worker import BATCH, map_in_worker, worker_available
-from slam.keyframes import Keyframe, KeyframeSelector, scan_poses_from_keyframes
+from slam.keyframes import GrowingRows, Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
 from slam.optimize import IncrementalSmoother, optimize
@@ -157,7 +157,7 @@ class Mapper:
             trailing_map=self.trailing_map,
         )
         self.loops: list[LoopEvent] = []
-        self.odometry_poses: list[Array] = []
+        self._odometry_rows = GrowingRows(3)  # the front end's pose of every scan
         self._worker_stats: dict[str, float] = {}
         # With `refine_scans`: every scan's points (float32; `refine_scan_poses`
         # voxelises them) and the positions of the keyframes among them.
@@ -292,7 +292,7 @@ class Mapper:
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
-        self.odometry_poses.append(np.asarray(estimate.pose, dtype=float))
+        self._odometry_rows.append(estimate.pose)
         if isinstance(scan, PointCloud):
             scan = _planar_scan(scan)
         start = time.perf_counter()
@@ -363,6 +363,11 @@ class Mapper:
             self._update()
         if self._pending and not self._joined:
             self._try_join(kf)
+
+    @property
+    def odometry_poses(self) -> Array:
+        """``(N, 3)`` front-end pose of every scan so far (odometry frame; a view)."""
+        return self._odometry_rows.data
 
     def _keep_points(self, scan: Scan, is_keyframe: bool) -> None:
         self._scan_points.append(scan.points().astype(np.float32))
@@ -531,14 +536,29 @@ class Mapper:
         start = self.config.backend.final_start
         return "given" if start == "incremental" and not has_odometry_spine(graph) else start
 
+    def _release_incremental_solver(self) -> None:
+        """Before the final batch GNC, which re-solves the whole graph from the poses
+        estimated so far: iSAM2's factorisation (its Bayes tree and linearisation
+        points, tens of MB on thousands of keyframes) is not needed any more, so a
+        fresh smoother holding the same `PoseGraph` replaces it and it is freed, not
+        resident under the GNC's own transients."""
+        fresh = self._new_smoother()
+        fresh.graph = self.smoother.graph
+        self.smoother = fresh
+        release_free_memory()
+
     def finish(self, interrupted: bool = False) -> MappingResult:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
+        # The submaps are a cache (`submap` rebuilds one on demand): not resident under
+        # the final optimisation's transients.
+        self._submaps.clear()
         graph = self.smoother.graph
         known = len(self._estimate)  # a run stopped by Ctrl-C may hold a newer pose
         poses = {k: self._estimate[k] if k < known else graph.initial[k] for k in graph.initial}
         rejected: set[int] = set()
         if graph.loops and self.config.backend.final_gnc and not interrupted:
+            self._release_incremental_solver()
             result = optimize(
                 graph, method="gnc", initial=poses,
                 gnc_probability=self.config.backend.gnc_probability,
@@ -570,9 +590,9 @@ class Mapper:
             ).poses
             self.timings["refine_scans"] = time.perf_counter() - start
         result = MappingResult(
-            scan_stamps=np.asarray(self.keyframes.scan_stamps, dtype=float),
+            scan_stamps=self.keyframes.scan_stamps.copy(),
             scan_poses=scan_poses,
-            odometry_poses=np.asarray(self.odometry_poses).reshape(-1, 3),
+            odometry_poses=self.odometry_poses.copy(),
             keyframes=self.keyframes.keyframes,
             keyframe_poses=local,
             loops=self.loops,

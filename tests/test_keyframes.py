@@ -7,7 +7,12 @@ import pytest
 
 from data import se2
 from data.types import Scan
-from slam.keyframes import KeyframeConfig, KeyframeSelector, scan_poses_from_keyframes
+from slam.keyframes import (
+    GrowingRows,
+    KeyframeConfig,
+    KeyframeSelector,
+    scan_poses_from_keyframes,
+)
 from slam.odometry import OdometryEstimate
 
 ANGLES = np.linspace(-np.pi, np.pi, 90, endpoint=False)
@@ -88,3 +93,36 @@ def test_unchanged_keyframes_give_the_odometry_back() -> None:
     out = scan_poses_from_keyframes(sel, opt)
     np.testing.assert_allclose(out[:, :2], poses[:, :2], atol=1e-9)
     assert np.abs(se2.wrap_angle(out[:, 2] - poses[:, 2])).max() == pytest.approx(0, abs=1e-9)
+
+
+def test_growing_rows_keep_every_row_past_their_capacity() -> None:
+    rows = GrowingRows(3, capacity=2)
+    for i in range(5):
+        rows.append((i, 2 * i, -i))
+    assert len(rows) == 5
+    np.testing.assert_array_equal(rows.data, [[i, 2 * i, -i] for i in range(5)])
+
+
+def test_per_scan_rows_are_the_stamps_keyframes_and_offsets() -> None:
+    poses = np.column_stack([0.1 * np.arange(7), np.zeros(7), np.zeros(7)])
+    sel = _drive(poses, KeyframeConfig(distance=0.29, rotation_deg=90, max_interval=0))
+    np.testing.assert_array_equal(sel.scan_stamps, np.arange(7.0))
+    np.testing.assert_array_equal(sel.scan_keyframe, [0, 0, 0, 1, 1, 1, 2])
+    assert sel.scan_keyframe.dtype == np.int64
+    np.testing.assert_allclose(sel.scan_offset[:, 0], [0, 0.1, 0.2, 0, 0.1, 0.2, 0], atol=1e-12)
+
+
+def test_keyframes_share_equal_bearings_and_keep_different_ones() -> None:
+    sel = KeyframeSelector(KeyframeConfig(distance=0.05, rotation_deg=90, max_interval=0))
+    prev = np.zeros(3)
+    for i in range(3):
+        pose = np.array([0.1 * i, 0.0, 0.0])
+        scan = Scan(float(i), np.full(90, 3.0), ANGLES.copy(), 10.0, 0.0, None, i)
+        sel.push(scan, _estimate(float(i), i, pose, prev))
+        prev = pose
+    other = Scan(3.0, np.full(90, 3.0), ANGLES + 0.01, 10.0, 0.0, None, 3)
+    sel.push(other, _estimate(3.0, 3, np.array([0.3, 0.0, 0.0]), prev))
+    kfs = sel.keyframes
+    assert len(kfs) == 4
+    assert kfs[1].scan.angles is kfs[0].scan.angles and kfs[2].scan.angles is kfs[0].scan.angles
+    assert kfs[3].scan.angles is other.angles
