@@ -82,7 +82,11 @@ pass, which re-eliminate only what the new factors touch, until iSAM2's undamped
 updates stop converging (admitted false loops folded the prefix); the pass then
 goes on with batch solves (LM, dogleg-QR where LM fails), whose damping copes
 (`admit_incrementally`'s ``prefix_solver``; ``benchmarks/tls_speed.py`` measures
-the passes against an earlier revision).
+the passes against an earlier revision).  Passes that share their first blocks share
+their work: the calibrated pass is the stated one on the same graph until the first
+block in which the calibrated gate admits less, and a `bar_search` trial is the pass it
+improves on until the block that decides its barred loop; each resumes a snapshot of
+the other (`AdmissionPass.resumed`; the same computation, bit for bit).
 
 Requirements: the smallest pose id is an anchor and every later pose is reached by
 odometry from an earlier one (the odometry spine of a mapper or a g2o file);
@@ -91,6 +95,7 @@ odometry from an earlier one (the odometry spine of a mapper or a g2o file);
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
@@ -123,6 +128,7 @@ LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySo
 RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
 POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the error
+SNAPSHOTS = 12  # at most this many snapshots of a recorded `AdmissionPass` (memory: iSAM2 copies)
 
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
@@ -274,14 +280,18 @@ def admission_costs(gains: _Gains) -> Array:
     return 0.5 * np.einsum("ma,ma->m", gains.b, np.linalg.solve(s, gains.b[..., None])[..., 0])
 
 
-def greedy_admission(gains: _Gains, gate: float) -> tuple[list[int], Array]:
+def greedy_admission(
+    gains: _Gains, gate: float, costs: list[float] | None = None
+) -> tuple[list[int], Array]:
     """Admit candidates smallest ``delta`` first while ``delta < gate``.
 
     After each admission the remaining candidates' ``b``, ``M`` and ``Y`` are updated
     for the admitted factor (rank-``dof`` Woodbury update of ``H^-1`` and the
     Gauss-Newton step it causes), so every later ``delta`` is conditioned on the
     admissions before it.  Returns the admitted indices in order and the final
-    ``delta`` of every candidate.  `gains` is consumed.
+    ``delta`` of every candidate.  `gains` is consumed.  `costs`, when given, receives
+    each admitted candidate's ``delta`` at its admission (a lower gate would have
+    stopped at the first of them it does not exceed).
     """
     m = len(gains.b)
     open_ = np.ones(m, dtype=bool)
@@ -294,6 +304,8 @@ def greedy_admission(gains: _Gains, gate: float) -> tuple[list[int], Array]:
         if not delta[k] < gate:
             break
         admitted.append(k)
+        if costs is not None:
+            costs.append(float(delta[k]))
         open_[k] = False
         gain = np.linalg.inv(eye + gains.M[k])
         c = gains.cross(gains.Y[k])  # B_q H^-1 B_k^T
@@ -446,6 +458,20 @@ class _IsamPrefix:
         params.setFactorization(self.factorization)
         return gtsam.ISAM2(params)
 
+    def copy(self) -> _IsamPrefix:
+        """An independent copy (gtsam's ISAM2 copy constructor copies the Bayes tree: the
+        copy and the original updated alike give the same estimates, bit for bit)."""
+        other = _IsamPrefix.__new__(_IsamPrefix)
+        other.factorization = self.factorization
+        other._isam = gtsam.ISAM2(self._isam)
+        other._all = gtsam.NonlinearFactorGraph(self._all)
+        other._estimate = gtsam.Values(self._estimate)
+        other._factors = gtsam.NonlinearFactorGraph(self._factors)
+        other._values = gtsam.Values(self._values)
+        other.max_updates = self.max_updates
+        other.converged = self.converged
+        return other
+
     def add(self, factor: gtsam.NonlinearFactor) -> None:
         self._factors.add(factor)
 
@@ -533,6 +559,21 @@ def admit_incrementally(
     return run.result()
 
 
+@dataclass(slots=True)
+class _Snapshot:
+    """The state of an `AdmissionPass` before block `step` (index into its block ends),
+    taken while its prefix had not folded; never mutated (`AdmissionPass.resumed` copies
+    it)."""
+
+    step: int
+    last: int
+    blocks: int
+    current: gtsam.Values
+    weights: Array
+    fixed: gtsam.NonlinearFactorGraph
+    isam: _IsamPrefix | None
+
+
 class AdmissionPass:
     """The state of one `admit_incrementally` pass, which can stop after a fold.
 
@@ -543,6 +584,13 @@ class AdmissionPass:
     equals one that never stopped.  `incremental_tls` uses this to finish a folded pass
     only when its decided prefix is still cheaper than the best finished pass's
     (`prefix_cost`).  Arguments as `admit_incrementally`.
+
+    `record`: keep `SNAPSHOTS` snapshots of the state before evenly spaced blocks (while
+    the prefix has not folded), from which `resumed` starts a pass that differs from
+    this one only from a given block on: one more barred loop (`bar_search`: every block
+    before the barred loop's is decided as here) or the calibrated gate (`calibrated_step`:
+    a stated pass tracks the first block in which the calibrated gate would have admitted
+    less).  A resumed pass computes what a new pass would, bit for bit.
     """
 
     def __init__(
@@ -550,6 +598,7 @@ class AdmissionPass:
         block: int = 50, gate: str = "stated", max_rounds: int = 50,
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
+        record: bool = False,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
@@ -579,6 +628,10 @@ class AdmissionPass:
         self._step = 0
         self.folded = False  # the iSAM2 prefix stopped converging (batch solves from then on)
         self._released = False  # the iSAM2 prefix dropped by `release_prefix` (not folded)
+        self.snapshots: list[_Snapshot] | None = [] if record else None
+        self._stride = max(1, -(-len(self._ends) // SNAPSHOTS))
+        # A stated pass: the first block in which the calibrated gate would admit less.
+        self.calibrated_step: int | None = None
 
     @property
     def done(self) -> bool:
@@ -597,11 +650,52 @@ class AdmissionPass:
         `blocks` more blocks."""
         n = 0
         while not self.done and (blocks is None or n < blocks):
+            if (self.snapshots is not None and not self.folded
+                    and self._step % self._stride == 0
+                    and (not self.snapshots or self.snapshots[-1].step < self._step)):
+                self.snapshots.append(self._snapshot())
             self._add_block(self._ends[self._step])
             self._step += 1
             n += 1
             if until_fold and self.folded:
                 return
+
+    def _snapshot(self) -> _Snapshot:
+        return _Snapshot(self._step, self.last, self.blocks, gtsam.Values(self.current),
+                         self.weights.copy(), gtsam.NonlinearFactorGraph(self._fixed),
+                         None if self._isam is None else self._isam.copy())
+
+    def block_of(self, loop: int) -> int:
+        """Index of the block in which `loop` (index into `graph.loops`) is decided."""
+        return int(np.searchsorted(self._ends, self.loop_end[loop]))
+
+    def resumed(
+        self, step: int, *, barred: Sequence[int] | None = None, gate: str | None = None
+    ) -> AdmissionPass:
+        """A new pass with `barred` (default this pass's) and `gate` (default this pass's),
+        from this pass's latest snapshot before block `step` or earlier: right when the new
+        pass decides every block before `step` as this one did.  It keeps the snapshots it
+        shares with this pass and records its own."""
+        if self.snapshots is None:
+            raise ValueError("resumed() needs a pass made with record=True")
+        earlier = [snap for snap in self.snapshots if snap.step <= step]
+        run = copy.copy(self)  # the graph, factors and positions are shared, never mutated
+        run.barred = self.barred if barred is None else barred
+        run.gate = self.gate if gate is None else gate
+        run.folded, run._released, run.calibrated_step = False, False, None
+        run.snapshots = earlier
+        if not earlier:  # before the first block: a new pass
+            run.last, run.blocks, run._step = -1, 0, 0
+            run.current, run.weights = gtsam.Values(), np.zeros(len(self.graph.loops))
+            run._fixed = gtsam.NonlinearFactorGraph()
+            run._isam = _IsamPrefix() if self.prefix_solver == "isam2" else None
+            return run
+        snap = earlier[-1]
+        run.last, run.blocks, run._step = snap.last, snap.blocks, snap.step
+        run.current, run.weights = gtsam.Values(snap.current), snap.weights.copy()
+        run._fixed = gtsam.NonlinearFactorGraph(snap.fixed)
+        run._isam = None if snap.isam is None else snap.isam.copy()
+        return run
 
     def _add_block(self, end: int) -> None:
         graph, keys, unit, c = self.graph, self.keys, self.unit, self._c
@@ -652,7 +746,13 @@ class AdmissionPass:
                 test = InnovationTest(factors, current, prefix, self._d)
             except RuntimeError:  # singular information: no innovation test possible
                 break
-            admitted, _ = greedy_admission(test.gains([unit[pending[q]] for q in rest]), limit)
+            costs: list[float] = []
+            admitted, _ = greedy_admission(test.gains([unit[pending[q]] for q in rest]), limit,
+                                           costs)
+            if self.gate == "stated" and self.calibrated_step is None and admitted:
+                s0 = _variance_factor(factors, current, len(prefix), self._d)
+                if s0 is not None and max(costs) >= c * min(1.0, s0):
+                    self.calibrated_step = self._step
             if not admitted:
                 break
             accepted[rest[admitted]] = True
@@ -787,6 +887,7 @@ def bar_search(
     unit: list[gtsam.NonlinearFactor] | None = None,
     factors: StatedFactors | None = None,
     gate: str = "stated",
+    source: AdmissionPass | None = None,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -802,7 +903,10 @@ def bar_search(
     first trial that does not, or after `tries` (one extra admission run when there is
     nothing to fix).  A trial whose prefix folds (`AdmissionPass`) and whose decided
     part already costs more than `best` on the same part has failed, and stops there.
-    `factors`: as in `tls_cost`.
+    `factors`: as in `tls_cost`.  `source`: the pass (made with ``record=True``) that
+    gave `best`, on `decide` with `gate`: a trial resumes it from before the block that
+    decides its barred loop (`AdmissionPass.resumed`), as is the next trial from a kept
+    one, instead of deciding every block again.
     """
     solve = solver or StickySolver()
     factors = factors or graph.factor_graph(RobustKernel("none"))
@@ -819,9 +923,12 @@ def bar_search(
         k = accepted[0]
         done.add(k)
         trial = [*barred, k]
-        run = AdmissionPass(decide, values, probability=probability, block=block, gate=gate,
-                            solver=solve, barred=trial, prefix_solver=prefix_solver,
-                            unit=unit)
+        if source is not None and source.snapshots is not None:
+            run = source.resumed(source.block_of(k), barred=trial)
+        else:
+            run = AdmissionPass(decide, values, probability=probability, block=block,
+                                gate=gate, solver=solve, barred=trial,
+                                prefix_solver=prefix_solver, unit=unit)
         if not _finish_unless_behind(run, best, factors, probability):
             break
         refined, weights = refine_tls(graph, run.current, run.weights,
@@ -830,7 +937,7 @@ def bar_search(
         cost = tls_cost(graph, refined, probability, factors)
         if not cost < best.tls_cost * (1.0 - 1e-9):
             break
-        barred = trial
+        barred, source = trial, run
         best = Admission(refined, weights, cost, run.blocks, f"{_gate_of(best)}-barred")
     return best
 
@@ -920,15 +1027,24 @@ def incremental_tls(
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
         for gate in GATES if factor == 1.0 else GATES[:1]:
             label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
-            run = AdmissionPass(decide, values, probability=probability, block=block,
-                                gate=gate, solver=solver, prefix_solver=prefix_solver,
-                                unit=unit)
+            if gate == "calibrated" and runs and runs[-1][1] is decide:
+                # The same as the stated pass on this graph up to the first block in which
+                # the calibrated gate admits less (`AdmissionPass.calibrated_step`).
+                stated_run = runs[-1][2]
+                step = stated_run.calibrated_step
+                run = stated_run.resumed(stated_run._step if step is None else step,
+                                         gate=gate)
+            else:
+                run = AdmissionPass(decide, values, probability=probability, block=block,
+                                    gate=gate, solver=solver, prefix_solver=prefix_solver,
+                                    unit=unit, record=tries > 0 or gate == "stated")
             run.advance(until_fold=True)
             if run.done:
                 run.release_prefix()
             runs.append((label, decide, run))
     # Finished runs first, then the folded ones in ladder order, each only if still ahead.
-    finished: list[tuple[Admission, PoseGraph]] = []
+    finished: list[tuple[Admission, PoseGraph, AdmissionPass]] = []
+    source: AdmissionPass | None = None
     for label, decide, run in sorted(runs, key=lambda r: not r[2].done):
         finishes = _finish_unless_behind(run, best, stated, probability)
         run.release_prefix()  # decided: the pass is never advanced again
@@ -939,17 +1055,16 @@ def incremental_tls(
             solved=decide is graph, factors=stated,
         )
         cost = tls_cost(graph, refined, probability, stated)
-        finished.append((Admission(refined, weights, cost, run.blocks, label), decide))
+        finished.append((Admission(refined, weights, cost, run.blocks, label), decide, run))
         if best is None or cost < best.tls_cost * (1.0 - 1e-9):
-            best = finished[-1][0]
-            decided = decide
+            best, decided, source = finished[-1]
     assert best is not None and decided is not None
     if choose is not None and len(finished) > 1:
-        pick = choose(graph, [(a.values, a.weights, a.tls_cost) for a, _ in finished],
+        pick = choose(graph, [(a.values, a.weights, a.tls_cost) for a, _, _ in finished],
                       probability=probability, solver=solver, unit=unit)
         pick, offered = pick if isinstance(pick, tuple) else (pick, None)
         if pick >= 0:
-            best, decided = finished[pick]
+            best, decided, source = finished[pick]
         if pick >= 0 and offered is not None:
             kept = _with_loops(stated, offered)
             refined = solver(kept, best.values)
@@ -959,7 +1074,7 @@ def incremental_tls(
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
-                          factors=stated, gate=_gate_of(best))
+                          factors=stated, gate=_gate_of(best), source=source)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

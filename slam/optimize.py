@@ -280,7 +280,9 @@ def _segment_rechecked(
     groups: bool = True,
 ) -> tuple[gtsam.Values, Array, str]:
     """`slam.recheck.segment_recheck` on a TLS solution (`groups`: with its group test);
-    when it removes loops, they are barred, the rest re-decided on the stated graph by
+    when it removes loops or offers rejected ones back (`slam.recheck.group_recheck`'s
+    readmitted loops, weight 1 from here on), the removed ones are barred, the rest
+    re-decided on the stated graph by
     `slam.consistency.refine_tls` and the result polished (`slam.consistency.polish`), as
     is the odometry chain with the same loops; the solution of lower stated error is kept
     (the map the false loops bent can hold the polish in a local minimum the chain is
@@ -294,7 +296,7 @@ def _segment_rechecked(
     solve.dogleg = needs_qr(graph, values)
     check = segment_recheck(graph, values, weights, probability=probability, solver=solve,
                             unit=unit, groups=groups)
-    if not check.removed:
+    if not check.removed and not (check.groups is not None and check.groups.readmitted):
         return values, weights, solver
     stated = (factors, loop_index)
     if check.groups is not None and check.groups.readmitted:

@@ -97,7 +97,8 @@ exceeds ``0.5 chi2_{dof g}^-1(p^(1/G))`` (`group_gate`: Sidak over the ``G`` gro
 the round); rounds repeat until one removes nothing (at most `GROUP_ROUNDS`).  A true
 group judged while false groups still bend the map can fail, so at the end every removed
 group is tested again (``delta_G``, same gate) against the graph without all removed
-groups, re-calibrated, and re-admitted when it passes.
+groups, re-calibrated, and re-admitted when it passes; and every loop rejected before
+(removed groups aside) whose innovation against that graph is below ``c`` is offered in.
 
 Cost of the segment re-check: two calibrated solves, one accepted-loop solve each
 (`InnovationTest.blocks`) and per segment estimate a few sparse LUs with 64-column
@@ -726,10 +727,12 @@ def group_recheck(
     their gate, as are the groups `before` (loops already removed, each with its gate,
     as `segment_recheck`'s single suspects: they are out of `weights` and
     in `GroupRecheck.removed` unless re-admitted) once the rounds removed any group.
-    Then the other loops of weight 0 in `weights` (rejected before the group test, maybe
-    for disagreeing with a false group) whose innovation ``delta`` against that
-    calibrated graph is below ``c`` are offered in, smallest first
-    (`slam.consistency.greedy_admission` at ``c``): `GroupRecheck.readmitted`.
+    Then, whether or not any group was removed, the other loops of weight 0 in `weights`
+    (rejected before the group test: for disagreeing with a false group, or by a gate
+    far below ``c``, as the calibrated admission's, which can leave out true loops whose
+    innovation lies between its gate and ``c``) whose innovation ``delta`` against the
+    calibrated graph without the removed groups is below ``c`` are offered in, smallest
+    first (`slam.consistency.greedy_admission` at ``c``): `GroupRecheck.readmitted`.
     """
     solve = solver or StickySolver()
     if unit is None:
@@ -777,26 +780,26 @@ def group_recheck(
             x)
     earlier = [GroupTest(list(g), np.nan, np.nan, gate, True) for g, gate in before]
     readmitted: list[int] = []
+    without = _segment_calibrated(graph, segment_factors(graph, current, w, length=length),
+                                  unit, w)
+    x = solve(without, current)
+    test = InnovationTest(without, x, keys, d)
     if removed:
         offered = earlier + removed
-        without = _segment_calibrated(graph, segment_factors(graph, current, w, length=length),
-                                      unit, w)
-        x = solve(without, current)
-        test = InnovationTest(without, x, keys, d)
         delta = joint_costs(test, unit, [t.loops for t in offered], removal=False)
         for t, dl in zip(offered, delta, strict=True):
             if dl <= t.gate:
                 t.removed = False
-        out = {k for t in earlier + removed for k in t.loops}
-        rejected = [k for k in np.flatnonzero(np.asarray(weights) < 0.5) if k not in out]
-        if rejected:
-            b, gram = test.blocks([unit[k] for k in rejected])
-            rejected = [k for k, e in zip(rejected, _quadratic(b, gram), strict=True)
-                        if e < tls_threshold(graph.dim, probability)]
-        if rejected:
-            admitted, _ = greedy_admission(test.gains([unit[k] for k in rejected]),
-                                           tls_threshold(graph.dim, probability))
-            readmitted = sorted(int(rejected[q]) for q in admitted)
+    out = {k for t in earlier + removed for k in t.loops}
+    rejected = [k for k in np.flatnonzero(np.asarray(weights) < 0.5) if k not in out]
+    if rejected:
+        b, gram = test.blocks([unit[k] for k in rejected])
+        rejected = [k for k, e in zip(rejected, _quadratic(b, gram), strict=True)
+                    if e < tls_threshold(graph.dim, probability)]
+    if rejected:
+        admitted, _ = greedy_admission(test.gains([unit[k] for k in rejected]),
+                                       tls_threshold(graph.dim, probability))
+        readmitted = sorted(int(rejected[q]) for q in admitted)
     return GroupRecheck([k for t in earlier + removed if t.removed for k in t.loops], tested,
                         n_rounds, readmitted)
 

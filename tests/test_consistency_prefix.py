@@ -110,3 +110,56 @@ def test_a_pass_stopped_at_its_fold_resumes_to_the_same_decisions() -> None:
     stated = corrupted.factor_graph()
     assert run.prefix_cost(run.current, stated) == pytest.approx(
         tls_cost(corrupted, run.current, factors=stated))
+
+
+def _same_pass(a, b) -> None:
+    """Two finished passes with the same decisions and the same solution, bit for bit."""
+    np.testing.assert_array_equal(a.weights, b.weights)
+    pa, pb = poses_from_values(a.current, 2), poses_from_values(b.current, 2)
+    assert all(np.array_equal(pa[k], pb[k]) for k in pa)
+    assert a.blocks == b.blocks
+
+
+def test_a_resumed_pass_equals_a_new_one_with_the_loop_barred() -> None:
+    from slam.consistency import AdmissionPass
+
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    corrupted, _ = inject_false_loops(graph, 0.5, np.random.default_rng(2))
+    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    solve = StickySolver()
+    source = AdmissionPass(corrupted, values, block=10, solver=solve, record=True)
+    source.advance()
+    late = int(np.flatnonzero(source.weights > 0.5)[-1])  # an accepted loop of a late block
+    assert source.block_of(late) > 1 and len(source.snapshots) > 1
+    for barred in ([late], [0]):
+        fresh = AdmissionPass(corrupted, values, block=10, solver=solve, barred=barred)
+        fresh.advance()
+        resumed = source.resumed(source.block_of(barred[0]), barred=barred)
+        resumed.advance()
+        _same_pass(resumed, fresh)
+    # The source is untouched by its resumed passes: resuming it again gives it back.
+    again = source.resumed(source.block_of(late))
+    again.advance()
+    _same_pass(again, source)
+
+
+def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_less() -> None:
+    from slam.consistency import AdmissionPass
+    from slam.variance_components import with_information_scaled
+
+    # Odometry stated 100 times looser than it is: the calibrated gate is far lower.
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,
+                                      np.random.default_rng(1), "local")
+    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    solve = StickySolver()
+    stated = AdmissionPass(corrupted, values, block=10, solver=solve, record=True)
+    stated.advance()
+    fresh = AdmissionPass(corrupted, values, block=10, solver=solve, gate="calibrated")
+    fresh.advance()
+    assert stated.calibrated_step == 2  # blocks 0 and 1 are decided alike
+    assert not np.array_equal(fresh.weights, stated.weights)
+    fork = stated.resumed(stated.calibrated_step, gate="calibrated")
+    assert fork.last == 19
+    fork.advance()
+    _same_pass(fork, fresh)

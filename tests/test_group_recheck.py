@@ -114,3 +114,34 @@ def test_groups_of_true_loops_are_kept() -> None:
     check = segment_recheck(graph, values, np.ones(len(graph.loops)))
     assert check.groups is not None and check.groups.tested
     assert check.groups.removed == []
+
+
+def test_loops_a_gate_rejected_come_back_when_no_group_is_removed() -> None:
+    # Loops 4 ids apart form no group; two true loops left out (as a gate far below c
+    # leaves out true loops whose innovation is between the two) and a false loop 0.5 m
+    # off are offered to the segment-calibrated graph: the true ones pass, the false not.
+    graph, truth = _laps(every=4)
+    n_true = len(graph.loops)
+    graph.add_loop(30, 120, se2.compose(se2.between(truth[30], truth[120]),
+                                        np.array([0.5, 0.0, 0.0])), graph.loops[0].information)
+    weights = np.ones(len(graph.loops))
+    weights[[5, 40, n_true]] = 0.0
+    clean = PoseGraph(2, dict(graph.initial), list(graph.odometry),
+                      [lp for k, lp in enumerate(graph.loops) if weights[k] > 0.5])
+    values = graph.gtsam_values(optimize(clean, "none", init="odometry").poses)
+    check = segment_recheck(graph, values, weights)
+    assert check.removed == []
+    assert check.groups is not None and check.groups.tested == []
+    assert check.groups.readmitted == [5, 40]
+    from slam.optimize import _segment_rechecked
+
+    factors, loop_index = graph.factor_graph()
+    result, w, solver = _segment_rechecked(graph, factors, loop_index, values, weights, 0.99,
+                                           "tls", True)
+    assert solver == "tls-segments"
+    np.testing.assert_array_equal(w, np.r_[np.ones(n_true), 0.0])
+    without_false = PoseGraph(2, dict(graph.initial), list(graph.odometry), graph.loops[:n_true])
+    plain = optimize(without_false, "none", init="odometry").poses
+    assert aligned_position_error(
+        {k: np.array([result.atPose2(k).x(), result.atPose2(k).y(), result.atPose2(k).theta()])
+         for k in graph.keys}, plain, 2) < 1e-6
