@@ -517,6 +517,11 @@ class LoopClosureDetector:
         self._check_key(key)
         return self._frames[key]
 
+    def release_caches(self) -> None:
+        """Drop the cached registration targets of the submaps (rebuilt on demand):
+        for a host about to need the memory, e.g. for its final optimisation."""
+        self._targets.clear()
+
     def _target(self, key: int) -> RegistrationTarget:
         """The registration target of `key`'s submap, rebuilt when its version changed."""
         version = None if self._submap_version is None else self._submap_version(key)

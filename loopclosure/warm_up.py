@@ -9,10 +9,15 @@ two poses) through the same public functions, with the same argument types, as a
 real run; with a warm cache it only loads the kernels (well under a second).
 
 The embedded demo calls it, so that a log mapped after the install measures the
-mapping, not the compiler.
+mapping, not the compiler.  `warm_up_isolated` compiles in a child process when the
+cache is cold: LLVM's memory (over 100 MB) then leaves with the child, and the
+mapper (with the front-end worker it forks) only loads the kernels.
 """
 
 from __future__ import annotations
+
+import multiprocessing
+import os
 
 import numpy as np
 
@@ -64,4 +69,29 @@ def warm_up() -> None:
     flirt.distances(features[1], flirt.stack(features[:1]))
 
 
-__all__ = ["room_scan", "warm_up"]
+def cache_is_cold() -> bool:
+    """True when numba's on-disk index of a kernel `warm_up` compiles is missing (a
+    first run after an install, or sources changed since).  Read from numba's cache
+    objects; a numba that keeps them elsewhere counts as warm (no child)."""
+    from loopclosure.matchers import flirt_kernel, pair_kernel
+
+    kernels = (fast_icp._icp, correlative._correlate, flirt_kernel.flirt_entries,
+               pair_kernel._pair_kernel)
+    try:
+        paths = [k._cache._cache_file._index_path for k in kernels]
+    except AttributeError:
+        return False
+    return not all(os.path.exists(p) for p in paths)
+
+
+def warm_up_isolated() -> None:
+    """`warm_up`, compiling in a spawned child process first when the cache is cold
+    (module docstring); the kernels are then loaded here from the cache."""
+    if cache_is_cold():
+        child = multiprocessing.get_context("spawn").Process(target=warm_up)
+        child.start()
+        child.join()  # a child that failed leaves the compiling to the call below
+    warm_up()
+
+
+__all__ = ["cache_is_cold", "room_scan", "warm_up", "warm_up_isolated"]

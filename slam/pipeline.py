@@ -53,7 +53,7 @@ from data.errors import UserError
 from data.types import PointCloud, Scan
 from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
-from loopclosure.warm_up import warm_up
+from loopclosure.warm_up import warm_up_isolated
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.front_end_worker import BATCH, map_in_worker, worker_available
@@ -221,7 +221,7 @@ class Mapper:
         interrupted = False
         worker = self._front_end_in_worker()
         if worker:
-            warm_up()  # load the kernels once, here: the forked worker inherits them
+            warm_up_isolated()  # load the kernels here: the forked worker inherits them
             steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
             steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
@@ -550,9 +550,10 @@ class Mapper:
     def finish(self, interrupted: bool = False) -> MappingResult:
         """Final batch optimisation (GNC), then a pose for every scan."""
         start = time.perf_counter()
-        # The submaps are a cache (`submap` rebuilds one on demand): not resident under
-        # the final optimisation's transients.
+        # The submaps and their registration targets are caches (rebuilt on demand):
+        # not resident under the final optimisation's transients.
         self._submaps.clear()
+        self.detector.release_caches()
         graph = self.smoother.graph
         known = len(self._estimate)  # a run stopped by Ctrl-C may hold a newer pose
         poses = {k: self._estimate[k] if k < known else graph.initial[k] for k in graph.initial}

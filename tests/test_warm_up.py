@@ -5,7 +5,7 @@ import pytest
 
 from loopclosure import correlative, fast_icp
 from loopclosure.matchers import flirt_kernel, pair_kernel
-from loopclosure.warm_up import room_scan, warm_up
+from loopclosure.warm_up import cache_is_cold, room_scan, warm_up, warm_up_isolated
 
 
 def _range_at(scan, angle):
@@ -28,3 +28,29 @@ def test_warm_up_compiles_every_kernel_the_mapper_calls():
                fast_icp._figures, correlative._correlate, pair_kernel._pair_kernel,
                flirt_kernel.flirt_entries]
     assert all(k.signatures for k in kernels)
+
+
+def test_after_a_warm_up_the_cache_is_warm(monkeypatch):
+    warm_up()  # writes numba's on-disk cache (the package's __pycache__ or the user's)
+    assert not cache_is_cold()
+    # A cold cache: the isolated warm-up compiles in a child first, then loads here.
+    children = []
+
+    class _Child:
+        def __init__(self, target):
+            children.append(target)
+
+        def start(self):
+            pass
+
+        def join(self):
+            pass
+
+    class _Context:
+        Process = _Child
+
+    monkeypatch.setattr("loopclosure.warm_up.cache_is_cold", lambda: True)
+    monkeypatch.setattr("loopclosure.warm_up.multiprocessing.get_context",
+                        lambda method: _Context)
+    warm_up_isolated()
+    assert children == [warm_up]

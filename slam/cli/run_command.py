@@ -158,9 +158,9 @@ def _open_input(
             "no input given: running the embedded demo (simulated box world, drifting "
             "wheel odometry)", err=True,
         )
-        from loopclosure.warm_up import warm_up
+        from loopclosure.warm_up import warm_up_isolated
 
-        warm_up()  # the first run after an install compiles the kernels for every later one
+        warm_up_isolated()  # the first run after an install compiles the kernels
         demo = simulate_run(
             "box", seed=0, odometry_noise=OdometryNoise(heading_bias=DEMO_HEADING_BIAS),
             **DEMO_SENSOR,
