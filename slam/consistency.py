@@ -128,7 +128,7 @@ LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySo
 RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
 POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the error
-SNAPSHOTS = 12  # at most this many snapshots of a recorded `AdmissionPass` (memory: iSAM2 copies)
+SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
 
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:

@@ -143,10 +143,13 @@ def test_a_resumed_pass_equals_a_new_one_with_the_loop_barred() -> None:
     _same_pass(again, source)
 
 
-def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_less() -> None:
+def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_less(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     from slam.consistency import AdmissionPass
     from slam.variance_components import with_information_scaled
 
+    monkeypatch.setattr("slam.consistency.SNAPSHOTS", 12)  # a snapshot before every block
     # Odometry stated 100 times looser than it is: the calibrated gate is far lower.
     graph, _ = _square_graph(noise=0.02, laps=3)
     corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,
