@@ -64,7 +64,7 @@ from evaluation.slam_reference import logged_reference, trajectory_at_stamps
 from evaluation.trajectory_error import trajectory_errors
 from slam.config import PipelineConfig
 from slam.config_io import apply_overrides
-from slam.memory import peak_rss_mb, release_free_memory
+from slam.memory import peak_rss_since_reset_mb, release_free_memory, reset_peak_rss
 from slam.pipeline import Mapper
 from slam.refine_scans import refine_scan_poses
 
@@ -79,26 +79,6 @@ DEFAULT_VARIANTS = (
     "defaults:",
     "appearance:loops.search=appearance",
 )
-
-
-def reset_peak_rss() -> bool:
-    """Reset this process's peak resident memory (Linux ``clear_refs``); False where
-    that cannot be done."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
-
-
-def variant_peak_rss_mb(reset: bool) -> float:
-    """Peak resident memory [MB] since `reset_peak_rss` (VmHWM), else of the process."""
-    if reset:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    return peak_rss_mb()
 
 
 def scan_points(scan) -> np.ndarray:
@@ -154,7 +134,7 @@ def run_variant(scans: list, overrides: list[str], relations: list | None,
     result = Mapper(cfg).run(scans)
     wall = time.perf_counter() - start
     row: dict[str, float] = {"wall_s": wall, "cpu_s": time.process_time() - cpu}
-    row["peak_mb"] = variant_peak_rss_mb(reset)
+    row["peak_mb"] = peak_rss_since_reset_mb(reset)
     row["worker_peak_mb"] = result.worker_peak_rss_mb
     row.update({f"{k}_s": v for k, v in result.timings.items()})
     row["keyframes"] = len(result.keyframes)

@@ -196,30 +196,6 @@ def make_jobs(
 # -- the task --------------------------------------------------------------------------
 
 
-def _reset_peak_rss() -> bool:
-    """Reset this process's peak resident memory (Linux); False where that cannot be done."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
-
-
-def _peak_rss_mb(reset: bool) -> float:
-    """Peak resident memory [MB] since `_reset_peak_rss` (VmHWM), else of the process."""
-    if reset:
-        try:
-            for line in Path("/proc/self/status").read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-        except (OSError, ValueError, IndexError):
-            pass
-    from slam.memory import peak_rss_mb
-
-    return peak_rss_mb()
-
-
 def map_input(job: BatchJob) -> dict[str, Any]:
     """Map one input as `loopclosure run` does and return its ``batch.json`` row.
 
@@ -231,10 +207,11 @@ def map_input(job: BatchJob) -> dict[str, Any]:
     from data.atomic_write import output_dir
     from data.sources import open_source
     from slam.config_io import dump_config
+    from slam.memory import peak_rss_since_reset_mb, reset_peak_rss
     from slam.pipeline import Mapper
     from slam.results import write_results
 
-    reset = _reset_peak_rss()
+    reset = reset_peak_rss()
     start = time.perf_counter()
     source = open_source(job.input, topic=job.topic, odom_topic=job.odom_topic,
                          strict=job.strict)
@@ -253,7 +230,7 @@ def map_input(job: BatchJob) -> dict[str, Any]:
         "loops_proposed": summary["loops_proposed"],
         "loops_accepted": summary["loops_accepted"],
         "wall_s": summary["wall_s"],
-        "peak_rss_mb": _peak_rss_mb(reset),
+        "peak_rss_mb": peak_rss_since_reset_mb(reset),
     }
     row.update(_evaluate(job, job.out / "trajectory.tum"))
     return row

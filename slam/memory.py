@@ -16,13 +16,38 @@ import ctypes.util
 import functools
 import resource
 from collections.abc import Callable
+from pathlib import Path
 
-__all__ = ["peak_rss_mb", "release_free_memory"]
+__all__ = ["peak_rss_mb", "peak_rss_since_reset_mb", "release_free_memory", "reset_peak_rss"]
 
 
 def peak_rss_mb() -> float:
     """Peak resident memory of this process [MB] (Linux: ru_maxrss is in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def reset_peak_rss() -> bool:
+    """Reset this process's peak resident memory (Linux ``clear_refs``); False where
+    that cannot be done."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss_since_reset_mb(reset: bool) -> float:
+    """Peak resident memory [MB] since `reset_peak_rss` (VmHWM) when `reset` (its
+    result), else of the whole process (`peak_rss_mb`)."""
+    if reset:
+        try:
+            for line in Path("/proc/self/status").read_text().splitlines():
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+        except (OSError, ValueError, IndexError):
+            pass
+    return peak_rss_mb()
 
 
 @functools.cache
