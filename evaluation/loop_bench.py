@@ -98,6 +98,7 @@ from numpy.typing import NDArray
 
 from data.errors import UserError
 from evaluation.loop_bench_input import LoopInput, LoopSource
+from evaluation.loop_bench_misses import nearest_place, submap_overlap
 from evaluation.loop_bench_truth import (
     PRCurve,
     pose_correct,
@@ -181,6 +182,11 @@ class LoopBench:
         tolerances: truth tolerances.
         wall_s: seconds of mapping and of the queries.
         config: the pipeline's parameters.
+        prefilter_rank: ``(n,)`` rank (0-based) of the first true place in the
+            combined prefilter's order, -1 when none is among the first
+            ``max(RECALL_KS)`` (`evaluation.loop_bench_misses`).
+        nearest: ``(n, 4)`` the nearest true place of every query: key, distance [m],
+            heading difference [deg], submap overlap (key -1 and NaN without a revisit).
     """
 
     name: str
@@ -203,6 +209,8 @@ class LoopBench:
     tolerances: Tolerances
     wall_s: dict[str, float] = field(default_factory=dict)
     config: PipelineConfig | None = None
+    prefilter_rank: NDArray[np.intp] | None = None
+    nearest: Array | None = None
 
     @property
     def revisits(self) -> int:
@@ -498,6 +506,7 @@ class _Raw:
     seconds: dict[str, list[float]] = field(default_factory=dict)
     hits: dict[str, list[NDArray[np.bool_]]] = field(default_factory=dict)
     candidate_hit: list[bool] = field(default_factory=list)
+    nearest: list[tuple[int, float, float, float]] = field(default_factory=list)
     candidate_count: list[int] = field(default_factory=list)
     accepted: list[bool] = field(default_factory=list)
     final_match: list[int] = field(default_factory=list)
@@ -570,6 +579,18 @@ def _query_all(
     return out
 
 
+def _nearest(mapper: _RecordingMapper, ref: Array, k: int, true_keys: NDArray[np.intp]
+             ) -> tuple[int, float, float, float]:
+    """The query's nearest true place: key, distance [m], heading difference [deg] and
+    the overlap of their submaps at their reference poses (`evaluation.loop_bench_misses`)."""
+    key, dist, dtheta = nearest_place(ref, k, true_keys)
+    query_points = mapper.query_submaps.get(k)
+    overlap = float("nan")
+    if key >= 0 and query_points is not None:
+        overlap = submap_overlap(query_points, mapper.submap(key), ref[k], ref[key])
+    return key, dist, dtheta, overlap
+
+
 @dataclass(slots=True)
 class _View:
     """The wide view's database as the queries see it (`_query_all`): the loop
@@ -593,6 +614,8 @@ def _one_query(
     out.size.append(len(sel))
     near = np.hypot(*(ref[keys[sel], :2] - ref[k, :2]).T) <= radius
     out.revisit.append(bool(near.any()))
+    if cascade:
+        out.nearest.append(_nearest(mapper, ref, k, keys[sel][near]))
     none = (-1, -np.inf)
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     if len(sel) == 0 or desc is None:  # empty database / no descriptor: no candidate
@@ -751,6 +774,8 @@ def _evaluate(
     for r in (*config.loops.database.prefilter, "prefilter"):
         hits = np.asarray(raw.hits.get(r, []), bool).reshape(len(q), max(RECALL_KS))
         recall_k[r] = recall_at_k(hits, has, RECALL_KS)
+    pre = np.asarray(raw.hits.get("prefilter", []), bool).reshape(len(q), max(RECALL_KS))
+    rank = np.where(pre.any(axis=1), pre.argmax(axis=1), -1)
     cand_hit = np.asarray(raw.candidate_hit, bool)
     cand_count = np.asarray(raw.candidate_count, float)
     return LoopBench(
@@ -762,4 +787,5 @@ def _evaluate(
         candidate_count=float(cand_count.mean()) if len(cand_count) else 0.0, reference=ref,
         scan_index=np.array([kf.scan_index for kf in result.keyframes], np.intp),
         min_score=config.loops.min_score, tolerances=tol, config=config,
+        prefilter_rank=rank, nearest=np.asarray(raw.nearest, float).reshape(len(q), 4),
     )

@@ -21,7 +21,9 @@ writes ``results.json``, ``report.md``, ``pr_curves.png`` (every row's P-R curve
 one figure), ``detections.png`` (the reference keyframe positions with the final
 detections drawn: true green, false red, missed revisits orange) and
 ``queries.csv`` (one row per query: its revisit, every row's proposal, score and
-verdict, the check's verdict and pose error), each atomically (`data.atomic_write`).
+verdict, the check's verdict and pose error, the rank of its first true place in
+the prefilter and its nearest true place's distance, heading difference and
+overlap: `evaluation.loop_bench_misses`), each atomically (`data.atomic_write`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 
 from data.atomic_write import output_dir, write_text_atomic
 from evaluation.loop_bench import RECALL_KS, LoopBench, StageResult
+from evaluation.loop_bench_misses import miss_breakdown
 from evaluation.loop_bench_truth import curve_summary, recall_at_precision
 from slam.json_io import write_json
 
@@ -83,7 +86,21 @@ def json_document(bench: LoopBench) -> dict[str, Any]:
                        "trans_tol_m": bench.tolerances.trans_tol,
                        "rot_tol_deg": bench.tolerances.rot_tol_deg},
         "wall_s": bench.wall_s,
+        "prefilter_misses": {
+            name: [{"bin": b, "queries": n, "recall_at_10": r} for b, n, r in rows]
+            for name, rows in _misses(bench).items()
+        },
     }
+
+
+def _misses(bench: LoopBench) -> dict[str, list[tuple[str, int, float]]]:
+    """The prefilter's recall@10 per bin of the nearest true place's geometry, over
+    the queries with a revisit (`evaluation.loop_bench_misses.miss_breakdown`)."""
+    if bench.nearest is None or bench.prefilter_rank is None:
+        return {}
+    has = bench.has_revisit
+    near = bench.nearest[has]
+    return miss_breakdown(bench.prefilter_rank[has], near[:, 1], near[:, 2], near[:, 3])
 
 
 TABLE_HEADERS = ["stage", "R@100%P", "R@99%P", "AP", "R (any score)", "ms/query"]
@@ -114,6 +131,11 @@ def summary_lines(bench: LoopBench) -> list[str]:
     ]
     for name, r in bench.recall_at_k.items():
         lines.append(f"{name} recall@K: " + ", ".join(f"@{k} {v:.3f}" for k, v in r.items()))
+    units = {"nearest_m": "distance [m]", "nearest_dtheta_deg": "heading difference [deg]",
+             "nearest_overlap": "submap overlap"}
+    for name, rows in _misses(bench).items():
+        lines.append(f"prefilter recall@10 by the nearest true place's {units[name]}: "
+                     + ", ".join(f"{b} {r:.3f} ({n})" for b, n, r in rows))
     lines.append(f"verified candidates: {bench.candidate_count:.1f} per query, a true place "
                  f"among them for {bench.candidate_recall:.3f} of the revisits")
     lines.append(
@@ -137,7 +159,8 @@ def queries_csv(bench: LoopBench) -> str:
     head = list(QUERY_COLUMNS_HEAD)
     for s in rows:
         head += [f"{s.name}_match", f"{s.name}_score", f"{s.name}_correct"]
-    head += ["check_verdict", "error_m", "error_deg"]
+    head += ["check_verdict", "error_m", "error_deg", "prefilter_rank", "nearest_key",
+             "nearest_m", "nearest_dtheta_deg", "nearest_overlap"]
     w.writerow(head)
     for i, k in enumerate(bench.query_keys.tolist()):
         line: list[Any] = [k, int(bench.scan_index[k]), int(bench.has_revisit[i]),
@@ -148,8 +171,18 @@ def queries_csv(bench: LoopBench) -> str:
                      int(s.correct[i]) if ok else ""]
         err = bench.final_errors[i]
         line += [bench.reasons[i]] + [f"{e:.4f}" if np.isfinite(e) else "" for e in err]
+        line += _nearest_cells(bench, i)
         w.writerow(line)
     return buf.getvalue()
+
+
+def _nearest_cells(bench: LoopBench, i: int) -> list[Any]:
+    """Query i's prefilter rank and nearest true place (empty cells without one)."""
+    if bench.nearest is None or bench.prefilter_rank is None or not bench.has_revisit[i]:
+        return [""] * 5
+    key, dist, dtheta, overlap = bench.nearest[i]
+    return [int(bench.prefilter_rank[i]), int(key), f"{dist:.3f}", f"{dtheta:.1f}",
+            f"{overlap:.3f}" if np.isfinite(overlap) else ""]
 
 
 def plot_pr_curves(bench: LoopBench, path: Path) -> Path:

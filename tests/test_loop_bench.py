@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +191,13 @@ def test_simulated_world_end_to_end(bench: lb.LoopBench) -> None:
     assert summary["recall_at_p100"] >= 0.5
     assert bench.final.correct.sum() == (bench.accepted & bench.final.correct).sum()
     assert bench.recall_at_k["prefilter"][50] >= bench.recall_at_k["prefilter"][1] > 0.5
+    # Every revisit has a nearest true place within 2 m, seen by both submaps.
+    near = bench.nearest[bench.has_revisit]
+    assert (near[:, 0] >= 0).all() and (near[:, 1] <= 2.0).all()
+    assert np.nanmedian(near[:, 3]) > 0.5
+    found = bench.prefilter_rank[bench.has_revisit]
+    assert math.isclose(float(((found >= 0) & (found < 10)).mean()),
+                        bench.recall_at_k["prefilter"][10])
     # A database keyframe within 2 m exists for every query that has a revisit.
     ref = bench.reference
     for i in np.flatnonzero(bench.has_revisit)[:5]:
@@ -211,6 +219,10 @@ def test_report_outputs(bench: lb.LoopBench, tmp_path: Path) -> None:
     assert set(doc["recall_at_k"]["prefilter"]) == {"1", "10", "50"}
     lines = paths["queries"].read_text().splitlines()
     assert len(lines) == 41 and lines[0].startswith("keyframe,scan_index,revisit")
+    assert lines[0].endswith("prefilter_rank,nearest_key,nearest_m,nearest_dtheta_deg,"
+                             "nearest_overlap")
+    misses = doc["prefilter_misses"]
+    assert sum(b["queries"] for b in misses["nearest_m"]) == bench.revisits
     assert "R@100%P" in paths["report"].read_text()
 
 
