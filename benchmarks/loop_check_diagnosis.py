@@ -25,7 +25,7 @@ would accept at other values (re-applied to the recorded figures; the distance a
 the agreement rules are left out, so the counts are of single checks).
 
 ``--csv DIR`` writes every check (log, query, match, truth, verdict, fitness,
-consistency, margin, degeneracy, rms, errors) to ``DIR/<log>.csv``, outside the
+consistency, margin, degeneracy, rms, matched length, errors) to ``DIR/<log>.csv``, outside the
 repository.
 """
 
@@ -48,7 +48,8 @@ from evaluation.loop_bench import Tolerances, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
-FIELDS = ("fitness", "inlier_ratio", "rms", "degeneracy", "margin", "consistency")
+FIELDS = ("fitness", "inlier_ratio", "rms", "degeneracy", "margin", "consistency",
+          "matched_length")
 
 
 def checks_of(path: str, relations: str | None, tol: Tolerances) -> tuple[list[dict], Counter]:
@@ -114,7 +115,8 @@ def accepts(rows: list[dict], **cfg: float) -> np.ndarray:
         setattr(c, name, value)
     f = {k: np.array([r[k] for r in rows], float) for k in FIELDS}
     partial = (f["fitness"] < c.min_fitness) | (f["inlier_ratio"] < c.min_inlier_ratio)
-    return ((f["fitness"] >= c.min_fitness_partial) & (f["consistency"] >= c.min_consistency)
+    return ((f["matched_length"] >= c.min_matched_length)
+            & (f["consistency"] >= c.min_consistency)
             & (f["rms"] <= c.max_rms) & (f["degeneracy"] >= c.min_degeneracy)
             & ~(partial & (f["degeneracy"] < c.min_degeneracy_partial))
             & (f["margin"] >= c.min_fitness_margin))
@@ -123,7 +125,7 @@ def accepts(rows: list[dict], **cfg: float) -> np.ndarray:
 WHAT_IF = {
     "min_consistency": (0.96, 0.94, 0.92, 0.90, 0.88, 0.85),
     "min_fitness_margin": (0.15, 0.1, 0.05, 0.0),
-    "min_fitness_partial": (0.25, 0.2, 0.15, 0.1),
+    "min_matched_length": (8.0, 4.0, 2.0, 1.0),
     "min_degeneracy_partial": (0.15, 0.1, 0.05, 0.04),
 }
 

@@ -10,8 +10,9 @@ lattice of translations within ``max_distance`` of 0 and of headings about each
 heading hypothesis and its opposite on a likelihood grid of a's submap
 (`loopclosure.correlative`), coarse then fine, and ICP refines the best lattice
 peak (and a runner-up that scores close to it, for the ambiguity test below).  Such
-a candidate is accepted on the rules below with the fitness threshold
-`min_fitness_partial` instead of `min_fitness` and `min_inlier_ratio` (a fit below
+a candidate is accepted on the rules below with a floor on the *length of surface
+matched*, `min_matched_length` (fitness x the query's points at ``source_voxel`` x
+``source_voxel`` [m]), instead of `min_fitness` and `min_inlier_ratio` (a fit below
 either is a partial overlap, which must be well constrained), provided the
 free-space consistency of the two submaps
 (`loopclosure.free_space` (2): hits over hits plus points landing in space the
@@ -160,10 +161,14 @@ class GeometricCheckConfig:
         method: the check without a prior: ``"correlative"`` (lattice search, then
             ICP; `loopclosure.prior_free`) or ``"icp"`` (multi-start ICP from the
             heading hypotheses at the given translation and at 0).
-        min_fitness_partial: fitness threshold of the correlative check (no prior),
-            which judges partial overlap by its free-space consistency instead: the
-            floor only refuses fits of a few stray points (true revisits outdoors
-            overlap by 0.05-0.2 of the query's points).
+        min_matched_length: least length of surface the correlative check (no
+            prior) must match [m]: the best run's fitness (a soft count of matched
+            points over the query's points) times the query's points at
+            `source_voxel`, times `source_voxel`.  The check judges partial overlap
+            by its free-space consistency; this floor only refuses fits of a few
+            stray points.  A length, not a share of the query: an outdoor submap
+            holds many points (vegetation, far facades) the other pass never saw,
+            so a true revisit may match 2-5% of them, a few metres of wall.
         min_consistency: free-space consistency the correlative check needs, in [0, 1]
             (`loopclosure.free_space`).  A look-alike place (a room of the same
             shape elsewhere, a corridor seen the other way) fits a partial overlap
@@ -201,7 +206,7 @@ class GeometricCheckConfig:
     min_prior_overlap: float = 0.15
     bound_reach: float = 0.55
     method: str = "correlative"
-    min_fitness_partial: float = 0.05
+    min_matched_length: float = 2.0
     min_consistency: float = 0.92
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
@@ -232,6 +237,8 @@ class LoopVerification:
             (`loopclosure.free_space`; NaN when not computed: a check from a prior or
             by multi-start ICP).
         conflict_ratio: fraction of both submaps' points in the other's free space.
+        matched_length: length of surface the best run matched [m] (correlative
+            check, `GeometricCheckConfig.min_matched_length`; NaN otherwise).
     """
 
     accepted: bool
@@ -246,6 +253,7 @@ class LoopVerification:
     hypotheses: int
     consistency: float = float("nan")
     conflict_ratio: float = float("nan")
+    matched_length: float = float("nan")
 
 
 def _offset_grid(step: float) -> Array:
@@ -321,10 +329,12 @@ def _verify_correlative(
     margin = best.fitness - (max(others) if others else 0.0)
     reason = "accepted"
     partial = best.fitness < cfg.min_fitness or best.inlier_ratio < cfg.min_inlier_ratio
+    matched = best.fitness * multi.source_points * cfg.source_voxel
     if not best.ok:
         reason = "registration failed"
-    elif best.fitness < cfg.min_fitness_partial:
-        reason = f"fitness {best.fitness:.2f} < {cfg.min_fitness_partial}"
+    elif matched < cfg.min_matched_length:
+        reason = (f"matched {matched:.1f} m of surface < {cfg.min_matched_length} m "
+                  f"(fitness {best.fitness:.3f})")
     elif free.consistency < cfg.min_consistency:
         reason = f"inconsistent free space ({free.consistency:.2f} < {cfg.min_consistency})"
     elif best.rms > cfg.max_rms:
@@ -345,7 +355,7 @@ def _verify_correlative(
         fitness=float(best.fitness), inlier_ratio=float(best.inlier_ratio),
         rms=float(best.rms), degeneracy=float(best.degeneracy), margin=float(margin),
         hypotheses=len(multi.results), consistency=float(free.consistency),
-        conflict_ratio=float(free.conflict_ratio),
+        conflict_ratio=float(free.conflict_ratio), matched_length=float(matched),
     )
 
 

@@ -120,11 +120,14 @@ class PriorFreeMatch:
         results: ICP from each lattice peak (pose of the query in the candidate frame).
         consistency: free-space consistency at each run's pose.
         peak_scores: ``(k,)`` fine lattice score of each run's start.
+        source_points: points of the query given to ICP (voxelised to the check's
+            ``source_voxel``): a run's fitness times this is its matched point count.
     """
 
     results: list[IcpResult] = field(default_factory=list)
     consistency: list[Consistency] = field(default_factory=list)
     peak_scores: Array = field(default_factory=lambda: np.zeros(0))
+    source_points: int = 0
 
 
 def _cached(target: RegistrationTarget, key: tuple, make):
@@ -240,4 +243,4 @@ def match_prior_free(
     query_submap = Submap.of(source, cfg.free_bins)
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
-    return PriorFreeMatch([results[i] for i in order], figures, scores[order])
+    return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source))

@@ -10,7 +10,7 @@ from loopclosure.correlative import LikelihoodGrid, peaks, search, search_angles
 from loopclosure.free_space import RangeImage, Submap, consistency
 from loopclosure.geometric_check import GeometricCheckConfig, verify
 from loopclosure.prior_free import match_prior_free
-from loopclosure.registration import IcpConfig, RegistrationTarget
+from loopclosure.registration import IcpConfig, RegistrationTarget, voxel_downsample
 from tests.test_geometric_check import ROOM, _seen_from, _walls
 
 # -- the likelihood grid and the lattice, by hand ---------------------------------------
@@ -136,6 +136,29 @@ def test_partial_overlap_with_unseen_rest_is_accepted_without_prior() -> None:
     assert result.fitness < GeometricCheckConfig().min_fitness
     assert result.accepted, result.reason
     np.testing.assert_allclose(result.relative[:2], truth[:2], atol=0.01)
+
+
+def test_the_matched_length_is_fitness_times_points_times_voxel() -> None:
+    """The floor of the check is a length of matched surface (fitness, a soft count
+    over the query's voxelised points, times their number and spacing), not a share
+    of the query: a far wing the candidate never saw lowers the share, not the length."""
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    target = RegistrationTarget(_seen_from(ROOM, a))
+    truth = se2.between(a, b)
+    cfg = GeometricCheckConfig()
+    plain = verify(_seen_from(ROOM, b), target, headings=[truth[2]], config=cfg)
+    wing = _walls([((6, 0), (30, 0)), ((30, 0), (30, 9)), ((30, 9), (7, 9)),
+                   ((8, -2), (28, -2))])
+    query = _seen_from(np.vstack([ROOM, wing]), b)
+    winged = verify(query, target, headings=[truth[2]], config=cfg)
+    assert winged.accepted, winged.reason
+    points = len(voxel_downsample(query, cfg.source_voxel))
+    assert winged.matched_length == pytest.approx(winged.fitness * points * cfg.source_voxel)
+    assert winged.fitness < 0.8 * plain.fitness  # the share drops with the wing ...
+    assert winged.matched_length == pytest.approx(plain.matched_length, rel=0.1)  # not the length
+    strict = GeometricCheckConfig(min_matched_length=winged.matched_length + 0.5)
+    refused = verify(query, target, headings=[truth[2]], config=strict)
+    assert not refused.accepted and refused.reason.startswith("matched")
 
 
 def test_points_in_observed_free_space_reject_a_partial_match() -> None:
