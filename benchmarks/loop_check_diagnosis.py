@@ -25,8 +25,9 @@ would accept at other values (re-applied to the recorded figures; the distance a
 the agreement rules are left out, so the counts are of single checks).
 
 ``--csv DIR`` writes every check (log, query, match, truth, verdict, fitness,
-consistency, margin, degeneracy, rms, matched length, errors) to ``DIR/<log>.csv``, outside the
-repository.
+consistency, margin, degeneracy, rms, matched length, errors, and the query's pose in the
+map that the check implies: the match's map pose composed with the check's relative pose)
+to ``DIR/<log>.csv``, outside the repository.
 """
 
 from __future__ import annotations
@@ -87,7 +88,11 @@ def checks_of(path: str, relations: str | None, tol: Tolerances) -> tuple[list[d
             bad |= c.accepted and not correct
             far |= c.accepted and err_m > 0.5
             v = c.verification
+            implied = se2.compose(poses[c.match], np.asarray(c.relative))  # query, map frame
             rows.append(dict(log=Path(path).name, query=k, match=int(c.match),
+                             implied_x=round(float(implied[0]), 3),
+                             implied_y=round(float(implied[1]), 3),
+                             implied_deg=round(float(np.degrees(implied[2])), 2),
                              near=int(c.match) in true, correct=correct, accepted=c.accepted,
                              reason=c.reason, err_m=round(err_m, 4), err_deg=round(err_deg, 3),
                              **{f: round(float(getattr(v, f)), 4) for f in FIELDS}))
