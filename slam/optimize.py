@@ -84,7 +84,8 @@ class OptimizationResult:
         loop_weights: GNC weights per loop (1 inlier, 0 outlier); None for LM.
         solver: "lm", "dogleg-qr" (LM fallback, see `slam.least_squares`), "gnc-tls-warm",
             "tls-incremental-<gate>" (``gnc_start="incremental"``; "...-segments" when
-            the segment re-check removed loops) or "gnc-tls" (gtsam).
+            the segment re-check removed loops), "least-squares-clean" (the incremental
+            admission's fast path: the plain optimum was its decision) or "gnc-tls" (gtsam).
     """
 
     poses: dict[int, Array]
@@ -155,6 +156,7 @@ def optimize(
     recheck: bool = False,
     segments: bool = True,
     groups: bool = True,
+    fast_path: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -179,6 +181,9 @@ def optimize(
     it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
     and polished (`slam.consistency.polish`).  `groups`: the segment re-check also tests
     groups of loops that agree with one another as a whole (`slam.recheck.group_recheck`).
+    `fast_path`: with ``gnc_start="incremental"`` and `segments`, the plain least-squares
+    optimum is returned when every loop passes its chi-square test there and the segment
+    re-check removes none (`_clean_optimum`; solver ``"least-squares-clean"``).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -193,7 +198,15 @@ def optimize(
     weights = None
     if method == "gnc":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
-        if gnc_start == "incremental":
+        clean = None
+        if fast_path and gnc_start == "incremental" and segments and len(graph.loops):
+            clean = _clean_optimum(graph, factors, loop_index, values, gnc_probability,
+                                   max_iterations, groups)
+        if clean is not None:
+            result, iterations = clean
+            weights = np.ones(len(graph.loops))
+            solver = "least-squares-clean"
+        elif gnc_start == "incremental":
             factor: list[float] = []  # the chosen candidate's odometry factor, if any
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
@@ -251,6 +264,40 @@ def optimize(
         loop_weights=weights,
         solver=solver,
     )
+
+
+def _clean_optimum(
+    graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
+    values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
+) -> tuple[gtsam.Values, int] | None:
+    """The plain least-squares optimum over every loop (polished as the admission's
+    result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
+    decision: every loop's factor error at it is at most ``c`` (`tls_threshold`, the
+    chi-square test of its dof at `probability`) and the segment re-check
+    (`slam.recheck.segment_recheck`, with its group test when `groups`) removes none of
+    them; else None.
+
+    Why: the residual rule of the time-ordered admission (``w_k = [e_k <= c]``) holds at
+    that optimum for every loop, so it is a fixed point of `refine_tls` with every loop
+    in, and the re-check the admission's result would go through finds nothing; on a
+    graph without false loops (the common case of a mapper's final pass) the admission
+    and its ladder, choice and bar search would cost many solves to arrive there.  One
+    false loop bends the least-squares map so that some loop fails the test (or the
+    re-check removes it), and the whole admission runs: the extra cost is one solve.
+    """
+    result, iterations, used = solve(factors, values, max_iterations)
+    c = tls_threshold(graph.dim, probability)
+    if any(factors.at(k).error(result) > c for k in loop_index):
+        return None
+    check_solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
+    check_solver.dogleg = used == "dogleg-qr" or needs_qr(graph, result)
+    weights = np.ones(len(loop_index))
+    unit = [factors.at(k) for k in loop_index]
+    check = segment_recheck(graph, result, weights, probability=probability,
+                            solver=check_solver, unit=unit, groups=groups)
+    if check.removed:
+        return None
+    return polish((factors, loop_index), weights, result, max_iterations), iterations
 
 
 def _rechecked(
