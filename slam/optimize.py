@@ -55,6 +55,7 @@ from slam.pose_graph import (
     whitened_residual,
 )
 from slam.recheck import recheck_loops, segment_recheck
+from slam.swap import swap_search
 
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
@@ -157,6 +158,7 @@ def optimize(
     segments: bool = True,
     groups: bool = True,
     fast_path: bool = True,
+    swap: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -184,6 +186,8 @@ def optimize(
     `fast_path`: with ``gnc_start="incremental"`` and `segments`, the plain least-squares
     optimum is returned when every loop passes its chi-square test there and the segment
     re-check removes none (`_clean_optimum`; solver ``"least-squares-clean"``).
+    `swap`: the incremental admission's result goes through `slam.swap.swap_search`
+    (groups of rejected loops admitted together) before the segment re-check.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -212,6 +216,13 @@ def optimize(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
             )
+            if swap and len(graph.loops):
+                swapped = swap_search(graph, admission, values, probability=gnc_probability,
+                                      factors=(factors, loop_index))
+                if swapped.kept:
+                    admission = swapped.admission
+                    admission.values = polish((factors, loop_index), admission.weights,
+                                              admission.values)
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"
             if recheck and len(graph.loops):
