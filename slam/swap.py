@@ -60,10 +60,12 @@ GAIN_PER_LOOP = 10.0  # least drop of the TLS objective (gtsam error units) per 
 class SwapSearch:
     """Outcome of `swap_search`: the solution, the groups tried and kept (indices into
     `graph.loops`), the loops pushed out and whether the final replay replaced the
-    swapped solution."""
+    swapped solution; `trials`: per group tried, the admitted loops it pushed out and the
+    drop of the TLS objective (negative: a rise)."""
 
     admission: Admission
     tried: list[list[int]] = field(default_factory=list)
+    trials: list[tuple[list[int], float]] = field(default_factory=list)
     kept: list[list[int]] = field(default_factory=list)
     pushed: list[int] = field(default_factory=list)
     replayed: bool = False
@@ -116,6 +118,7 @@ def swap_search(
                                   solved=True, factors=stated)
         out_now = [int(k) for k in np.flatnonzero((best.weights > 0.5) & (new < 0.5))]
         cost = tls_cost(graph, refined, probability, stated)
+        out.trials.append((out_now, best.tls_cost - cost))
         if out_now and best.tls_cost - cost >= gain_per_loop * len(out_now):
             best = Admission(refined, new, cost, best.blocks, f"{best.gate}-swapped",
                              best.prefix)
