@@ -56,6 +56,7 @@ from slam.pose_graph import (
 )
 from slam.recheck import recheck_loops, segment_recheck
 from slam.swap import swap_search
+from slam.variance_components import with_information_scaled
 
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
@@ -205,7 +206,7 @@ def optimize(
         clean = None
         if fast_path and gnc_start == "incremental" and segments and len(graph.loops):
             clean = _clean_optimum(graph, factors, loop_index, values, gnc_probability,
-                                   max_iterations, groups)
+                                   max_iterations, groups, tuple(odometry_ladder))
         if clean is not None:
             result, iterations = clean
             weights = np.ones(len(graph.loops))
@@ -280,13 +281,23 @@ def optimize(
 def _clean_optimum(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
+    ladder: tuple[float, ...] = ODOMETRY_LADDER,
 ) -> tuple[gtsam.Values, int] | None:
     """The plain least-squares optimum over every loop (polished as the admission's
     result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
-    decision: every loop's factor error at it is at most ``c`` (`tls_threshold`, the
-    chi-square test of its dof at `probability`) and the segment re-check
-    (`slam.recheck.segment_recheck`, with its group test when `groups`) removes none of
-    them; else None.
+    decision: at every rung of the odometry `ladder` (the graph with its odometry
+    information multiplied by the rung's factor, solved stiffest first, each from the
+    solution of the one before, the stated graph last) every loop's factor error is at
+    most ``c`` (`tls_threshold`, the chi-square test of its dof at `probability`), and
+    the segment re-check (`slam.recheck.segment_recheck`, with its group test when
+    `groups`) removes none of the loops at the stated graph's optimum; else None.
+
+    Why every rung: under loosely stated odometry the least-squares map bends onto
+    every false loop at an error below ``c`` (MITb with its odometry information x0.01
+    and half its loops false: all of them), where the stiffer rungs, as the admission's
+    ladder decides, see them; and solved from the odometry chain alone such a graph's
+    least squares can stop in a poor local minimum that the stiff rungs' solutions,
+    as starts, avoid.
 
     Why: the residual rule of the time-ordered admission (``w_k = [e_k <= c]``) holds at
     that optimum for every loop, so it is a fixed point of `refine_tls` with every loop
@@ -296,10 +307,16 @@ def _clean_optimum(
     false loop bends the least-squares map so that some loop fails the test (or the
     re-check removes it), and the whole admission runs: the extra cost is one solve.
     """
-    result, iterations, used = solve(factors, values, max_iterations)
     c = tls_threshold(graph.dim, probability)
-    if any(factors.at(k).error(result) > c for k in loop_index):
-        return None
+    result, iterations = values, 0
+    for factor in sorted(ladder, reverse=True):
+        rung = factors if factor == 1.0 else with_information_scaled(
+            graph, factor).factor_graph(RobustKernel("none"))[0]
+        result, used_iterations, used = solve(rung, result, max_iterations)
+        iterations += used_iterations
+        # The loops' factors are the same on every rung (only odometry is scaled).
+        if any(factors.at(k).error(result) > c for k in loop_index):
+            return None
     check_solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
     check_solver.dogleg = used == "dogleg-qr" or needs_qr(graph, result)
     weights = np.ones(len(loop_index))
