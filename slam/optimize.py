@@ -159,7 +159,7 @@ def optimize(
     segments: bool = True,
     groups: bool = True,
     fast_path: bool = True,
-    swap: bool = True,
+    swap: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -188,7 +188,8 @@ def optimize(
     optimum is returned when every loop passes its chi-square test there and the segment
     re-check removes none (`_clean_optimum`; solver ``"least-squares-clean"``).
     `swap`: the incremental admission's result goes through `slam.swap.swap_search`
-    (groups of rejected loops admitted together) before the segment re-check.
+    (groups of rejected loops admitted together) before the segment re-check; off by
+    default: on Intel with loosened odometry it let false groups in.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
