@@ -55,6 +55,8 @@ from slam.pose_graph import (
     whitened_residual,
 )
 from slam.recheck import recheck_loops, segment_recheck
+from slam.swap import swap_search
+from slam.variance_components import with_information_scaled
 
 Array = NDArray[np.float64]
 METHODS = ("lm", "gnc", "gnc-gtsam")
@@ -84,7 +86,8 @@ class OptimizationResult:
         loop_weights: GNC weights per loop (1 inlier, 0 outlier); None for LM.
         solver: "lm", "dogleg-qr" (LM fallback, see `slam.least_squares`), "gnc-tls-warm",
             "tls-incremental-<gate>" (``gnc_start="incremental"``; "...-segments" when
-            the segment re-check removed loops) or "gnc-tls" (gtsam).
+            the segment re-check removed loops), "least-squares-clean" (the incremental
+            admission's fast path: the plain optimum was its decision) or "gnc-tls" (gtsam).
     """
 
     poses: dict[int, Array]
@@ -155,6 +158,8 @@ def optimize(
     recheck: bool = False,
     segments: bool = True,
     groups: bool = True,
+    fast_path: bool = True,
+    swap: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -179,6 +184,12 @@ def optimize(
     it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
     and polished (`slam.consistency.polish`).  `groups`: the segment re-check also tests
     groups of loops that agree with one another as a whole (`slam.recheck.group_recheck`).
+    `fast_path`: with ``gnc_start="incremental"`` and `segments`, the plain least-squares
+    optimum is returned when every loop passes its chi-square test there and the segment
+    re-check removes none (`_clean_optimum`; solver ``"least-squares-clean"``).
+    `swap`: the incremental admission's result goes through `slam.swap.swap_search`
+    (groups of rejected loops admitted together) before the segment re-check; off by
+    default: on Intel with loosened odometry it let false groups in.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -193,12 +204,27 @@ def optimize(
     weights = None
     if method == "gnc":
         factors, loop_index = graph.factor_graph(RobustKernel("none"))
-        if gnc_start == "incremental":
+        clean = None
+        if fast_path and gnc_start == "incremental" and segments and len(graph.loops):
+            clean = _clean_optimum(graph, factors, loop_index, values, gnc_probability,
+                                   max_iterations, groups, tuple(odometry_ladder))
+        if clean is not None:
+            result, iterations = clean
+            weights = np.ones(len(graph.loops))
+            solver = "least-squares-clean"
+        elif gnc_start == "incremental":
             factor: list[float] = []  # the chosen candidate's odometry factor, if any
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
             )
+            if swap and len(graph.loops):
+                swapped = swap_search(graph, admission, values, probability=gnc_probability,
+                                      factors=(factors, loop_index))
+                if swapped.kept:
+                    admission = swapped.admission
+                    admission.values = polish((factors, loop_index), admission.weights,
+                                              admission.values)
             result, weights, iterations = admission.values, admission.weights, admission.blocks
             solver = f"tls-incremental-{admission.gate}"
             if recheck and len(graph.loops):
@@ -251,6 +277,56 @@ def optimize(
         loop_weights=weights,
         solver=solver,
     )
+
+
+def _clean_optimum(
+    graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
+    values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
+    ladder: tuple[float, ...] = ODOMETRY_LADDER,
+) -> tuple[gtsam.Values, int] | None:
+    """The plain least-squares optimum over every loop (polished as the admission's
+    result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
+    decision: at every rung of the odometry `ladder` (the graph with its odometry
+    information multiplied by the rung's factor, solved stiffest first, each from the
+    solution of the one before, the stated graph last) every loop's factor error is at
+    most ``c`` (`tls_threshold`, the chi-square test of its dof at `probability`), and
+    the segment re-check (`slam.recheck.segment_recheck`, with its group test when
+    `groups`) removes none of the loops at the stated graph's optimum; else None.
+
+    Why every rung: under loosely stated odometry the least-squares map bends onto
+    every false loop at an error below ``c`` (MITb with its odometry information x0.01
+    and half its loops false: all of them), where the stiffer rungs, as the admission's
+    ladder decides, see them; and solved from the odometry chain alone such a graph's
+    least squares can stop in a poor local minimum that the stiff rungs' solutions,
+    as starts, avoid.
+
+    Why: the residual rule of the time-ordered admission (``w_k = [e_k <= c]``) holds at
+    that optimum for every loop, so it is a fixed point of `refine_tls` with every loop
+    in, and the re-check the admission's result would go through finds nothing; on a
+    graph without false loops (the common case of a mapper's final pass) the admission
+    and its ladder, choice and bar search would cost many solves to arrive there.  One
+    false loop bends the least-squares map so that some loop fails the test (or the
+    re-check removes it), and the whole admission runs: the extra cost is one solve.
+    """
+    c = tls_threshold(graph.dim, probability)
+    result, iterations = values, 0
+    for factor in sorted(ladder, reverse=True):
+        rung = factors if factor == 1.0 else with_information_scaled(
+            graph, factor).factor_graph(RobustKernel("none"))[0]
+        result, used_iterations, used = solve(rung, result, max_iterations)
+        iterations += used_iterations
+        # The loops' factors are the same on every rung (only odometry is scaled).
+        if any(factors.at(k).error(result) > c for k in loop_index):
+            return None
+    check_solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
+    check_solver.dogleg = used == "dogleg-qr" or needs_qr(graph, result)
+    weights = np.ones(len(loop_index))
+    unit = [factors.at(k) for k in loop_index]
+    check = segment_recheck(graph, result, weights, probability=probability,
+                            solver=check_solver, unit=unit, groups=groups)
+    if check.removed:
+        return None
+    return polish((factors, loop_index), weights, result, max_iterations), iterations
 
 
 def _rechecked(
