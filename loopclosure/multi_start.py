@@ -136,6 +136,7 @@ def register_multi(
     prescreen_tolerance: float = 0.2,
     compiled: bool = False,
     grid: GridTarget | None = None,
+    join: bool = True,
 ) -> MultiResult:
     """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
 
@@ -149,7 +150,9 @@ def register_multi(
     `grid` (a `loopclosure.fast_icp.GridTarget` of `target`) when the caller has made
     it (e.g. for `loopclosure.fast_icp.overlap_bound`); the prescreen then scores on
     that grid (`loopclosure.fast_icp.overlap_screen`, the same score without the
-    KD-tree), and `target` may be None.
+    KD-tree), and `target` may be None.  `join`: compiled runs that meet an earlier
+    run's end stop there with its result (`loopclosure.fast_icp.register_target`);
+    False runs each to its own end, as the numpy runs do.
     """
     g = np.asarray(guesses, dtype=float).reshape(-1, 3)
     if len(g) == 0:
@@ -172,7 +175,8 @@ def register_multi(
         if grid is None:
             assert target is not None
             grid = fast_icp.GridTarget.from_target(target, fast_icp.TARGET_GRID_CELL)
-        results = fast_icp.register_target(src, target, g, config=config, grid=grid)
+        results = fast_icp.register_target(src, target, g, config=config, grid=grid,
+                                           join=join)
     else:
         assert target is not None
         results = [register(src, target, guess, config=config) for guess in g]

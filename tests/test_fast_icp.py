@@ -382,3 +382,25 @@ def test_initial_guesses_keep_the_first_of_equal_guesses_in_order() -> None:
     g = initial_guesses((1.0, 2.0, 0.5), [0.5, 0.5 + 2 * np.pi, -0.25], [[0.1, 0.0]])
     np.testing.assert_allclose(g, [[1.0, 2.0, 0.5], [1.1, 2.0, 0.5],
                                    [1.0, 2.0, -0.25], [1.1, 2.0, -0.25]])
+
+
+def test_a_gated_check_screens_and_registers_without_the_candidates_kd_tree() -> None:
+    """Screens and ICP of a check from a prior run on the candidate's grid: its KD-tree
+    (made on first use when the normals are injected) is never made; verdicts as with
+    the numpy normals and KD-tree."""
+    target_pts = room()
+    pose = np.array([0.5, 0.3, 0.4])
+    query = se2.transform_points(se2.inverse(pose), target_pts[1::2])
+    cfg = GeometricCheckConfig()
+    cov = np.diag([0.1, 0.1, 0.01])
+    near, far = pose + np.array([0.1, -0.1, 0.05]), pose + np.array([30.0, 0.0, 0.0])
+    for prior, accepted, reason in ((near, True, "accepted"),
+                                    (far, False, "no overlap at the prior")):
+        lazy = RegistrationTarget(target_pts, cfg.icp, normals=estimate_normals_fast)
+        res = verify(query, lazy, prior=prior, prior_covariance=cov, config=cfg)
+        assert not isinstance(lazy._tree, cKDTree)
+        ref = verify(query, RegistrationTarget(target_pts, cfg.icp), prior=prior,
+                     prior_covariance=cov, config=cfg)
+        assert res.accepted == ref.accepted == accepted and res.reason.startswith(reason)
+        assert ref.reason == res.reason
+        np.testing.assert_allclose(res.relative, ref.relative, atol=1e-9)

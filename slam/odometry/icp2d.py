@@ -434,14 +434,16 @@ class Icp2dOdometry:
 
     def _multi(self, points: Array, guesses: Array, keep: int | None = None) -> MultiResult:
         """`register_multi` onto the local map: with `Icp2dConfig.compiled` the
-        compiled ICP on the map's grid (guesses prescreened on it, runs that meet an
-        earlier run's end joined: `loopclosure.fast_icp.register_target`), else numpy
-        ICP on its `RegistrationTarget`."""
+        compiled ICP on the map's grid (guesses prescreened on it), else numpy ICP on
+        its `RegistrationTarget`.  Runs are not joined: a joined run returns the pose
+        an earlier run reached, within a few millimetres of its own, and the ranking
+        (`_rank`) is then decided by those millimetres; unjoined, the compiled search
+        picks the pose the numpy one picks."""
         assert self._grid is not None
         cfg = self.config
         if cfg.compiled:
             return register_multi(points, None, guesses, config=cfg.icp, keep=keep,
-                                  compiled=True, grid=self._grid)
+                                  compiled=True, grid=self._grid, join=False)
         return register_multi(points, self._grid.target, guesses, config=cfg.icp, keep=keep)
 
     def _rank(self, res: IcpResult, pred: Array) -> float:
