@@ -320,32 +320,36 @@ def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
         return pts.copy()
     cells = np.floor(pts / voxel).astype(np.int64)
     key = (cells[:, 0] << 32) ^ (cells[:, 1] & 0xFFFFFFFF)
-    return _voxel_kernel(pts, key)
+    # numpy's stable sort (timsort) is several times numba's mergesort on these keys.
+    return _voxel_kernel(pts, key, np.argsort(key, kind="stable"))
 
 
 @numba.njit(cache=True)
-def _voxel_kernel(pts, key):
-    order = np.argsort(key, kind="mergesort")
+def _voxel_kernel(pts, key, order):
+    """Centroids of the runs of equal `key` along `order` (a stable argsort of `key`:
+    each cell's points summed in index order), output in the order of each cell's
+    first point (found by a pass over the indices, no second sort)."""
     n = len(key)
     sums = np.zeros((n, 2))
     counts = np.zeros(n)
-    first = np.empty(n, dtype=np.int64)
+    group_at = np.full(n, -1, dtype=np.int64)  # cell of the point that opens it
     g = -1
     for t in range(n):
         i = order[t]
         if t == 0 or key[i] != key[order[t - 1]]:
             g += 1
-            first[g] = i
+            group_at[i] = g  # the smallest index of the run: the sort is stable
         sums[g, 0] += pts[i, 0]
         sums[g, 1] += pts[i, 1]
         counts[g] += 1.0
-    g += 1
-    rank = np.argsort(first[:g], kind="mergesort")
-    out = np.empty((g, 2))
-    for t in range(g):
-        h = rank[t]
-        out[t, 0] = sums[h, 0] / counts[h]
-        out[t, 1] = sums[h, 1] / counts[h]
+    out = np.empty((g + 1, 2))
+    row = 0
+    for i in range(n):
+        h = group_at[i]
+        if h >= 0:
+            out[row, 0] = sums[h, 0] / counts[h]
+            out[row, 1] = sums[h, 1] / counts[h]
+            row += 1
     return out
 
 
