@@ -32,7 +32,10 @@ closer than `normal_radius`, itself included; normal ``(-sin phi, cos phi)`` wit
 ``phi = atan2(2 b, a - c) / 2`` of the neighbours' covariance ``[[a, b], [b, c]]``;
 line-like when ``lambda_min <= max_normal_ratio * lambda_max`` and at least
 `min_normal_neighbors` neighbours, clutter when enough neighbours but not
-line-like), with the k nearest found in the grid.  `voxel_downsample_fast` is
+line-like), with the k nearest found in the grid; `estimate_normals_fast` gives the
+same for a `RegistrationTarget` (its injected normal estimator).  `overlap_screen`
+scores guesses before ICP (the overlap score and the overlap bound of the
+pose-gated check, one pass).  `voxel_downsample_fast` is
 `loopclosure.registration.voxel_downsample` (centroid per cell, order of first
 occurrence, the same summation order).
 """
