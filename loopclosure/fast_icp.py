@@ -32,7 +32,10 @@ closer than `normal_radius`, itself included; normal ``(-sin phi, cos phi)`` wit
 ``phi = atan2(2 b, a - c) / 2`` of the neighbours' covariance ``[[a, b], [b, c]]``;
 line-like when ``lambda_min <= max_normal_ratio * lambda_max`` and at least
 `min_normal_neighbors` neighbours, clutter when enough neighbours but not
-line-like), with the k nearest found in the grid.  `voxel_downsample_fast` is
+line-like), with the k nearest found in the grid; `estimate_normals_fast` gives the
+same for a `RegistrationTarget` (its injected normal estimator).  `overlap_screen`
+scores guesses before ICP (the overlap score and the overlap bound of the
+pose-gated check, one pass).  `voxel_downsample_fast` is
 `loopclosure.registration.voxel_downsample` (centroid per cell, order of first
 occurrence, the same summation order).
 """
@@ -126,15 +129,7 @@ class GridTarget:
         self.input_points = pts
         if len(pts) == 0:
             pts = np.zeros((1, 2))
-        lo = pts.min(axis=0) - self.cell
-        cells = np.floor((pts - lo) / self.cell).astype(np.int64)
-        nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
-        flat = cells[:, 0] * ny + cells[:, 1]
-        order = np.argsort(flat, kind="stable")
-        counts = np.bincount(flat, minlength=nx * ny)
-        self.start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.origin = lo.astype(float)
-        self.shape = (nx, ny)
+        self.origin, self.shape, self.start, order = _cells(pts, self.cell)
         self.points = np.ascontiguousarray(pts[order], dtype=float)
         means = self.points
         if len(self.input_points) == 0:
@@ -276,6 +271,49 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, 
     return normals, ratio, count, means
 
 
+def _cells(pts: Array, cell: float) -> tuple[Array, tuple[int, int], Array, Array]:
+    """CSR cell layout of `pts` (`GridTarget`): origin, shape ``(nx, ny)``, start
+    offsets and the stable order that sorts the points by cell."""
+    lo = pts.min(axis=0) - cell
+    cells = np.floor((pts - lo) / cell).astype(np.int64)
+    nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
+    flat = cells[:, 0] * ny + cells[:, 1]
+    order = np.argsort(flat, kind="stable")
+    counts = np.bincount(flat, minlength=nx * ny)
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return lo.astype(float), (nx, ny), start, order
+
+
+def estimate_normals_fast(points: ArrayLike, config: IcpConfig
+                          ) -> tuple[Array, NDArray[np.bool_], Array]:
+    """`loopclosure.registration.estimate_normals`, compiled (a
+    `loopclosure.registration.NormalsFn`): unit normals ``(M, 2)``, the line-like
+    mask ``(M,)`` and ``lambda_min / lambda_max`` (inf with fewer than
+    `min_normal_neighbors` neighbours) of `points` ``(M, 2)`` [m], in their order.
+
+    The same local PCA (`_normals_kernel`: the `normal_neighbors` nearest points
+    closer than `normal_radius`, itself included; the module docstring's
+    equations), the neighbours found ring by ring in cells of side `normal_radius`
+    instead of by a KD-tree.  Points sorted into cells, results put back in order."""
+    pts = np.ascontiguousarray(as_points(points, "target points"))
+    n = len(pts)
+    if n < config.min_normal_neighbors:
+        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.full(n, np.inf)
+    cell = float(config.normal_radius)
+    origin, (nx, ny), start, order = _cells(pts, cell)
+    sorted_pts = np.ascontiguousarray(pts[order])
+    k = min(config.normal_neighbors, n)
+    normals_s, ratio_s, count_s, _ = _normals_kernel(
+        sorted_pts, float(origin[0]), float(origin[1]), cell, nx, ny, start, k,
+        config.normal_radius, 0.0, np.inf)
+    normals = np.empty_like(normals_s)
+    normals[order] = normals_s
+    ratio = np.empty(n)
+    ratio[order] = np.where(count_s >= config.min_normal_neighbors, ratio_s, np.inf)
+    line_like = ratio <= config.max_normal_ratio
+    return normals, line_like, ratio
+
+
 def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
     """`loopclosure.registration.voxel_downsample`, compiled: the centroid of the points
     in each ``voxel x voxel`` cell [m], cells in the order of their first point;
@@ -285,32 +323,36 @@ def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
         return pts.copy()
     cells = np.floor(pts / voxel).astype(np.int64)
     key = (cells[:, 0] << 32) ^ (cells[:, 1] & 0xFFFFFFFF)
-    return _voxel_kernel(pts, key)
+    # numpy's stable sort (timsort) is several times numba's mergesort on these keys.
+    return _voxel_kernel(pts, key, np.argsort(key, kind="stable"))
 
 
 @numba.njit(cache=True)
-def _voxel_kernel(pts, key):
-    order = np.argsort(key, kind="mergesort")
+def _voxel_kernel(pts, key, order):
+    """Centroids of the runs of equal `key` along `order` (a stable argsort of `key`:
+    each cell's points summed in index order), output in the order of each cell's
+    first point (found by a pass over the indices, no second sort)."""
     n = len(key)
     sums = np.zeros((n, 2))
     counts = np.zeros(n)
-    first = np.empty(n, dtype=np.int64)
+    group_at = np.full(n, -1, dtype=np.int64)  # cell of the point that opens it
     g = -1
     for t in range(n):
         i = order[t]
         if t == 0 or key[i] != key[order[t - 1]]:
             g += 1
-            first[g] = i
+            group_at[i] = g  # the smallest index of the run: the sort is stable
         sums[g, 0] += pts[i, 0]
         sums[g, 1] += pts[i, 1]
         counts[g] += 1.0
-    g += 1
-    rank = np.argsort(first[:g], kind="mergesort")
-    out = np.empty((g, 2))
-    for t in range(g):
-        h = rank[t]
-        out[t, 0] = sums[h, 0] / counts[h]
-        out[t, 1] = sums[h, 1] / counts[h]
+    out = np.empty((g + 1, 2))
+    row = 0
+    for i in range(n):
+        h = group_at[i]
+        if h >= 0:
+            out[row, 0] = sums[h, 0] / counts[h]
+            out[row, 1] = sums[h, 1] / counts[h]
+            row += 1
     return out
 
 
@@ -725,8 +767,57 @@ def overlap_bound(source: ArrayLike, grid: GridTarget, guesses: ArrayLike,
     return out
 
 
-def register_target(source: ArrayLike, target: RegistrationTarget, initials: ArrayLike, *,
-                    config: IcpConfig | None = None, join: bool = True,
+@numba.njit(cache=True)
+def _screen_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start, pts, kind,
+                   scores, bounds):
+    n = src.shape[0]
+    radius = max(gate, reach)
+    for g in range(guesses.shape[0]):
+        c, s = np.cos(guesses[g, 2]), np.sin(guesses[g, 2])
+        score = 0.0
+        hits = 0
+        for i in range(n):
+            px = c * src[i, 0] - s * src[i, 1] + guesses[g, 0]
+            py = s * src[i, 0] + c * src[i, 1] + guesses[g, 1]
+            j, d = _nearest(px, py, radius, ox, oy, cell, nx, ny, start, pts)
+            if j < 0:
+                continue
+            if d <= reach:
+                hits += 1
+            if d < gate and kind[j] != KIND_NONE:
+                u = d / gate
+                score += 1.0 - u * u
+        scores[g] = score / n
+        bounds[g] = hits / n
+
+
+def overlap_screen(source: ArrayLike, grid: GridTarget, guesses: ArrayLike, gate: float,
+                   reach: float) -> tuple[Array, Array]:
+    """Both pre-ICP screens of a pose-gated check in one compiled pass over the
+    guesses (`guesses` ``(K, 3)``, poses of the source frame in the grid's frame [m,
+    m, rad]; `source` ``(N, 2)`` [m]): ``(scores, bounds)``, each ``(K,)``.
+
+    ``scores``: `loopclosure.multi_start.overlap_scores` at tolerance `gate`,
+    ``mean_i max(0, 1 - (d_i / gate)^2)`` with ``d_i`` the distance of moved point
+    ``i`` to its nearest map point when that point is matchable (a kind other than
+    `KIND_NONE`), 0 otherwise.  ``bounds``: `overlap_bound` at `reach`.  One nearest
+    neighbour per point and guess within ``max(gate, reach)`` serves both (the
+    nearest point within the larger radius is the nearest within the smaller one
+    when it lies there).  Zeros without points."""
+    src = np.ascontiguousarray(as_points(source, "source points"))
+    g = np.ascontiguousarray(np.asarray(guesses, dtype=float).reshape(-1, 3))
+    scores, bounds = np.zeros(len(g)), np.zeros(len(g))
+    if len(src) == 0 or len(grid.input_points) == 0:
+        return scores, bounds
+    nx, ny = grid.shape
+    _screen_kernel(src, g, float(gate), float(reach), float(grid.origin[0]),
+                   float(grid.origin[1]), grid.cell, nx, ny, grid.start, grid.points,
+                   grid.kind, scores, bounds)
+    return scores, bounds
+
+
+def register_target(source: ArrayLike, target: RegistrationTarget | None,
+                    initials: ArrayLike, *, config: IcpConfig | None = None, join: bool = True,
                     grid: GridTarget | None = None) -> list[IcpResult]:
     """`loopclosure.registration.register` of `source` onto a prepared target from
     each of `initials` (``(K, 3)``), by the compiled kernel on one grid of the
@@ -738,8 +829,11 @@ def register_target(source: ArrayLike, target: RegistrationTarget, initials: Arr
     the end of an earlier run stops there and returns that run's result (its own
     `IcpResult.initial` and iterations): several guesses of a multi-start search
     mostly fall into one basin, and the iterations after they meet repeat the
-    earlier run's.  `grid`: that grid when the caller has made it already."""
+    earlier run's.  `grid`: that grid when the caller has made it already (`target`
+    may then be None)."""
     if grid is None:
+        if target is None:
+            raise UserError("register_target needs a target or its grid")
         grid = GridTarget.from_target(target, TARGET_GRID_CELL)
     results: list[IcpResult] = []
     ends = np.zeros((0, 3))
@@ -760,6 +854,6 @@ def register_target(source: ArrayLike, target: RegistrationTarget, initials: Arr
 
 
 __all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE",
-           "KIND_NONE", "TARGET_GRID_CELL", "GridTarget", "overlap_bound", "register_fast",
-           "register_target",
+           "KIND_NONE", "TARGET_GRID_CELL", "GridTarget", "estimate_normals_fast",
+           "overlap_bound", "overlap_screen", "register_fast", "register_target",
            "voxel_downsample_fast"]

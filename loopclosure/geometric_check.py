@@ -404,28 +404,32 @@ def verify(
     else:
         voxel = voxel_downsample
     source = voxel(np.asarray(query_points, dtype=float), cfg.source_voxel)
-    if prior is not None and cfg.min_prior_overlap > 0:
-        gate = cfg.icp.max_correspondence_distance
-        overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
-        if overlap < cfg.min_prior_overlap:
-            return _rejected_early(
-                f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})", base,
-                cfg)
     gated = prior is not None and prior_covariance is not None
     min_fitness = cfg.min_fitness_gated if gated else cfg.min_fitness
     min_inliers = cfg.min_inlier_ratio_gated if gated else cfg.min_inlier_ratio
+    gate = cfg.icp.max_correspondence_distance
     grid = None
+    overlap = bound = np.inf  # no screen
     if cfg.compiled_icp:
         from loopclosure import fast_icp
 
+        # Both screens in one compiled pass on the grid ICP runs on; the candidate's
+        # KD-tree is needed only when ICP runs (its prescreen of the guesses).
         grid = fast_icp.GridTarget.from_target(candidate, fast_icp.TARGET_GRID_CELL)
-        if prior is not None and cfg.bound_reach > 0:
-            bound = float(fast_icp.overlap_bound(source, grid, guesses, cfg.bound_reach)
-                          .max(initial=0.0))
-            needed = max(min_fitness, min_inliers)
-            if bound < needed:
-                return _rejected_early(
-                    f"no fit within reach (overlap bound {bound:.3f} < {needed})", base, cfg)
+        if prior is not None and (cfg.min_prior_overlap > 0 or cfg.bound_reach > 0):
+            scores, bounds = fast_icp.overlap_screen(source, grid, guesses, gate,
+                                                     cfg.bound_reach)
+            overlap = float(scores.max(initial=0.0))
+            bound = float(bounds.max(initial=0.0))
+    elif prior is not None and cfg.min_prior_overlap > 0:
+        overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
+    if prior is not None and cfg.min_prior_overlap > 0 and overlap < cfg.min_prior_overlap:
+        return _rejected_early(
+            f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})", base, cfg)
+    needed = max(min_fitness, min_inliers)
+    if prior is not None and cfg.bound_reach > 0 and bound < needed:
+        return _rejected_early(
+            f"no fit within reach (overlap bound {bound:.3f} < {needed})", base, cfg)
     multi = register_multi(source, candidate, guesses, config=cfg.icp, keep=cfg.keep,
                            compiled=cfg.compiled_icp, grid=grid)
     best: IcpResult = multi.best

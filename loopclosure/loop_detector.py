@@ -529,7 +529,12 @@ class LoopClosureDetector:
         if cached is not None and cached[0] == version:
             self._targets.move_to_end(key)
             return cached[1]
-        target = RegistrationTarget(self._submap_points(key), self.config.check.icp)
+        normals = None
+        if self.config.check.compiled_icp:
+            from loopclosure.fast_icp import estimate_normals_fast as normals  # numba
+
+        target = RegistrationTarget(self._submap_points(key), self.config.check.icp,
+                                    normals=normals)
         self._targets[key] = (version, target)
         self._targets.move_to_end(key)
         while len(self._targets) > self.config.target_cache:

@@ -66,10 +66,15 @@ def initial_guesses(
         [base[0] + offs[oo.ravel(), 0], base[1] + offs[oo.ravel(), 1],
          np.asarray(heads)[hh.ravel()]]
     )
-    # Drop duplicates (same heading twice).
+    # Drop duplicates (same heading twice), keeping the first of each: rows equal
+    # once rounded to 1e-9 (a dict of a few dozen tuples, not a sort of the rows).
     key = np.round(np.column_stack([guesses[:, :2], se2.wrap_angle(guesses[:, 2])]), 9)
-    _, first = np.unique(key, axis=0, return_index=True)
-    return guesses[np.sort(first)]
+    first: dict[tuple[float, ...], int] = {}
+    for i, row in enumerate(map(tuple, key.tolist())):
+        first.setdefault(row, i)
+    if len(first) == len(guesses):
+        return guesses
+    return guesses[np.fromiter(first.values(), dtype=np.int64, count=len(first))]
 
 
 @dataclass(slots=True)
@@ -123,7 +128,7 @@ def overlap_scores(
 
 def register_multi(
     source: ArrayLike,
-    target: RegistrationTarget,
+    target: RegistrationTarget | None,
     guesses: ArrayLike,
     *,
     config: IcpConfig | None = None,
@@ -131,6 +136,7 @@ def register_multi(
     prescreen_tolerance: float = 0.2,
     compiled: bool = False,
     grid: GridTarget | None = None,
+    join: bool = True,
 ) -> MultiResult:
     """ICP from each of `guesses` (``(K, 3)``, see `initial_guesses`); the best wins.
 
@@ -142,20 +148,37 @@ def register_multi(
     Python loop over the hypotheses that run ICP (not over points).  With `compiled`
     each ICP is `loopclosure.fast_icp.register_target` (the same maths, numba), on
     `grid` (a `loopclosure.fast_icp.GridTarget` of `target`) when the caller has made
-    it (e.g. for `loopclosure.fast_icp.overlap_bound`).
+    it (e.g. for `loopclosure.fast_icp.overlap_bound`); the prescreen then scores on
+    that grid (`loopclosure.fast_icp.overlap_screen`, the same score without the
+    KD-tree), and `target` may be None.  `join`: compiled runs that meet an earlier
+    run's end stop there with its result (`loopclosure.fast_icp.register_target`);
+    False runs each to its own end, as the numpy runs do.
     """
     g = np.asarray(guesses, dtype=float).reshape(-1, 3)
     if len(g) == 0:
         raise UserError("register_multi needs at least one initial guess (guesses is empty)")
     src = as_points(source, "source points")
+    on_grid = compiled and grid is not None
+    if target is None and not on_grid:
+        raise UserError("register_multi needs a target, or compiled ICP on a grid")
     if keep is not None and keep < len(g):
-        scores = overlap_scores(src, target, g, prescreen_tolerance)
+        if on_grid:
+            from loopclosure import fast_icp  # numba loads on first use
+
+            scores = fast_icp.overlap_screen(src, grid, g, prescreen_tolerance, 0.0)[0]
+        else:
+            scores = overlap_scores(src, target, g, prescreen_tolerance)
         g = g[np.sort(np.argsort(-scores, kind="stable")[: max(keep, 1)])]
     if compiled:
         from loopclosure import fast_icp  # numba loads on first use
 
-        results = fast_icp.register_target(src, target, g, config=config, grid=grid)
+        if grid is None:
+            assert target is not None
+            grid = fast_icp.GridTarget.from_target(target, fast_icp.TARGET_GRID_CELL)
+        results = fast_icp.register_target(src, target, g, config=config, grid=grid,
+                                           join=join)
     else:
+        assert target is not None
         results = [register(src, target, guess, config=config) for guess in g]
     best = results[0]
     for res in results[1:]:

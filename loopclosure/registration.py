@@ -94,6 +94,7 @@ were found; otherwise they are searched again at the final pose):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -307,6 +308,15 @@ def estimate_normals(
     return normals, line_like, ratio
 
 
+#: Normal estimator of a `RegistrationTarget`: ``(points (M, 2) [m], config) ->
+#: (normals (M, 2), line-like mask (M,), lambda_min / lambda_max (M,), inf where a
+#: point has too few neighbours)``, the contract of `estimate_normals` (e.g.
+#: `loopclosure.fast_icp.estimate_normals_fast`, the same equations compiled).
+NormalsFn = Callable[[Array, IcpConfig], tuple[Array, NDArray[np.bool_], Array]]
+
+_UNBUILT = object()  # `RegistrationTarget.tree` not made yet
+
+
 class RegistrationTarget:
     """A target point set prepared once: KD-tree, normals and which points are line-like.
 
@@ -320,24 +330,42 @@ class RegistrationTarget:
             `register`).
         derived: other products of the points, made and cached by their users (e.g.
             the geometric check's likelihood grid), by a key of their parameters.
+
+    `normals`, a `NormalsFn`, replaces `estimate_normals` (which queries the
+    KD-tree); the tree is then made on first use of `tree` (a target screened out
+    before any KD-tree query never makes it).
     """
 
-    __slots__ = ("clutter", "config", "derived", "normals", "points", "tree", "usable")
+    __slots__ = ("_tree", "clutter", "config", "derived", "normals", "points", "usable")
 
-    def __init__(self, points: ArrayLike, config: IcpConfig | None = None) -> None:
+    def __init__(self, points: ArrayLike, config: IcpConfig | None = None, *,
+                 normals: NormalsFn | None = None) -> None:
         self.config = config or IcpConfig()
         pts = as_points(points, "target points")
         self.points = pts
         self.derived: dict = {}
-        self.tree = cKDTree(pts) if len(pts) else None
-        if self.tree is not None and len(pts) >= self.config.min_normal_neighbors:
-            self.normals, self.usable, ratio = estimate_normals(pts, self.tree, self.config)
+        self._tree: object = None
+        if len(pts) >= self.config.min_normal_neighbors:
+            if normals is None:
+                self._tree = cKDTree(pts)
+                self.normals, self.usable, ratio = estimate_normals(pts, self._tree, self.config)
+            else:
+                self._tree = _UNBUILT
+                self.normals, self.usable, ratio = normals(pts, self.config)
             self.clutter = np.isfinite(ratio) & ~self.usable
         else:
             self.normals, self.usable = np.zeros((len(pts), 2)), np.zeros(len(pts), dtype=bool)
             self.clutter = np.zeros(len(pts), dtype=bool)
         if not self.matchable.any():
-            self.tree = None
+            self._tree = None
+
+    @property
+    def tree(self) -> cKDTree | None:
+        """KD-tree over all `points`; None when no point is `matchable` (nothing for
+        ICP to match)."""
+        if self._tree is _UNBUILT:
+            self._tree = cKDTree(self.points)
+        return self._tree  # type: ignore[return-value]
 
     @property
     def matchable(self) -> NDArray[np.bool_]:

@@ -3,10 +3,11 @@
 numba compiles a kernel on its first call and keeps the machine code in its on-disk
 cache (``cache=True``), so only the first run after an install pays for it: about
 half a minute on 2 cores, for the front end's ICP, the place descriptors (surface
-pairs, FLIRT) and the correlative check.  `warm_up` makes those first calls on a
-synthetic room (a 10 m x 6 m rectangle with a pillar, seen by a 360-beam scan from
-two poses) through the same public functions, with the same argument types, as a
-real run; with a warm cache it only loads the kernels (well under a second).
+pairs, FLIRT), the pose-gated check's screens and ICP, and the correlative check.
+`warm_up` makes those first calls on a synthetic room (a 10 m x 6 m rectangle with
+a pillar, seen by a 360-beam scan from two poses) through the same public
+functions, with the same argument types, as a real run; with a warm cache it only
+loads the kernels (well under a second).
 
 The embedded demo calls it, so that a log mapped after the install measures the
 mapping, not the compiler.  `warm_up_isolated` compiles in a child process when the
@@ -26,6 +27,7 @@ from loopclosure import correlative, fast_icp
 from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher
 from loopclosure.polygon import polygon_from_scan
+from loopclosure.registration import RegistrationTarget
 
 _ROOM = ((-5.0, -3.0), (5.0, 3.0))  # lower-left and upper-right corners [m]
 _PILLAR = ((1.0, 0.5), 0.4)  # centre [m], radius [m]
@@ -58,6 +60,14 @@ def warm_up() -> None:
     # Front end and geometric check: voxel grid, grid normals, ICP and its figures.
     target = fast_icp.GridTarget(fast_icp.voxel_downsample_fast(points[0], 0.05))
     fast_icp.register_fast(points[1], target, (0.2, 0.1, 0.0))
+    # The loop detector's targets (compiled normals) and the pose-gated check: both
+    # screens in one pass, then multi-start ICP with joined runs on the candidate's grid.
+    check = RegistrationTarget(points[0], normals=fast_icp.estimate_normals_fast)
+    grid_check = fast_icp.GridTarget.from_target(check, fast_icp.TARGET_GRID_CELL)
+    guesses = np.array([[0.2, 0.1, 0.0], [0.2, 0.1, 0.001], [-0.3, 0.0, 0.2]])
+    fast_icp.overlap_screen(points[1], grid_check, guesses, 1.0, 0.55)
+    fast_icp.overlap_bound(points[1], grid_check, guesses, 0.55)
+    fast_icp.register_target(points[1], check, guesses, grid=grid_check)
     # The check with no prior: the correlative search over a likelihood grid.
     grid = correlative.LikelihoodGrid(points[0], 0.1, 0.2)
     correlative.search(points[1], grid, np.array([-0.05, 0.0, 0.05]), 0.5, 1)
@@ -75,8 +85,8 @@ def cache_is_cold() -> bool:
     objects; a numba that keeps them elsewhere counts as warm (no child)."""
     from loopclosure.matchers import flirt_kernel, pair_kernel
 
-    kernels = (fast_icp._icp, correlative._correlate, flirt_kernel.flirt_entries,
-               pair_kernel._pair_kernel)
+    kernels = (fast_icp._icp, fast_icp._screen_kernel, correlative._correlate,
+               flirt_kernel.flirt_entries, pair_kernel._pair_kernel)
     try:
         paths = [k._cache._cache_file._index_path for k in kernels]
     except AttributeError:

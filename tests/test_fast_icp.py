@@ -17,13 +17,22 @@ from loopclosure.fast_icp import (
     KIND_CLUTTER,
     KIND_LINE,
     GridTarget,
+    estimate_normals_fast,
     overlap_bound,
+    overlap_screen,
     register_fast,
     register_target,
     voxel_downsample_fast,
 )
 from loopclosure.geometric_check import GeometricCheckConfig, verify
-from loopclosure.registration import IcpConfig, RegistrationTarget, register, voxel_downsample
+from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
+from loopclosure.registration import (
+    IcpConfig,
+    RegistrationTarget,
+    estimate_normals,
+    register,
+    voxel_downsample,
+)
 
 EXACT = IcpConfig(translation_tolerance=1e-10, rotation_tolerance=1e-10)
 
@@ -283,3 +292,115 @@ def test_overlap_bound_counts_points_within_reach_of_the_map_at_each_guess() -> 
                                [0.75, 0.25])
     assert overlap_bound(np.zeros((0, 2)), grid, guesses, 0.5).tolist() == [0.0] * 4
 
+
+
+def _cloud() -> np.ndarray:
+    """Walls, a noisy wall, a bush and isolated points [m]."""
+    rng = np.random.default_rng(2)
+    return np.vstack([room(), segment((4, -2), (4, 2)) + rng.normal(0, 0.01, (80, 2)),
+                      rng.normal([1.5, 1.0], 0.15, (60, 2)), [[9.0, 9.0], [-9.0, 4.0]]])
+
+
+def test_estimate_normals_fast_equals_the_numpy_estimate_in_the_points_order() -> None:
+    pts = _cloud()
+    for cfg in (IcpConfig(), IcpConfig(normal_neighbors=5, normal_radius=0.3)):
+        normals, line, ratio = estimate_normals_fast(pts, cfg)
+        ref_n, ref_line, ref_ratio = estimate_normals(pts, cKDTree(pts), cfg)
+        np.testing.assert_array_equal(line, ref_line)
+        np.testing.assert_array_equal(np.isinf(ratio), np.isinf(ref_ratio))
+        finite = np.isfinite(ref_ratio)
+        assert finite.sum() > 300 and (~finite).sum() >= 2  # both kinds are tested
+        np.testing.assert_allclose(ratio[finite], ref_ratio[finite], rtol=0, atol=1e-9)
+        # Line-like normals (the ones ICP uses); a corner's may differ where equidistant
+        # neighbours tie for the last of the k places (the ratio is then the same).
+        np.testing.assert_allclose(normals[line], ref_n[line], rtol=0, atol=1e-9)
+    # hand-checked: four points on the line y = x: normal (-1, 1) / sqrt 2, ratio 0
+    n, ok, r = estimate_normals_fast(np.array([[0.0, 0.0], [0.1, 0.1], [0.2, 0.2],
+                                               [0.3, 0.3]]), IcpConfig())
+    assert ok.all()
+    np.testing.assert_allclose(np.abs(n), np.sqrt(0.5), atol=1e-12)
+    np.testing.assert_allclose(n[:, 0] * n[:, 1], -0.5, atol=1e-12)
+    np.testing.assert_allclose(r, 0.0, atol=1e-12)
+    few = estimate_normals_fast(np.zeros((2, 2)), IcpConfig())
+    assert not few[1].any() and np.isinf(few[2]).all()
+
+
+def test_a_target_with_injected_normals_makes_its_tree_on_first_use() -> None:
+    pts = _cloud()
+    cfg = IcpConfig(point_to_point_clutter=True)
+    ref = RegistrationTarget(pts, cfg)
+    lazy = RegistrationTarget(pts, cfg, normals=estimate_normals_fast)
+    assert lazy._tree is not None and not isinstance(lazy._tree, cKDTree)
+    np.testing.assert_array_equal(lazy.usable, ref.usable)
+    np.testing.assert_array_equal(lazy.clutter, ref.clutter)
+    assert isinstance(lazy.tree, cKDTree) and lazy.tree is lazy.tree
+    np.testing.assert_array_equal(lazy.tree.data, pts)
+    # nothing matchable (too few points): no tree, either way
+    for normals in (None, estimate_normals_fast):
+        assert RegistrationTarget(pts[:3], cfg, normals=normals).tree is None
+        assert RegistrationTarget(np.zeros((0, 2)), cfg, normals=normals).tree is None
+
+
+def test_overlap_screen_is_overlap_scores_and_overlap_bound_in_one_pass() -> None:
+    pts = _cloud()
+    cfg = IcpConfig()
+    target = RegistrationTarget(pts, cfg)
+    grid = GridTarget.from_target(target, 0.5)
+    rng = np.random.default_rng(4)
+    src = room()[::3] + rng.normal(0, 0.02, (len(room()[::3]), 2))
+    guesses = np.column_stack([rng.uniform(-1.5, 1.5, (40, 2)), rng.uniform(-np.pi, np.pi, 40)])
+    guesses[0] = 0.0  # one guess right on the map
+    for gate, reach in ((1.0, 0.55), (0.2, 0.0), (0.3, 1.2)):
+        scores, bounds = overlap_screen(src, grid, guesses, gate, reach)
+        np.testing.assert_allclose(scores, overlap_scores(src, target, guesses, gate),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(bounds, overlap_bound(src, grid, guesses, reach),
+                                   rtol=0, atol=0)
+        assert scores[0] > 0.5 and scores.min() < scores[0]
+    empty = overlap_screen(np.zeros((0, 2)), grid, guesses, 1.0, 0.5)
+    assert not empty[0].any() and not empty[1].any()
+
+
+def test_register_multi_on_the_grid_alone_is_the_compiled_run_on_the_target() -> None:
+    target_pts = room()
+    true = np.array([0.3, -0.2, 0.4])
+    source = se2.transform_points(se2.inverse(true), target_pts[::2])
+    target = RegistrationTarget(target_pts, EXACT, normals=estimate_normals_fast)
+    grid = GridTarget(target_pts, EXACT, cell=0.25)
+    guesses = initial_guesses((0.0, 0.0, 0.0), [0.4, 2.0, -1.0], [[0.5, 0], [0, 0.5]])
+    a = register_multi(source, target, guesses, config=EXACT, keep=4, compiled=True,
+                       grid=grid)
+    b = register_multi(source, None, guesses, config=EXACT, keep=4, compiled=True, grid=grid)
+    np.testing.assert_array_equal(a.guesses, b.guesses)
+    np.testing.assert_allclose(b.best.pose, true, atol=1e-6)
+    np.testing.assert_allclose(a.best.pose, b.best.pose, atol=0)
+    with pytest.raises(UserError, match="target"):
+        register_multi(source, None, guesses)
+
+
+def test_initial_guesses_keep_the_first_of_equal_guesses_in_order() -> None:
+    g = initial_guesses((1.0, 2.0, 0.5), [0.5, 0.5 + 2 * np.pi, -0.25], [[0.1, 0.0]])
+    np.testing.assert_allclose(g, [[1.0, 2.0, 0.5], [1.1, 2.0, 0.5],
+                                   [1.0, 2.0, -0.25], [1.1, 2.0, -0.25]])
+
+
+def test_a_gated_check_screens_and_registers_without_the_candidates_kd_tree() -> None:
+    """Screens and ICP of a check from a prior run on the candidate's grid: its KD-tree
+    (made on first use when the normals are injected) is never made; verdicts as with
+    the numpy normals and KD-tree."""
+    target_pts = room()
+    pose = np.array([0.5, 0.3, 0.4])
+    query = se2.transform_points(se2.inverse(pose), target_pts[1::2])
+    cfg = GeometricCheckConfig()
+    cov = np.diag([0.1, 0.1, 0.01])
+    near, far = pose + np.array([0.1, -0.1, 0.05]), pose + np.array([30.0, 0.0, 0.0])
+    for prior, accepted, reason in ((near, True, "accepted"),
+                                    (far, False, "no overlap at the prior")):
+        lazy = RegistrationTarget(target_pts, cfg.icp, normals=estimate_normals_fast)
+        res = verify(query, lazy, prior=prior, prior_covariance=cov, config=cfg)
+        assert not isinstance(lazy._tree, cKDTree)
+        ref = verify(query, RegistrationTarget(target_pts, cfg.icp), prior=prior,
+                     prior_covariance=cov, config=cfg)
+        assert res.accepted == ref.accepted == accepted and res.reason.startswith(reason)
+        assert ref.reason == res.reason
+        np.testing.assert_allclose(res.relative, ref.relative, atol=1e-9)

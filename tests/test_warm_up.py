@@ -25,8 +25,8 @@ def test_room_scan_hits_the_nearest_wall_or_the_pillar():
 def test_warm_up_compiles_every_kernel_the_mapper_calls():
     warm_up()
     kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._icp,
-               fast_icp._figures, correlative._correlate, pair_kernel._pair_kernel,
-               flirt_kernel.flirt_entries]
+               fast_icp._figures, fast_icp._screen_kernel, fast_icp._bound_kernel,
+               correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries]
     assert all(k.signatures for k in kernels)
 
 

@@ -40,7 +40,8 @@ a multi-hypothesis search runs (`_search`): headings {prediction, previous,
 prediction + `search_turns_deg`, `search_headings` hypotheses from the normal
 directions of scan and map} times positions {prediction + a grid of
 `search_offsets` along and across the heading, previous position}, pre-screened
-by `loopclosure.multi_start.overlap_scores`, ICP from the best `search_keep`,
+by `loopclosure.multi_start.overlap_scores` (its compiled twin on the map's grid
+with `compiled`), ICP (compiled, on the same grid) from the best `search_keep`,
 ranked by ``fitness * exp(-m^2 / 2)`` with ``m`` the deviation from the
 prediction in units of `search_sigma` (a broad motion prior, so a symmetric
 flip far from the prediction loses).  It matters for logs without odometry or
@@ -95,7 +96,7 @@ from data import se2
 from data.errors import UserError
 from data.types import Scan
 from loopclosure.headings import heading_hypotheses
-from loopclosure.multi_start import initial_guesses, register_multi
+from loopclosure.multi_start import MultiResult, initial_guesses, register_multi
 from loopclosure.registration import (
     LINE_ANCHORS,
     IcpConfig,
@@ -315,8 +316,7 @@ class Icp2dOdometry:
             return self._estimate(scan, pred, u, cov, 0.0, status, t0, extra)
 
         if jump:  # the odometry may lie: no prior, try the prediction and standing still
-            res = register_multi(points, self._grid.target, np.vstack([pred, prev]),
-                                 config=cfg.icp).best
+            res = self._multi(points, np.vstack([pred, prev])).best
         else:
             res = self._register(points, pred, u_cov)
         if cfg.search and (not self._good(res) or res.fitness < cfg.search_below_fitness):
@@ -410,9 +410,8 @@ class Icp2dOdometry:
         prediction.  The best replaces `res` if it is good and ranks higher.
         """
         assert self._grid is not None
-        target = self._grid.target
         cfg = self.config
-        heads = heading_hypotheses(points, target.points, count=cfg.search_headings,
+        heads = heading_hypotheses(points, self._grid.input_points, count=cfg.search_headings,
                                    method="normals", config=cfg.icp)
         turns = np.radians(np.asarray(cfg.search_turns_deg, dtype=float))
         heads = np.concatenate([[pred[2], prev[2]], pred[2] + turns, heads])
@@ -423,8 +422,7 @@ class Icp2dOdometry:
                                 s * along.ravel() + c * across.ravel()])
         offs = np.vstack([offs, prev[:2] - pred[:2]])
         guesses = initial_guesses(pred, heads, offs)
-        multi = register_multi(points, target, guesses, config=cfg.icp,
-                               keep=cfg.search_keep)
+        multi = self._multi(points, guesses, keep=cfg.search_keep)
         extra["search"] = len(guesses)
         best, best_rank = res, self._rank(res, pred) if res.ok else -1.0
         for cand in multi.results:
@@ -433,6 +431,20 @@ class Icp2dOdometry:
                 best, best_rank = cand, rank
         extra["search_won"] = best is not res
         return best
+
+    def _multi(self, points: Array, guesses: Array, keep: int | None = None) -> MultiResult:
+        """`register_multi` onto the local map: with `Icp2dConfig.compiled` the
+        compiled ICP on the map's grid (guesses prescreened on it), else numpy ICP on
+        its `RegistrationTarget`.  Runs are not joined: a joined run returns the pose
+        an earlier run reached, within a few millimetres of its own, and the ranking
+        (`_rank`) is then decided by those millimetres; unjoined, the compiled search
+        picks the pose the numpy one picks."""
+        assert self._grid is not None
+        cfg = self.config
+        if cfg.compiled:
+            return register_multi(points, None, guesses, config=cfg.icp, keep=keep,
+                                  compiled=True, grid=self._grid, join=False)
+        return register_multi(points, self._grid.target, guesses, config=cfg.icp, keep=keep)
 
     def _rank(self, res: IcpResult, pred: Array) -> float:
         dev = se2.between(pred, res.pose)
