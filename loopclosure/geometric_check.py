@@ -56,7 +56,8 @@ fitness_tolerance`` of where a guess puts them (the guesses are spaced by
 ratio, and so a fitness, of at most that guess's ``B``.  When the best ``B`` is
 below what the check accepts, ``max(fitness threshold, inlier threshold)``, no
 ICP runs: "no fit within reach".  The bound costs one nearest-neighbour pass per
-guess; the ICP it saves, dozens.
+guess; the ICP it saves, dozens.  With the compiled ICP the two screens share that
+pass (`loopclosure.fast_icp.overlap_screen`).
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 

@@ -64,7 +64,7 @@ def test_false_loops_absorbed_by_loose_odometry_are_seen_on_the_stiff_rungs() ->
 
     graph = PoseGraph.from_g2o(read_g2o(shared_file("g2o/input_MITb_g2o.g2o")))
     loose = with_information_scaled(graph, 0.01)
-    corrupted, false = inject_false_loops(loose, 0.5, np.random.default_rng(0))
+    corrupted, _false = inject_false_loops(loose, 0.5, np.random.default_rng(0))
     factors, loop_index = corrupted.factor_graph()
     start = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
     assert _clean_optimum(corrupted, factors, loop_index, start, 0.99, 100, True,

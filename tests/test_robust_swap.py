@@ -27,7 +27,7 @@ def _wrong_admission():
 
 
 def test_groups_of_rejected_loops() -> None:
-    graph, bad, group, admission = _wrong_admission()
+    graph, _bad, group, admission = _wrong_admission()
     assert rejected_groups(graph, admission.weights) == [group]
     assert rejected_groups(graph, admission.weights, min_size=4) == []
 
