@@ -117,6 +117,9 @@ ReferenceFn = Callable[[MappingResult], Array]
 """``reference(result) -> (K, 3)`` reference pose of every keyframe (NaN rows: none)."""
 
 RECALL_KS: tuple[int, ...] = (1, 10, 50)
+#: The geometric check's figures recorded for each query's final place.
+CHECK_FIGURES: tuple[str, ...] = ("fitness", "consistency", "matched_length", "margin",
+                                  "degeneracy")
 """K of the prefilter's recall@K."""
 ALONE = "-alone"
 
@@ -187,6 +190,10 @@ class LoopBench:
             ``max(RECALL_KS)`` (`evaluation.loop_bench_misses`).
         nearest: ``(n, 4)`` the nearest true place of every query: key, distance [m],
             heading difference [deg], submap overlap (key -1 and NaN without a revisit).
+        check_figures: ``(n, len(CHECK_FIGURES))`` the geometric check's figures of the
+            final row's place (`loopclosure.geometric_check.LoopVerification`; NaN
+            without a check).
+        accepted_places: ``(n,)`` places the check accepted for the query.
     """
 
     name: str
@@ -211,6 +218,8 @@ class LoopBench:
     config: PipelineConfig | None = None
     prefilter_rank: NDArray[np.intp] | None = None
     nearest: Array | None = None
+    check_figures: Array | None = None
+    accepted_places: NDArray[np.intp] | None = None
 
     @property
     def revisits(self) -> int:
@@ -513,6 +522,8 @@ class _Raw:
     final_score: list[float] = field(default_factory=list)
     relative: list[Array] = field(default_factory=list)
     reason: list[str] = field(default_factory=list)
+    figures: list[Array] = field(default_factory=list)
+    accepted_places: list[int] = field(default_factory=list)
 
     def put(self, row: str, match: int, score: float) -> None:
         self.match.setdefault(row, []).append(int(match))
@@ -633,6 +644,8 @@ def _one_query(
         out.final_score.append(-np.inf)
         out.relative.append(np.full(3, np.nan))
         out.reason.append("empty database" if desc is not None else "no descriptor")
+        out.figures.append(np.full(len(CHECK_FIGURES), np.nan))
+        out.accepted_places.append(0)
         return
     if cascade:
         _cascade_rows(out, k, desc, db, detector, mapper, keys, sel, mask, near, poses,
@@ -720,6 +733,10 @@ def _cascade_rows(
     out.final_score.append(float(cand.fused_score) if cand.accepted else -np.inf)
     out.relative.append(np.asarray(cand.relative, float))
     out.reason.append(str(cand.reason))
+    v = cand.verification
+    out.figures.append(np.array([float(getattr(v, f)) if v is not None else np.nan
+                                 for f in CHECK_FIGURES]))
+    out.accepted_places.append(len(accepted))
 
 
 def _stage_results(
@@ -788,4 +805,6 @@ def _evaluate(
         scan_index=np.array([kf.scan_index for kf in result.keyframes], np.intp),
         min_score=config.loops.min_score, tolerances=tol, config=config,
         prefilter_rank=rank, nearest=np.asarray(raw.nearest, float).reshape(len(q), 4),
+        check_figures=np.asarray(raw.figures, float).reshape(len(q), len(CHECK_FIGURES)),
+        accepted_places=np.asarray(raw.accepted_places, np.intp),
     )

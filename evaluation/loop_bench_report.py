@@ -23,7 +23,8 @@ detections drawn: true green, false red, missed revisits orange) and
 ``queries.csv`` (one row per query: its revisit, every row's proposal, score and
 verdict, the check's verdict and pose error, the rank of its first true place in
 the prefilter and its nearest true place's distance, heading difference and
-overlap: `evaluation.loop_bench_misses`), each atomically (`data.atomic_write`).
+overlap: `evaluation.loop_bench_misses`; the check's figures of the final place and
+how many places it accepted), each atomically (`data.atomic_write`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from data.atomic_write import output_dir, write_text_atomic
-from evaluation.loop_bench import RECALL_KS, LoopBench, StageResult
+from evaluation.loop_bench import CHECK_FIGURES, RECALL_KS, LoopBench, StageResult
 from evaluation.loop_bench_misses import miss_breakdown
 from evaluation.loop_bench_truth import curve_summary, recall_at_precision
 from slam.json_io import write_json
@@ -161,6 +162,7 @@ def queries_csv(bench: LoopBench) -> str:
         head += [f"{s.name}_match", f"{s.name}_score", f"{s.name}_correct"]
     head += ["check_verdict", "error_m", "error_deg", "prefilter_rank", "nearest_key",
              "nearest_m", "nearest_dtheta_deg", "nearest_overlap"]
+    head += [f"check_{f}" for f in CHECK_FIGURES] + ["accepted_places"]
     w.writerow(head)
     for i, k in enumerate(bench.query_keys.tolist()):
         line: list[Any] = [k, int(bench.scan_index[k]), int(bench.has_revisit[i]),
@@ -172,8 +174,17 @@ def queries_csv(bench: LoopBench) -> str:
         err = bench.final_errors[i]
         line += [bench.reasons[i]] + [f"{e:.4f}" if np.isfinite(e) else "" for e in err]
         line += _nearest_cells(bench, i)
+        line += _check_cells(bench, i)
         w.writerow(line)
     return buf.getvalue()
+
+
+def _check_cells(bench: LoopBench, i: int) -> list[Any]:
+    """Query i's check figures of its final place and its accepted places' count."""
+    if bench.check_figures is None or bench.accepted_places is None:
+        return [""] * (len(CHECK_FIGURES) + 1)
+    return [f"{x:.4g}" if np.isfinite(x) else "" for x in bench.check_figures[i]] + [
+        int(bench.accepted_places[i])]
 
 
 def _nearest_cells(bench: LoopBench, i: int) -> list[Any]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import math
 from pathlib import Path
@@ -220,7 +222,14 @@ def test_report_outputs(bench: lb.LoopBench, tmp_path: Path) -> None:
     lines = paths["queries"].read_text().splitlines()
     assert len(lines) == 41 and lines[0].startswith("keyframe,scan_index,revisit")
     assert lines[0].endswith("prefilter_rank,nearest_key,nearest_m,nearest_dtheta_deg,"
-                             "nearest_overlap")
+                             "nearest_overlap,check_fitness,check_consistency,"
+                             "check_matched_length,check_margin,check_degeneracy,"
+                             "accepted_places")
+    rows = list(csv.DictReader(io.StringIO(paths["queries"].read_text())))
+    for row in rows:  # an accepted final place has its check's figures
+        if row["final_match"]:
+            assert int(row["accepted_places"]) >= 1
+            assert 0 <= float(row["check_fitness"]) <= 1
     misses = doc["prefilter_misses"]
     assert sum(b["queries"] for b in misses["nearest_m"]) == bench.revisits
     assert "R@100%P" in paths["report"].read_text()
