@@ -157,6 +157,7 @@ class Mapper:
             trailing_map=self.trailing_map,
         )
         self.loops: list[LoopEvent] = []
+        self._accepted_tally = (0, 0, False)  # `_accepted`: events counted, count, joined
         self._odometry_rows = GrowingRows(3)  # the front end's pose of every scan
         self._worker_stats: dict[str, float] = {}
         # With `refine_scans`: every scan's points (float32; `refine_scan_poses`
@@ -394,7 +395,15 @@ class Mapper:
             return None
 
     def _accepted(self) -> int:
-        return sum(1 for e in self.loops if e.candidate.accepted)
+        """Loops accepted so far (the progress display asks at every scan): the events
+        added since the last call are counted onto the last count, and all of them once
+        more after a session join, the one place an event's verdict changes later."""
+        counted, count, joined = self._accepted_tally
+        if joined != self._joined:
+            counted, count = 0, 0
+        count += sum(1 for e in self.loops[counted:] if e.candidate.accepted)
+        self._accepted_tally = (len(self.loops), count, self._joined)
+        return count
 
     # -- sessions ---------------------------------------------------------------------
 

@@ -24,11 +24,21 @@ def sim_result():
         "box", seed=3, fov_deg=180.0, beams=181, max_range=12.0, noise_sigma=0.02,
         motion=MotionConfig(laps=1.4),
     )
-    return run, Mapper(PipelineConfig()).run(run.scans)
+    shown: list[tuple[int, int, int]] = []
+    result = Mapper(PipelineConfig()).run(run.scans, progress=lambda *a: shown.append(a))
+    return run, result, shown
+
+
+def test_progress_counts_every_accepted_loop(sim_result) -> None:
+    run, result, shown = sim_result
+    assert [n for n, _, _ in shown] == list(range(1, len(run.scans) + 1))
+    counts = [c for _, _, c in shown]
+    assert counts == sorted(counts)  # one session: a verdict never changes later
+    assert counts[-1] == sum(e.candidate.accepted for e in result.loops) >= 10
 
 
 def test_simulated_loops_are_found_and_none_is_false(sim_result) -> None:
-    run, result = sim_result
+    run, result, _ = sim_result
     accepted = result.accepted_loops
     assert len(accepted) >= 10
     proposals = [
@@ -41,7 +51,7 @@ def test_simulated_loops_are_found_and_none_is_false(sim_result) -> None:
 
 
 def test_loop_closure_does_not_hurt_and_every_scan_gets_a_pose(sim_result) -> None:
-    run, result = sim_result
+    run, result, _ = sim_result
     assert result.scan_poses.shape == (len(run.scans), 3)
     assert np.all(np.isfinite(result.scan_poses))
     gt = run.ground_truth
