@@ -269,3 +269,22 @@ def test_compiled_beta_grid_sectors_turn_with_the_orientation() -> None:
                                 end, end[0] * 2.0, cfg)  # viewpoint beyond: no chord
             hit = np.flatnonzero(occ[0] > 0.5)
             assert hit.tolist() == [2 * 12 + k]
+
+
+def test_compiled_sector_of_offsets_equals_the_arctangent_one() -> None:
+    """The kernel's bin from cross products equals `_bins`' arctangent bin off the
+    borders, and a zero offset takes the sector of ``atan2(0, 0) = 0``."""
+    from loopclosure.matchers.flirt_features import _bins
+    from loopclosure.matchers.flirt_grid_kernel import _bin
+
+    rng = np.random.default_rng(2)
+    border = np.arange(1, 6) * (2.0 * np.pi / 12)
+    for orient in rng.uniform(-np.pi, np.pi, 20):
+        rot = orient - np.pi / 12
+        zero = int((0.0 - orient) * (12 / (2.0 * np.pi)) + 24.5) % 12
+        args = (4 / 1.5, orient, 4, 12, np.cos(rot), np.sin(rot), np.cos(border),
+                np.sin(border), zero)
+        for x, y in rng.uniform(-1.5, 1.5, (50, 2)):
+            want = _bins(np.array([x]), np.array([y]), 1.5, orient, 4, 12)[0]
+            assert _bin(x, y, *args) == want
+        assert _bin(0.0, 0.0, *args) == _bins(np.zeros(1), np.zeros(1), 1.5, orient, 4, 12)[0]

@@ -42,15 +42,16 @@ import numpy as np
 
 
 @numba.njit(cache=True, inline="always")
-def _bin(x, y, ring_scale, orient, rings, sectors, rot_c, rot_s, border_c, border_s):
+def _bin(x, y, ring_scale, orient, rings, sectors, rot_c, rot_s, border_c, border_s, zero):
     """Bin ``ring * sectors + sector`` of offset ``(x, y)`` from the feature (module
     docstring).  ``(rot_c, rot_s)`` is the direction ``o - pi / sectors`` where sector 0
     begins and ``(border_c[m], border_s[m])`` the border ``2 pi m / sectors``
     (``m = 1 .. sectors / 2 - 1``) of the half turn, so that the sector comes from the
-    signs of cross products instead of an arctangent (an even number of sectors)."""
+    signs of cross products instead of an arctangent (an even number of sectors).
+    ``zero`` is the sector of a zero offset, whose arctangent ``atan2(0, 0)`` is 0."""
     r = math.sqrt(x * x + y * y)
     ring = min(int(r * ring_scale), rings - 1)  # ring_scale = rings / R
-    if sectors % 2 == 1 or (x == 0.0 and y == 0.0):
+    if sectors % 2 == 1:
         turns = (math.atan2(y, x) - orient) * (sectors / (2.0 * math.pi)) + (2 * sectors + 0.5)
         return ring * sectors + int(turns) % sectors
     u = rot_c * x + rot_s * y  # the offset turned by -(o - pi / sectors)
@@ -61,6 +62,8 @@ def _bin(x, y, ring_scale, orient, rings, sectors, rot_c, rot_s, border_c, borde
         sector = sectors // 2
     for m in range(border_c.shape[0]):
         sector += border_c[m] * v - border_s[m] * u >= 0.0
+    if x == 0.0 and y == 0.0:  # a select, not a call: the loop stays tight
+        sector = zero
     return ring * sectors + sector
 
 
@@ -95,6 +98,7 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
         rot_s = math.sin(orient - math.pi / sectors)
         r2 = rad * rad
         ring_scale = rings / rad
+        zero = int((0.0 - orient) * (sectors / (2.0 * math.pi)) + (2 * sectors + 0.5)) % sectors
         for b in range(n_beams):
             ex = ends[b, 0] - px
             ey = ends[b, 1] - py
@@ -102,7 +106,7 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
             end_bin[b] = -1
             if d2 < r2 and d2 > 0.0:  # the feature's own sample (d2 = 0) has no direction
                 end_bin[b] = _bin(ex, ey, ring_scale, orient, rings, sectors, rot_c, rot_s,
-                                  border_c, border_s)
+                                  border_c, border_s, zero)
                 hits[f, end_bin[b]] += 1
         wx = view[0] - px
         wy = view[1] - py
@@ -123,7 +127,7 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
                 frac = (s + 0.5) / chord_samples
                 t = t0 + (t1 - t0) * frac
                 k = _bin(wx + t * dx[b], wy + t * dy[b], ring_scale, orient, rings, sectors,
-                         rot_c, rot_s, border_c, border_s)
+                         rot_c, rot_s, border_c, border_s, zero)
                 if k == end_bin[b]:
                     k = -1  # a beam ending in this bin is a hit there, not a miss
                 if k >= 0 and k != prev:
