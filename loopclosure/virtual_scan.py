@@ -190,11 +190,14 @@ def virtual_scan(
     stamp: float = 0.0,
     index: int = 0,
     odom: ArrayLike | None = None,
+    compiled: bool = True,
 ) -> Scan:
     """360-degree virtual scan of map `points` ``(M, 2)`` given in the sensor frame [m].
 
     The rule is in the module docstring.  `stamp`, `index` and `odom` (the
-    keyframe's pose guess) are copied into the returned `Scan`.
+    keyframe's pose guess) are copied into the returned `Scan`.  `compiled` finds
+    the candidates and the front-most one of each beam side with the numba kernels
+    of `loopclosure.virtual_scan_kernel` (the same result; False: numpy).
 
     Raises:
         UserError: bad parameters (fewer than 3 beams, non-positive ranges, ...).
@@ -217,6 +220,41 @@ def virtual_scan(
     step = 2.0 * np.pi / beams
     pos = (np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / step  # bearing in beam units
     half = np.maximum(0.5, np.arcsin(np.minimum(1.0, lateral_tol / r)) / step)
+    if compiled:
+        # numba loads on first use (`loopclosure.virtual_scan_kernel`): the same
+        # candidates in the same order, the front-most without a sort.
+        from loopclosure.virtual_scan_kernel import candidates, front_most
+
+        pid, j, dphi = candidates(pos, half, step)
+        along = r[pid] * np.cos(dphi)
+        best_pt, best_along, best_off = front_most(pid, j, dphi, along, beams)
+    else:
+        best_pt, best_along, best_off = _front_most(pts, r, pos, half, step, beams)
+    best_pt, best_along = best_pt.reshape(beams, 2), best_along.reshape(beams, 2)
+    best_off = best_off.reshape(beams, 2)
+    # 3. one surface on both sides: cross the segment joining them; two surfaces: the
+    #    one nearer in bearing (the beam passes the other's edge); one side: that one.
+    ranges_hit = best_along[np.arange(beams), np.argmin(best_off, axis=1)]
+    both = np.flatnonzero((best_pt >= 0).all(axis=1))
+    a, b = pts[best_pt[both, 0]], pts[best_pt[both, 1]]
+    linked = np.linalg.norm(b - a, axis=1) <= link_dist
+    both, a, b = both[linked], a[linked], b[linked]
+    t, ok = _ray_segment(virtual_angles(beams)[both], a, b)
+    ranges_hit[both] = best_along[both].min(axis=1)
+    ranges_hit[both[ok]] = t[ok]
+    has = np.isfinite(ranges_hit) & (ranges_hit < max_range)
+    ranges[has] = ranges_hit[has]
+    # 4. fill narrow gaps between two returns on one surface.
+    ranges = _fill_gaps(ranges, has, beams, max_range, link_dist, max_gap_deg)
+    return _scan(ranges, beams, max_range, stamp, index, odom)
+
+
+def _front_most(
+    pts: Array, r: Array, pos: Array, half: Array, step: float, beams: int
+) -> tuple[NDArray[np.intp], Array, Array]:
+    """Steps 1-2 of the module docstring with numpy: per (beam, side), row
+    ``2 j + side``, the front-most candidate's point id (-1: none), its along-beam
+    distance [m] (inf: none) and ``|dphi|`` [rad]."""
     lo = np.ceil(pos - half).astype(np.intp)
     count = np.floor(pos + half).astype(np.intp) - lo + 1
     # 1. candidate (point, beam) pairs.
@@ -237,23 +275,7 @@ def virtual_scan(
     best_pt[key[first]] = pid[first]
     best_along[key[first]] = along[first]
     best_off[key[first]] = np.abs(dphi[first])
-    best_pt, best_along = best_pt.reshape(beams, 2), best_along.reshape(beams, 2)
-    best_off = best_off.reshape(beams, 2)
-    # 3. one surface on both sides: cross the segment joining them; two surfaces: the
-    #    one nearer in bearing (the beam passes the other's edge); one side: that one.
-    ranges_hit = best_along[np.arange(beams), np.argmin(best_off, axis=1)]
-    both = np.flatnonzero((best_pt >= 0).all(axis=1))
-    a, b = pts[best_pt[both, 0]], pts[best_pt[both, 1]]
-    linked = np.linalg.norm(b - a, axis=1) <= link_dist
-    both, a, b = both[linked], a[linked], b[linked]
-    t, ok = _ray_segment(virtual_angles(beams)[both], a, b)
-    ranges_hit[both] = best_along[both].min(axis=1)
-    ranges_hit[both[ok]] = t[ok]
-    has = np.isfinite(ranges_hit) & (ranges_hit < max_range)
-    ranges[has] = ranges_hit[has]
-    # 4. fill narrow gaps between two returns on one surface.
-    ranges = _fill_gaps(ranges, has, beams, max_range, link_dist, max_gap_deg)
-    return _scan(ranges, beams, max_range, stamp, index, odom)
+    return best_pt, best_along, best_off
 
 
 def _fill_gaps(

@@ -3,7 +3,7 @@
 numba compiles a kernel on its first call and keeps the machine code in its on-disk
 cache (``cache=True``), so only the first run after an install pays for it: about
 half a minute on 2 cores, for the front end's ICP, the place descriptors (surface
-pairs, FLIRT), the pose-gated check's screens and ICP, and the correlative check.
+pairs, FLIRT), the virtual scans, the pose-gated check's screens and ICP, and the correlative check.
 `warm_up` makes those first calls on a synthetic room (a 10 m x 6 m rectangle with
 a pillar, seen by a 360-beam scan from two poses) through the same public
 functions, with the same argument types, as a real run; with a warm cache it only
@@ -28,6 +28,7 @@ from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher
 from loopclosure.polygon import polygon_from_scan
 from loopclosure.registration import RegistrationTarget
+from loopclosure.virtual_scan import virtual_scan
 
 _ROOM = ((-5.0, -3.0), (5.0, 3.0))  # lower-left and upper-right corners [m]
 _PILLAR = ((1.0, 0.5), 0.4)  # centre [m], radius [m]
@@ -71,7 +72,10 @@ def warm_up() -> None:
     # The check with no prior: the correlative search over a likelihood grid.
     grid = correlative.LikelihoodGrid(points[0], 0.1, 0.2)
     correlative.search(points[1], grid, np.array([-0.05, 0.0, 0.05]), 0.5, 1)
-    # The place database: surface-pair histogram and FLIRT, described and compared.
+    # The place database: surface-pair histogram and FLIRT (its beta-grid counts
+    # compiled too), described and compared.
+    # The loop detector's 360-degree virtual scans of local maps.
+    virtual_scan(np.vstack(points), 360, 20.0)
     polygons = [polygon_from_scan(s) for s in scans]
     PairHistogramMatcher().describe(polygons[0])
     flirt = FlirtMatcher()
@@ -83,10 +87,13 @@ def cache_is_cold() -> bool:
     """True when numba's on-disk index of a kernel `warm_up` compiles is missing (a
     first run after an install, or sources changed since).  Read from numba's cache
     objects; a numba that keeps them elsewhere counts as warm (no child)."""
-    from loopclosure.matchers import flirt_kernel, pair_kernel
+    from loopclosure import virtual_scan_kernel
+    from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, pair_kernel
 
     kernels = (fast_icp._icp, fast_icp._screen_kernel, correlative._correlate,
-               flirt_kernel.flirt_entries, pair_kernel._pair_kernel)
+               flirt_kernel.flirt_entries, flirt_grid_kernel.beta_grid_counts,
+               pair_kernel._pair_kernel, virtual_scan_kernel.candidates,
+               virtual_scan_kernel.front_most)
     try:
         paths = [k._cache._cache_file._index_path for k in kernels]
     except AttributeError:

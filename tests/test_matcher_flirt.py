@@ -238,3 +238,53 @@ def test_simulated_places_are_recognised() -> None:
     d = m.pairwise([m.describe(polygon_from_scan(scan)) for _, scan in data])
     np.fill_diagonal(d, np.inf)
     assert np.mean(labels[np.argmin(d, axis=1)] == labels) >= 0.9
+
+
+@pytest.mark.parametrize("sectors", [12, 8, 7])
+def test_compiled_beta_grids_equal_numpy_on_random_shapes(sectors: int) -> None:
+    """The numba beta-grid counts (sector from cross products; arctangent when the
+    number of sectors is odd) equal the numpy ones on generic shapes, where no chord
+    sample lies on a sector border to within rounding."""
+    rng = np.random.default_rng(5)
+    fast = FlirtFeatureConfig(sectors=sectors)
+    slow = FlirtFeatureConfig(sectors=sectors, compiled=False)
+    for seed in rng.integers(0, 1000, 6):
+        poly = lobed_star(int(rng.integers(3, 7)), 0.3, seed=int(seed), noise=0.003, n=300)
+        a, b = describe_polygon(poly, fast), describe_polygon(poly, slow)
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.occupancy, b.occupancy)
+        np.testing.assert_array_equal(a.evidence, b.evidence)
+
+
+def test_compiled_beta_grid_sectors_turn_with_the_orientation() -> None:
+    """Hand-made case: one feature at the origin, radius 1, 4 rings x 12 sectors; a
+    beam ending at angle phi from the feature's axis lands in sector
+    round(phi / 30 degrees) mod 12, for axes all round the circle."""
+    cfg = FlirtFeatureConfig(compiled=True)
+    for orient in np.linspace(-np.pi, np.pi, 13):
+        for k in range(12):
+            phi = orient + np.radians(30.0 * k + 7.0)  # 7 degrees into sector k
+            end = 0.6 * np.array([[np.cos(phi), np.sin(phi)]])  # ring 2 of 4
+            occ, _ = beta_grids(np.zeros((1, 2)), np.array([0.5]), np.array([orient]),
+                                end, end[0] * 2.0, cfg)  # viewpoint beyond: no chord
+            hit = np.flatnonzero(occ[0] > 0.5)
+            assert hit.tolist() == [2 * 12 + k]
+
+
+def test_compiled_sector_of_offsets_equals_the_arctangent_one() -> None:
+    """The kernel's bin from cross products equals `_bins`' arctangent bin off the
+    borders, and a zero offset takes the sector of ``atan2(0, 0) = 0``."""
+    from loopclosure.matchers.flirt_features import _bins
+    from loopclosure.matchers.flirt_grid_kernel import _bin
+
+    rng = np.random.default_rng(2)
+    border = np.arange(1, 6) * (2.0 * np.pi / 12)
+    for orient in rng.uniform(-np.pi, np.pi, 20):
+        rot = orient - np.pi / 12
+        zero = int((0.0 - orient) * (12 / (2.0 * np.pi)) + 24.5) % 12
+        args = (4 / 1.5, orient, 4, 12, np.cos(rot), np.sin(rot), np.cos(border),
+                np.sin(border), zero)
+        for x, y in rng.uniform(-1.5, 1.5, (50, 2)):
+            want = _bins(np.array([x]), np.array([y]), 1.5, orient, 4, 12)[0]
+            assert _bin(x, y, *args) == want
+        assert _bin(0.0, 0.0, *args) == _bins(np.zeros(1), np.zeros(1), 1.5, orient, 4, 12)[0]

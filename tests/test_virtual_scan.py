@@ -190,6 +190,39 @@ def test_rotating_the_map_by_whole_beams_rolls_the_scan(x, y, theta, k):
     assert same.mean() > 0.97  # beams at bin edges may flip between neighbours
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 10_000), st.integers(0, 3000), st.sampled_from([36, 180, 360]))
+def test_compiled_candidates_give_the_numpy_scan(seed, n, beams):
+    """The numba candidates and front-most search equal the numpy sort exactly, ties
+    (repeated points, points on a beam) and points near the sensor included."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-12.0, 12.0, (n, 2))
+    pts[: n // 5] = np.round(pts[: n // 5])  # repeated points and points on beams
+    pts[n // 5 : n // 4] *= 0.01  # close to the sensor: wide candidate fans
+    fast = virtual_scan(pts, beams, 10.0)
+    slow = virtual_scan(pts, beams, 10.0, compiled=False)
+    np.testing.assert_array_equal(fast.ranges, slow.ranges)
+
+
+def test_compiled_front_most_keeps_the_first_of_equal_candidates():
+    """Hand-made: two points at the same along-beam distance on one beam side keep the
+    first one's index; the nearer point wins otherwise; beams wrap modulo their count."""
+    from loopclosure.virtual_scan_kernel import candidates, front_most
+
+    pos = np.array([0.2, 0.2, 3.9, -0.3])  # beam units
+    half = np.full(4, 0.5)
+    pid, beam, dphi = candidates(pos, half, STEP)
+    assert pid.tolist() == [0, 1, 2, 3] and beam.tolist() == [0, 0, 4, 0]
+    np.testing.assert_allclose(dphi, [-0.2 * STEP, -0.2 * STEP, 0.1 * STEP, 0.3 * STEP])
+    along = np.array([2.0, 2.0, 1.0, 3.0])
+    best_pt, best_along, best_off = front_most(pid, beam - 4, dphi, along, 4)  # wraps
+    # Row 2 j + side: on beam 0, side 1 (points counter-clockwise of it) holds points 0
+    # and 1 at 2.0 m (the first kept), side 0 points 2 (1.0 m) and 3 (3.0 m).
+    assert best_pt.tolist() == [2, 0, -1, -1, -1, -1, -1, -1]
+    assert best_along[:2].tolist() == [1.0, 2.0] and np.isinf(best_along[2:]).all()
+    assert best_off[0] == pytest.approx(0.1 * STEP) and best_off[1] == pytest.approx(0.2 * STEP)
+
+
 def test_config_kwargs_and_bad_input():
     cfg = VirtualScanConfig(beams=90, max_range=10.0)
     s = virtual_scan(np.array([[1.0, 0.0], [0.0, 1.0]]), **cfg.kwargs())

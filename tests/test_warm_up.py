@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from loopclosure import correlative, fast_icp
-from loopclosure.matchers import flirt_kernel, pair_kernel
+from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, pair_kernel
 from loopclosure.warm_up import cache_is_cold, room_scan, warm_up, warm_up_isolated
 
 
@@ -26,7 +26,8 @@ def test_warm_up_compiles_every_kernel_the_mapper_calls():
     warm_up()
     kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._icp,
                fast_icp._figures, fast_icp._screen_kernel, fast_icp._bound_kernel,
-               correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries]
+               correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries,
+               flirt_grid_kernel.beta_grid_counts]
     assert all(k.signatures for k in kernels)
 
 

@@ -88,8 +88,9 @@ Parameters (`FlirtConfig`; the detection ones are forwarded to
 candidates [3], scale_ratio [2.0], orientation_tolerance [0.6 rad],
 inlier_factor [0.5, tau per unit scale], max_hypotheses [400], min_inliers [4,
 the paper's n_min], seed [0], compiled [True: steps 1-5 run in the numba kernel
-of `loopclosure.matchers.flirt_kernel`, which gives the same results to rounding;
-False: the numpy arrays below].
+of `loopclosure.matchers.flirt_kernel`, which gives the same results to rounding,
+and the beta-grids' counts in `loopclosure.matchers.flirt_grid_kernel`; False: the
+numpy arrays below].
 """
 
 from __future__ import annotations
@@ -147,7 +148,8 @@ class FlirtConfig:
     max_hypotheses: int = 400
     min_inliers: int = 4
     seed: int = 0
-    # Matching steps 1-5 by the numba kernel of `flirt_kernel` (False: numpy).
+    # Matching steps 1-5 by the numba kernel of `flirt_kernel` and the beta-grid
+    # counts by `flirt_grid_kernel` (False: numpy).
     compiled: bool = True
 
     def __post_init__(self) -> None:

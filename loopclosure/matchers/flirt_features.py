@@ -90,7 +90,9 @@ max_features [40], min_features [3], support_factor [2.0: grid radius per unit
 sigma], rings [4], sectors [12], prior_hit / prior_miss [1, 1: Beta prior
 pseudo-counts], chord_samples [8 per chord], beam_stride [2: 128 beams],
 viewpoint ["auto" | "origin" | "centroid"], scale_invariant [False: when True the
-polygon is first divided by sqrt(area)].
+polygon is first divided by sqrt(area)], compiled [True: the hit and miss counts of
+step 4 come from the numba kernel of `loopclosure.matchers.flirt_grid_kernel`,
+equal to the numpy version's but where a chord sample sits on a bin border].
 """
 
 from __future__ import annotations
@@ -130,6 +132,8 @@ class FlirtFeatureConfig:
         viewpoint: "auto" (sensor origin if inside the polygon, else centroid),
             "origin" or "centroid": where the beams of the ray tracing start.
         scale_invariant: divide the polygon by sqrt(area) first.
+        compiled: count the beta-grids' hits and misses with the numba kernel of
+            `loopclosure.matchers.flirt_grid_kernel` (False: numpy).
     """
 
     n_samples: int = 256
@@ -148,6 +152,7 @@ class FlirtFeatureConfig:
     beam_stride: int = 2
     viewpoint: str = "auto"
     scale_invariant: bool = False
+    compiled: bool = True
 
     def __post_init__(self) -> None:
         if self.n_samples < 16:
@@ -366,6 +371,19 @@ def beta_grids(
     n_feat = len(points)
     nb = cfg.rings * cfg.sectors
     radius = cfg.support_factor * scales
+    if cfg.compiled:
+        # numba loads on first use: importing the matchers stays light.
+        from loopclosure.matchers.flirt_grid_kernel import beta_grid_counts
+
+        hits, misses = beta_grid_counts(
+            np.ascontiguousarray(points, dtype=float).reshape(-1, 2),
+            np.ascontiguousarray(radius, dtype=float),
+            np.ascontiguousarray(orientations, dtype=float),
+            np.ascontiguousarray(ends, dtype=float).reshape(-1, 2),
+            np.ascontiguousarray(view, dtype=float).reshape(2),
+            cfg.rings, cfg.sectors, cfg.chord_samples,
+        )
+        return _posterior(hits, misses, cfg)
     # Hits: end points inside each support disc.
     ex = ends[None, :, 0] - points[:, 0:1]  # (F, B)
     ey = ends[None, :, 1] - points[:, 1:2]
@@ -415,7 +433,14 @@ def beta_grids(
         start &= sbin >= 0
         rows, _ = np.nonzero(start)
         misses = np.bincount(f_ch[rows] * nb + sbin[start], minlength=n_feat * nb)
-    misses = misses.reshape(n_feat, nb)
+    return _posterior(hits, misses.reshape(n_feat, nb), cfg)
+
+
+def _posterior(
+    hits: Array, misses: Array, cfg: FlirtFeatureConfig
+) -> tuple[Array, NDArray[np.float32]]:
+    """Occupancy mean ``(hits + a0) / (hits + misses + a0 + b0)`` and evidence
+    ``hits + misses + a0 + b0`` (float32) of the Beta posterior (module docstring)."""
     alpha = hits + cfg.prior_hit
     total = alpha + misses + cfg.prior_miss
     return alpha / total, total.astype(np.float32)
