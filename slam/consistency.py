@@ -37,6 +37,10 @@ against the solved prefix, which earlier decisions already made consistent:
    (Sherman-Morrison-Woodbury) update of ``H^-1``, so two loops that contradict
    each other are never both admitted on the strength of the same slack.
    ``H`` is factorised once per round (sparse LU of the whitened normal equations).
+   A candidate whose test has no power against a wrong place of the map (the prefix
+   ties its poses only through a long, loosely stated odometry chain, so the gate
+   would admit almost any measurement) is not admitted in its own block but deferred
+   and decided by consensus with the loops that arrive later (`slam.deferral`).
 3. Decisions are final for the incremental pass; `refine_tls` then re-decides every
    loop on the whole graph by the residual rule until the weights are stable.
 
@@ -107,6 +111,14 @@ from scipy.sparse.linalg import SuperLU
 
 from data import se2
 from data.errors import UserError
+from slam.deferral import (
+    MIN_POWER,
+    alternative_offsets,
+    alternative_places,
+    consensus,
+    power,
+    whitened_offsets,
+)
 from slam.least_squares import StickySolver, factor_information
 from slam.pose_graph import (
     Constraint,
@@ -128,6 +140,7 @@ LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySo
 RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
 POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the error
+DEFER_MODES = ("off", "candidate", "all")  # `incremental_tls`'s deferral of powerless tests
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
 
 
@@ -159,6 +172,12 @@ class _Gains:
         return np.einsum("mab,mbc->mac", self.Bi, y[self.ri]) + np.einsum(
             "mab,mbc->mac", self.Bj, y[self.rj]
         )
+
+    def subset(self, index: NDArray[np.int64]) -> _Gains:
+        """The candidates `index` alone (copies; ``Y`` keeps every touched row)."""
+        return _Gains(self.b[index].copy(), self.Bi[index].copy(), self.Bj[index].copy(),
+                      self.ri[index].copy(), self.rj[index].copy(), self.Y[index].copy(),
+                      self.M[index].copy())
 
 
 class InnovationTest:
@@ -532,6 +551,7 @@ def admit_incrementally(
     barred: Sequence[int] = (),
     prefix_solver: str = "auto",
     unit: list[gtsam.NonlinearFactor] | None = None,
+    defer: bool = False,
 ) -> Admission:
     """One time-ordered TLS pass (module docstring, steps 1-3) from initial `values`.
 
@@ -551,10 +571,13 @@ def admit_incrementally(
             ``"isam2"``: on a prefix that stays consistent its updates cost a fraction
             of the batch solves, and a folded prefix costs about what batch does.
         unit: the Gaussian factor of every loop (computed when None).
+        defer: loops whose innovation test has no power are deferred and decided by
+            consensus (`slam.deferral`); loops still deferred at the end are rejected.
+            False (the default) decides every loop in its own block.
     """
     run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
                         max_rounds=max_rounds, solver=solver, barred=barred,
-                        prefix_solver=prefix_solver, unit=unit)
+                        prefix_solver=prefix_solver, unit=unit, defer=defer)
     run.advance()
     return run.result()
 
@@ -572,6 +595,7 @@ class _Snapshot:
     weights: Array
     fixed: gtsam.NonlinearFactorGraph
     isam: _IsamPrefix | None
+    deferred: NDArray[np.int64]
 
 
 class AdmissionPass:
@@ -598,7 +622,7 @@ class AdmissionPass:
         block: int = 50, gate: str = "stated", max_rounds: int = 50,
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
-        record: bool = False,
+        record: bool = False, defer: bool = False,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
@@ -621,6 +645,8 @@ class AdmissionPass:
                                   for lp in graph.loops], dtype=int)
         self._anchors = set(graph.anchor_keys())
         self.weights = np.zeros(len(graph.loops))
+        self.defer = defer
+        self.deferred = np.zeros(0, dtype=np.int64)  # loops whose test had no power yet
         self._fixed = gtsam.NonlinearFactorGraph()
         self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
         self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
@@ -663,7 +689,8 @@ class AdmissionPass:
     def _snapshot(self) -> _Snapshot:
         return _Snapshot(self._step, self.last, self.blocks, gtsam.Values(self.current),
                          self.weights.copy(), gtsam.NonlinearFactorGraph(self._fixed),
-                         None if self._isam is None else self._isam.copy())
+                         None if self._isam is None else self._isam.copy(),
+                         self.deferred.copy())
 
     def block_of(self, loop: int) -> int:
         """Index of the block in which `loop` (index into `graph.loops`) is decided."""
@@ -687,12 +714,14 @@ class AdmissionPass:
         if not earlier:  # before the first block: a new pass
             run.last, run.blocks, run._step = -1, 0, 0
             run.current, run.weights = gtsam.Values(), np.zeros(len(self.graph.loops))
+            run.deferred = np.zeros(0, dtype=np.int64)
             run._fixed = gtsam.NonlinearFactorGraph()
             run._isam = _IsamPrefix() if self.prefix_solver == "isam2" else None
             return run
         snap = earlier[-1]
         run.last, run.blocks, run._step = snap.last, snap.blocks, snap.step
         run.current, run.weights = gtsam.Values(snap.current), snap.weights.copy()
+        run.deferred = np.setdiff1d(snap.deferred, run.barred).astype(np.int64)
         run._fixed = gtsam.NonlinearFactorGraph(snap.fixed)
         run._isam = None if snap.isam is None else snap.isam.copy()
         return run
@@ -717,14 +746,18 @@ class AdmissionPass:
             fixed.add(graph.between_factor(graph.odometry[n]))
             if isam is not None:
                 isam.add(fixed.at(fixed.size() - 1))
-        pending = np.setdiff1d(
+        arrived = np.setdiff1d(
             np.flatnonzero((self.loop_end > last) & (self.loop_end <= end)), self.barred)
+        final = end == len(keys) - 1
         self.last = end
-        if len(pending) == 0:
+        # Deferred loops are re-tested with every block that brings loops, and at the end.
+        if len(arrived) == 0 and not (final and len(self.deferred)):
             return
+        pending = np.union1d(arrived, self.deferred).astype(np.int64)
         self.blocks += 1
         prefix = keys[: end + 1]
         accepted = np.zeros(len(pending), dtype=bool)
+        waiting = np.zeros(0, dtype=np.int64)  # positions in `pending` deferred (`slam.deferral`)
         factors = fixed  # the accepted graph, whose solution is `current`
         for _ in range(self._max_rounds):
             errors = np.array([unit[k].error(current) for k in pending])
@@ -735,6 +768,7 @@ class AdmissionPass:
                 current, isam = self._prefix_solve(factors, current, pending[newly])
                 continue
             rest = np.flatnonzero(~accepted)
+            waiting = np.zeros(0, dtype=np.int64)
             if len(rest) == 0:
                 break
             # Step 2, at the solution of the accepted graph.
@@ -746,20 +780,44 @@ class AdmissionPass:
                 test = InnovationTest(factors, current, prefix, self._d)
             except RuntimeError:  # singular information: no innovation test possible
                 break
+            gains = test.gains([unit[pending[q]] for q in rest])
+            decide = np.arange(len(rest))
+            weak = np.zeros(0, dtype=np.int64)
+            white = None
+            if self.defer:
+                # The deferral's classes use the stated ``c`` whatever the gate, so a stated
+                # and a calibrated pass defer alike until they admit differently.
+                ends = [unit[pending[q]].keys()[1] for q in rest]
+                white = whitened_offsets(gains, alternative_offsets(
+                    current, ends, alternative_places(prefix), graph.dim))
+                eye = np.eye(self._d)
+                strong = power(eye + gains.M, white, c) >= MIN_POWER
+                weak = np.flatnonzero(~strong & (admission_costs(gains) < c))
+                decide = np.flatnonzero(strong)
             costs: list[float] = []
-            admitted, _ = greedy_admission(test.gains([unit[pending[q]] for q in rest]), limit,
-                                           costs)
+            admitted: list[int] = []
+            if len(decide):
+                chosen, _ = greedy_admission(gains.subset(decide), limit, costs)
+                admitted = [int(decide[q]) for q in chosen]
+            if not admitted and len(weak):
+                agreeing = consensus(gains.subset(weak), white[weak], c)
+                if len(agreeing):
+                    pick = weak[agreeing]
+                    chosen, _ = greedy_admission(gains.subset(pick), limit, costs)
+                    admitted = [int(pick[q]) for q in chosen]
             if self.gate == "stated" and self.calibrated_step is None and admitted:
                 s0 = _variance_factor(factors, current, len(prefix), self._d)
                 if s0 is not None and max(costs) >= c * min(1.0, s0):
                     self.calibrated_step = self._step
             if not admitted:
+                waiting = rest[weak] if not final else waiting
                 break
             accepted[rest[admitted]] = True
             factors = _with(fixed, unit, pending[accepted])
             current, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
         self.current = current
         self.weights[pending] = accepted
+        self.deferred = pending[waiting[~accepted[waiting]]]
         for q in np.flatnonzero(accepted):
             fixed.add(unit[pending[q]])
 
@@ -888,6 +946,7 @@ def bar_search(
     factors: StatedFactors | None = None,
     gate: str = "stated",
     source: AdmissionPass | None = None,
+    defer: bool = False,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -928,7 +987,7 @@ def bar_search(
         else:
             run = AdmissionPass(decide, values, probability=probability, block=block,
                                 gate=gate, solver=solve, barred=trial,
-                                prefix_solver=prefix_solver, unit=unit)
+                                prefix_solver=prefix_solver, unit=unit, defer=defer)
         if not _finish_unless_behind(run, best, factors, probability):
             break
         refined, weights = refine_tls(graph, run.current, run.weights,
@@ -979,6 +1038,7 @@ def incremental_tls(
     tries: int = BAR_TRIES,
     prefix_solver: str = "auto",
     choose: Callable[..., int | tuple[int, Array | None]] | None = None,
+    defer: str = "off",
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -1002,6 +1062,15 @@ def incremental_tls(
     part.  The best run is then improved by `bar_search` with `tries` trials (0: none),
     which repeats the winning run's graph and gate.
 
+    `defer` (`DEFER_MODES`): ``"off"`` (the default) decides every loop in its own block;
+    ``"all"``: every run defers the loops whose innovation test has no power and decides
+    them by consensus (`slam.deferral`); ``"candidate"``: one more run, on the graph as
+    stated with the stated gate, does (label ``"stated-deferred"``) and replaces the chosen
+    run (`choose`, or the lowest stated cost) when it dominates it: a lower stated
+    `tls_cost` with more loops admitted.  Off by default: ``"all"`` rejects true loops that
+    have no consensus to wait for on a graph of few, far-apart loops, and ``"candidate"``
+    lets false loops that lower the stated objective in.
+
     `choose`: picks the winner among the refined runs instead of the lowest stated cost,
     called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
     solver=..., unit=...)`` and returning an index, or -1 to keep the lowest stated cost
@@ -1011,6 +1080,8 @@ def incremental_tls(
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
+    if defer not in DEFER_MODES:
+        raise UserError(f"unknown deferral {defer!r}; use {', '.join(DEFER_MODES)}")
     best: Admission | None = None
     decided: PoseGraph | None = None
     # Dogleg-QR from the start where the odometry needs QR (Intel: LM runs out its
@@ -1037,11 +1108,20 @@ def incremental_tls(
             else:
                 run = AdmissionPass(decide, values, probability=probability, block=block,
                                     gate=gate, solver=solver, prefix_solver=prefix_solver,
-                                    unit=unit, record=tries > 0 or gate == "stated")
+                                    unit=unit, record=tries > 0 or gate == "stated",
+                                    defer=defer == "all")
             run.advance(until_fold=True)
             if run.done:
                 run.release_prefix()
             runs.append((label, decide, run))
+    if defer == "candidate":
+        run = AdmissionPass(graph, values, probability=probability, block=block,
+                            solver=solver, prefix_solver=prefix_solver, unit=unit,
+                            record=True, defer=True)
+        run.advance(until_fold=True)
+        if run.done:
+            run.release_prefix()
+        runs.append(("stated-deferred", graph, run))
     # Finished runs first, then the folded ones in ladder order, each only if still ahead.
     finished: list[tuple[Admission, PoseGraph, AdmissionPass]] = []
     source: AdmissionPass | None = None
@@ -1071,10 +1151,16 @@ def incremental_tls(
             best = Admission(refined, np.asarray(offered, dtype=float),
                              tls_cost(graph, refined, probability, stated), best.blocks,
                              f"{best.gate}-offered")
+    for admission, graph_of, run in finished:
+        # The deferred run dominates a choice that explains fewer loops at a higher cost.
+        if (run.defer and admission.tls_cost < best.tls_cost
+                and admission.weights.sum() > best.weights.sum()):
+            best, decided, source = admission, graph_of, run
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
-                          factors=stated, gate=_gate_of(best), source=source)
+                          factors=stated, gate=_gate_of(best), source=source,
+                          defer=source is not None and source.defer)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

@@ -160,6 +160,7 @@ def optimize(
     groups: bool = True,
     fast_path: bool = True,
     swap: bool = False,
+    defer: str = "off",
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -190,6 +191,8 @@ def optimize(
     `swap`: the incremental admission's result goes through `slam.swap.swap_search`
     (groups of rejected loops admitted together) before the segment re-check; off by
     default: on Intel with loosened odometry it let false groups in.
+    `defer`: the incremental admission's deferral of loops whose innovation test has no
+    power (`slam.consistency.incremental_tls`, `slam.deferral`); off by default.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -217,6 +220,7 @@ def optimize(
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
+                defer=defer,
             )
             if swap and len(graph.loops):
                 swapped = swap_search(graph, admission, values, probability=gnc_probability,
