@@ -54,7 +54,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
@@ -154,6 +154,62 @@ def _gap_information(odometry: Array, a: NDArray[np.intp], b: NDArray[np.intp]) 
     return info
 
 
+@dataclass(slots=True)
+class ReferenceGraph:
+    """The pose graph of the relations reference (module docstring), before solving.
+
+    Attributes:
+        graph: the `slam.pose_graph.PoseGraph`; key = position in `nodes`.
+        nodes: ``(M,)`` scan index of every node, increasing.
+        rel_nodes: ``(R,)`` scan indices that are an end of a relation.
+        relations: the relations used (stamps among the scans, distinct ends).
+    """
+
+    graph: Any
+    nodes: NDArray[np.intp]
+    rel_nodes: NDArray[np.intp]
+    relations: list[Relation]
+
+
+def reference_graph(
+    stamps: Array, relations: Sequence[Relation], keyframe_index: Sequence[int],
+    odometry: Array,
+) -> ReferenceGraph | None:
+    """The graph `relations_reference` solves (None: no relation between two scans)."""
+    from slam.pose_graph import PoseGraph
+
+    uniq, first = _first_of_duplicates(stamps)
+    rels = relations_in_range(relations, stamps)
+    if not rels:
+        return None
+    i1 = first[lookup(uniq, np.array([r.t1 for r in rels]), RELATION_TOLERANCE)]
+    i2 = first[lookup(uniq, np.array([r.t2 for r in rels]), RELATION_TOLERANCE)]
+    keep = i1 != i2
+    i1, i2 = i1[keep], i2[keep]
+    rels = [r for r, k in zip(rels, keep, strict=True) if k]
+    if len(i1) == 0:
+        return None
+    kf = np.asarray(keyframe_index, dtype=np.intp)
+    rel_nodes = np.unique(np.concatenate([i1, i2]))
+    lo, hi = rel_nodes[0], rel_nodes[-1]
+    nodes = np.unique(np.concatenate([rel_nodes, kf[(kf >= lo) & (kf <= hi)]]))
+
+    # Graph keys are node positions 0..M-1 (gtsam's LAGO wants consecutive keys).
+    graph = PoseGraph(dim=2)
+    for key, scan in enumerate(nodes):
+        graph.add_pose(key, odometry[scan])
+    graph.fixed = {0}
+    a, b = nodes[:-1], nodes[1:]
+    gap_delta = se2.between(odometry[a], odometry[b])
+    for k, (d, info) in enumerate(zip(gap_delta, _gap_information(odometry, a, b), strict=True)):
+        graph.add_odometry(k, k + 1, d, info)
+    rel_info = np.diag(1.0 / np.square(RELATION_SIGMA))
+    for i, j, r in zip(np.searchsorted(nodes, i1), np.searchsorted(nodes, i2), rels,
+                       strict=True):
+        graph.add_loop(int(i), int(j), se2.from_matrix(r.delta), rel_info)
+    return ReferenceGraph(graph, nodes, rel_nodes, rels)
+
+
 def relations_reference(
     stamps: Array,
     relations: Sequence[Relation],
@@ -175,44 +231,17 @@ def relations_reference(
             keyframe still gets a reference pose [m].
     """
     from slam.optimize import optimize
-    from slam.pose_graph import PoseGraph
 
     stamps = np.asarray(stamps, float)
     odometry = np.asarray(odometry, float).reshape(-1, 3)
-    uniq, first = _first_of_duplicates(stamps)
-    rels = relations_in_range(relations, stamps)
-    t1 = np.array([r.t1 for r in rels])
-    t2 = np.array([r.t2 for r in rels])
-    i1 = first[lookup(uniq, t1, RELATION_TOLERANCE)] if rels else np.zeros(0, np.intp)
-    i2 = first[lookup(uniq, t2, RELATION_TOLERANCE)] if rels else np.zeros(0, np.intp)
-    keep = i1 != i2
-    i1, i2 = i1[keep], i2[keep]
-    rels = [r for r, k in zip(rels, keep, strict=True) if k]
-    deltas = [se2.from_matrix(r.delta) for r in rels]
     kf = np.asarray(keyframe_index, dtype=np.intp)
-    empty = RelationsReference(np.zeros(0, np.intp), np.zeros((0, 3)), 0, 0, len(kf),
-                               gap_odometry, float("nan"), float("nan"),
-                               np.zeros(0, np.intp), np.zeros((0, 3)))
-    if len(i1) == 0:
-        return empty
-    rel_nodes = np.unique(np.concatenate([i1, i2]))
-    lo, hi = rel_nodes[0], rel_nodes[-1]
-    nodes = np.unique(np.concatenate([rel_nodes, kf[(kf >= lo) & (kf <= hi)]]))
-
-    # Graph keys are node positions 0..M-1 (gtsam's LAGO wants consecutive keys).
-    graph = PoseGraph(dim=2)
-    for key, scan in enumerate(nodes):
-        graph.add_pose(key, odometry[scan])
-    graph.fixed = {0}
-    a, b = nodes[:-1], nodes[1:]
-    gap_delta = se2.between(odometry[a], odometry[b])
-    for k, (d, info) in enumerate(zip(gap_delta, _gap_information(odometry, a, b), strict=True)):
-        graph.add_odometry(k, k + 1, d, info)
-    rel_info = np.diag(1.0 / np.square(RELATION_SIGMA))
-    for i, j, d in zip(np.searchsorted(nodes, i1), np.searchsorted(nodes, i2), deltas,
-                       strict=True):
-        graph.add_loop(int(i), int(j), d, rel_info)
-    solved = optimize(graph, kernel="none", method="lm", init="lago").poses
+    built = reference_graph(stamps, relations, kf, odometry)
+    if built is None:
+        return RelationsReference(np.zeros(0, np.intp), np.zeros((0, 3)), 0, 0, len(kf),
+                                  gap_odometry, float("nan"), float("nan"),
+                                  np.zeros(0, np.intp), np.zeros((0, 3)))
+    nodes, rel_nodes, rels = built.nodes, built.rel_nodes, built.relations
+    solved = optimize(built.graph, kernel="none", method="lm", init="lago").poses
     node_poses = np.array([solved[k] for k in range(len(nodes))])
 
     at_rel = np.searchsorted(nodes, rel_nodes)
@@ -221,6 +250,7 @@ def relations_reference(
     # Keyframes covered: relation nodes, or bracketed by relation nodes close in path.
     step = se2.between(odometry[:-1], odometry[1:])
     path = np.concatenate([[0.0], np.cumsum(np.hypot(step[:, 0], step[:, 1]))])
+    lo, hi = rel_nodes[0], rel_nodes[-1]
     inside = kf[(kf >= lo) & (kf <= hi)]
     after = np.searchsorted(rel_nodes, inside, side="left")
     before = np.searchsorted(rel_nodes, inside, side="right") - 1
@@ -232,7 +262,7 @@ def relations_reference(
         scan_index=covered,
         poses=node_poses[pos],
         nodes=len(nodes),
-        relations=len(i1),
+        relations=len(rels),
         keyframes=len(kf),
         gap_odometry=gap_odometry,
         fit_trans_mean_m=fit.trans_abs_mean,
@@ -240,6 +270,47 @@ def relations_reference(
         node_index=nodes,
         node_poses=node_poses,
     )
+
+
+def relative_sigmas(built: ReferenceGraph, node_poses: Array, pairs: ArrayLike) -> Array:
+    """``(n, 3)`` standard deviations (x, y [m], theta [rad]) of the reference's
+    relative pose ``between(pose(a), pose(b))`` for scan-index pairs ``(a, b)`` (both
+    nodes of `built`), in a's frame, from the graph's Gaussian marginals at
+    `node_poses` (``(M, 3)``, the solved nodes).
+
+    With ``r = a^-1 b`` and right-perturbed poses, ``dr = -Ad(r^-1) da + db`` (Ad the
+    SE(2) adjoint ``[[R, (y, -x)^T], [0, 1]]``), so
+    ``Sigma_r = J Sigma_ab J^T``, ``J = [-Ad(r^-1), I]`` with ``Sigma_ab`` the 6x6 joint
+    marginal covariance of the two poses.  How far the relations pin the relative
+    pose of two places that no relation joins directly: a chain of n relations of
+    heading sigma s gives about ``s sqrt(n)``.
+
+    Raises:
+        UserError: a pair's scan is not a node of the graph.
+    """
+    import gtsam
+
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    pos = np.searchsorted(built.nodes, pairs)
+    pos = np.minimum(pos, len(built.nodes) - 1)
+    if not np.all(built.nodes[pos] == pairs):
+        raise UserError("relative_sigmas: a scan of the pairs is not a reference node")
+    graph = built.graph
+    factors, _ = graph.factor_graph()
+    poses = {k: np.asarray(node_poses[k], float) for k in range(len(built.nodes))}
+    marginals = gtsam.Marginals(factors, graph.gtsam_values(poses))
+    out = np.zeros((len(pairs), 3))
+    for n, (a, b) in enumerate(pos.tolist()):
+        if a == b:
+            continue
+        keys = gtsam.KeyVector([a, b])
+        cov = marginals.jointMarginalCovariance(keys).fullMatrix()
+        r_inv = se2.between(node_poses[b], node_poses[a])  # r^-1 = b^-1 a
+        c, s = np.cos(r_inv[2]), np.sin(r_inv[2])
+        ad = np.array([[c, -s, r_inv[1]], [s, c, -r_inv[0]], [0.0, 0.0, 1.0]])
+        jac = np.hstack([-ad, np.eye(3)])
+        out[n] = np.sqrt(np.maximum(np.diag(jac @ cov @ jac.T), 0.0))
+    return out
 
 
 def keyframe_reference(

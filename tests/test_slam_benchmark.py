@@ -456,3 +456,29 @@ def test_intel_first_scans() -> None:
     rel = loops["against"]["relations"]
     assert loops["accepted"] >= 5 and rel["verifiable"] >= 5
     assert loops["precision"] >= 0.99 and rel["true_positives"] >= 5
+
+
+def test_relative_sigmas_of_a_relation_chain_hand_checked() -> None:
+    """Poses 2 m apart along x joined by two relations of sigma 0.01 (m, m, rad).
+
+    Pair (1, 2): one relation, so its own sigmas.  Pair (0, 2): x and theta add in
+    quadrature (sqrt(2) * 0.01); y also gets the lever arm of node 1's heading error
+    over the 2 m of the second step: sqrt(2 * 0.01^2 + (2 * 0.01)^2)."""
+    from slam.pose_graph import PoseGraph
+
+    graph = PoseGraph(dim=2)
+    poses = np.array([[0.0, 0, 0], [2.0, 0, 0], [4.0, 0, 0]])
+    for k, p in enumerate(poses):
+        graph.add_pose(k, p)
+    graph.fixed = {0}
+    info = np.diag(np.full(3, 1e4))
+    graph.add_loop(0, 1, poses[1], info)
+    graph.add_loop(1, 2, poses[1], info)
+    built = sr.ReferenceGraph(graph, np.array([10, 20, 30]), np.array([10, 20, 30]), [])
+    sig = sr.relative_sigmas(built, poses, [(20, 30), (10, 30), (10, 10)])
+    np.testing.assert_allclose(sig[0], [0.01, 0.01, 0.01], rtol=1e-3)
+    np.testing.assert_allclose(sig[1], [np.sqrt(2) * 0.01, np.sqrt(6e-4), np.sqrt(2) * 0.01],
+                               rtol=1e-3)
+    np.testing.assert_allclose(sig[2], 0.0)
+    with pytest.raises(UserError):
+        sr.relative_sigmas(built, poses, [(10, 25)])
