@@ -105,6 +105,7 @@ from evaluation.loop_bench_truth import (
     pose_errors,
     pr_curve,
     recall_at_k,
+    within_reference_uncertainty,
 )
 from loopclosure.loop_detector import merge_views
 from loopclosure.place_database import PlaceDatabase
@@ -194,6 +195,13 @@ class LoopBench:
             final row's place (`loopclosure.geometric_check.LoopVerification`; NaN
             without a check).
         accepted_places: ``(n,)`` places the check accepted for the query.
+        reference_sigmas: ``(n, 3)`` standard deviations (x, y [m], theta [rad]) of the
+            reference's relative pose of each accepted final detection's two keyframes
+            (NaN elsewhere; None when the reference does not know them: only a
+            relations reference does).
+        unverifiable: ``(n,)`` wrong final detections within the reference's own
+            uncertainty (`evaluation.loop_bench_truth.within_reference_uncertainty`);
+            None with `reference_sigmas`.
     """
 
     name: str
@@ -220,6 +228,8 @@ class LoopBench:
     nearest: Array | None = None
     check_figures: Array | None = None
     accepted_places: NDArray[np.intp] | None = None
+    reference_sigmas: Array | None = None
+    unverifiable: NDArray[np.bool_] | None = None
 
     @property
     def revisits(self) -> int:
@@ -499,8 +509,32 @@ def loop_task(task: LoopTask) -> LoopBlock:
     if not task.cascade:
         return LoopBlock(_stage_results(raw, ref, task.rows, tol), query_s)
     bench = _evaluate(inp.label, raw, ref, covered, task.rows, tol, result, task.config)
+    sigmas = getattr(inp.reference, "sigmas", None)
+    if sigmas is not None:
+        _reference_uncertainty(bench, lambda pairs: sigmas(result, pairs))
     bench.wall_s = {"mapping": map_s, "queries": query_s}
     return LoopBlock(bench.stages, query_s, bench)
+
+
+def _reference_uncertainty(bench: LoopBench, sigmas: Callable[[Array], Array]) -> None:
+    """`bench.reference_sigmas` and `bench.unverifiable` of the accepted final
+    detections; `sigmas` maps ``(m, 2)`` keyframe pairs (match, query) to the
+    reference's ``(m, 3)`` relative-pose sigmas."""
+    f = bench.final
+    n = len(bench.query_keys)
+    done = bench.accepted & (f.match >= 0)
+    sig = np.full((n, 3), np.nan)
+    if done.any():
+        pairs = np.column_stack([f.match[done], bench.query_keys[done]])
+        sig[done] = np.asarray(sigmas(pairs), float).reshape(-1, 3)
+    place = np.full(n, np.nan)
+    ref = bench.reference
+    place[done] = np.hypot(*(ref[f.match[done], :2] - ref[bench.query_keys[done], :2]).T)
+    tol = bench.tolerances
+    bench.reference_sigmas = sig
+    bench.unverifiable = done & ~f.correct & within_reference_uncertainty(
+        bench.final_errors, place, sig, max_distance=tol.max_distance,
+        trans_tol=tol.trans_tol, rot_tol_deg=tol.rot_tol_deg)
 
 
 @dataclass(slots=True)

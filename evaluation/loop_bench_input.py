@@ -6,7 +6,8 @@ trajectory, or the log's own poses with synthetic odometry), or a simulated worl
 of the embedded demo (its ground truth is the reference).  `LoopSource.open` reads
 it into a `LoopInput`: the label shown in reports, the scans, and the reference
 callback of `evaluation.loop_bench.run_loop_bench` (keyframe reference poses
-``(K, 3)`` [m, m, rad], NaN rows for keyframes without one).
+``(K, 3)`` [m, m, rad], NaN rows for keyframes without one; a relations reference
+also tells its own uncertainty, `relations_reference_fn`).
 """
 
 from __future__ import annotations
@@ -30,19 +31,36 @@ def _no_progress(stage: str, done: int, total: int) -> None:
 def relations_reference_fn(data: Any, relations: Path, name: str | None = None) -> Any:
     """Reference of the keyframes from relations (`relations_reference`; NaN = none).
 
-    `name`: the relations file as reported (default `relations`)."""
+    `name`: the relations file as reported (default `relations`).  The callback has a
+    second one, ``reference.sigmas(result, pairs)``: ``(n, 3)`` standard deviations
+    (x, y [m], theta [rad]) of the reference's relative pose of keyframe pairs
+    ``(match, query)`` (`relative_sigmas`; NaN where a keyframe has no reference)."""
     from data.relations import read_relations
-    from evaluation.slam_reference import relations_in_range, relations_reference
+    from evaluation.slam_reference import (
+        reference_graph,
+        relations_in_range,
+        relations_reference,
+        relative_sigmas,
+    )
 
     rels = read_relations(relations)
     used = relations_in_range(rels, data.stamps)
     if not used:
         raise UserError(f"{name or relations}: none of its {len(rels)} relations has both "
                         f"stamps among the {len(data.scans)} scans read")
+    solved: dict[int, Any] = {}  # id(result) -> (result, its RelationsReference)
+
+    def _solved(result: Any) -> Any:
+        if id(result) not in solved:
+            kf = [k.scan_index for k in result.keyframes]
+            solved.clear()
+            solved[id(result)] = (result, relations_reference(data.stamps, used, kf,
+                                                              result.odometry_poses))
+        return solved[id(result)][1]
 
     def reference(result: Any) -> np.ndarray:
         kf = [k.scan_index for k in result.keyframes]
-        ref = relations_reference(data.stamps, used, kf, result.odometry_poses)
+        ref = _solved(result)
         out = np.full((len(kf), 3), np.nan)
         pos = {int(s): i for i, s in enumerate(ref.scan_index)}
         for i, s in enumerate(kf):
@@ -50,6 +68,18 @@ def relations_reference_fn(data: Any, relations: Path, name: str | None = None) 
                 out[i] = ref.poses[pos[s]]
         return out
 
+    def sigmas(result: Any, pairs: Any) -> np.ndarray:
+        kf = np.array([k.scan_index for k in result.keyframes], np.intp)
+        scans = kf[np.asarray(pairs, np.intp).reshape(-1, 2)]
+        ref = _solved(result)
+        out = np.full((len(scans), 3), np.nan)
+        known = np.isin(scans, ref.scan_index).all(axis=1)
+        if known.any():
+            built = reference_graph(data.stamps, used, kf, result.odometry_poses)
+            out[known] = relative_sigmas(built, ref.node_poses, scans[known])
+        return out
+
+    reference.sigmas = sigmas  # type: ignore[attr-defined]
     return reference
 
 

@@ -7,7 +7,9 @@
      "stages": {name: {"recall_at_p100", "recall_at_p99", "average_precision",
                        "ms_per_query", "top1_precision", "top1_recall"}},
      "final": {... the same ..., "accepted", "precision_at_min_score",
-               "recall_at_min_score", "min_score"},
+               "recall_at_min_score", "min_score",
+               with a relations reference also "unverifiable" and "verifiable":
+               {"recall_at_p100", "recall_at_p99", "average_precision"}},
      "recall_at_k": {prefilter stage: {"1", "10", "50"}},
      "candidates": {"recall", "mean_count"}, "wall_s", "reference"}
 
@@ -24,7 +26,9 @@ detections drawn: true green, false red, missed revisits orange) and
 verdict, the check's verdict and pose error, the rank of its first true place in
 the prefilter and its nearest true place's distance, heading difference and
 overlap: `evaluation.loop_bench_misses`; the check's figures of the final place and
-how many places it accepted), each atomically (`data.atomic_write`).
+how many places it accepted; with a relations reference the reference's own sigmas
+of the detection's relative pose and whether it is unverifiable, see
+`evaluation.loop_bench_truth`), each atomically (`data.atomic_write`).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ import numpy as np
 from data.atomic_write import output_dir, write_text_atomic
 from evaluation.loop_bench import CHECK_FIGURES, RECALL_KS, LoopBench, StageResult
 from evaluation.loop_bench_misses import miss_breakdown
-from evaluation.loop_bench_truth import curve_summary, recall_at_precision
+from evaluation.loop_bench_truth import curve_summary, pr_curve, recall_at_precision
 from slam.json_io import write_json
 
 
@@ -69,6 +73,7 @@ def json_document(bench: LoopBench) -> dict[str, Any]:
     """The ``--json`` document (module docstring)."""
     final = _stage_doc(bench.final, bench.revisits)
     final.update(operating_point(bench))
+    final.update(_verifiable(bench))
     size = bench.database_size
     return {
         "input": bench.name,
@@ -92,6 +97,16 @@ def json_document(bench: LoopBench) -> dict[str, Any]:
             for name, rows in _misses(bench).items()
         },
     }
+
+
+def _verifiable(bench: LoopBench) -> dict[str, Any]:
+    """The final row's measures with the unverifiable detections set aside
+    (`evaluation.loop_bench_truth`); empty without reference sigmas."""
+    if bench.unverifiable is None:
+        return {}
+    f, keep = bench.final, ~bench.unverifiable
+    curve = pr_curve(f.score[keep], f.correct[keep], bench.revisits)
+    return {"unverifiable": int(bench.unverifiable.sum()), "verifiable": curve_summary(curve)}
 
 
 def _misses(bench: LoopBench) -> dict[str, list[tuple[str, int, float]]]:
@@ -144,6 +159,13 @@ def summary_lines(bench: LoopBench) -> list[str]:
         f"{bench.min_score:g}: precision {op['precision_at_min_score']:.3f}, recall "
         f"{op['recall_at_min_score']:.3f}"
     )
+    ver = _verifiable(bench)
+    if ver:
+        v = ver["verifiable"]
+        lines.append(
+            f"{ver['unverifiable']} wrong detections lie within the reference's own "
+            f"uncertainty (tolerance + 3 sigma of its relative pose); without them: recall "
+            f"{v['recall_at_p100']:.3f} at 100% precision, {v['recall_at_p99']:.3f} at 99%")
     lines.append(f"mapping {bench.wall_s.get('mapping', 0):.0f} s, queries "
                  f"{bench.wall_s.get('queries', 0):.0f} s")
     return lines
@@ -163,6 +185,7 @@ def queries_csv(bench: LoopBench) -> str:
     head += ["check_verdict", "error_m", "error_deg", "prefilter_rank", "nearest_key",
              "nearest_m", "nearest_dtheta_deg", "nearest_overlap"]
     head += [f"check_{f}" for f in CHECK_FIGURES] + ["accepted_places"]
+    head += ["reference_sigma_m", "reference_sigma_deg", "unverifiable"]
     w.writerow(head)
     for i, k in enumerate(bench.query_keys.tolist()):
         line: list[Any] = [k, int(bench.scan_index[k]), int(bench.has_revisit[i]),
@@ -175,6 +198,7 @@ def queries_csv(bench: LoopBench) -> str:
         line += [bench.reasons[i]] + [f"{e:.4f}" if np.isfinite(e) else "" for e in err]
         line += _nearest_cells(bench, i)
         line += _check_cells(bench, i)
+        line += _sigma_cells(bench, i)
         w.writerow(line)
     return buf.getvalue()
 
@@ -185,6 +209,17 @@ def _check_cells(bench: LoopBench, i: int) -> list[Any]:
         return [""] * (len(CHECK_FIGURES) + 1)
     return [f"{x:.4g}" if np.isfinite(x) else "" for x in bench.check_figures[i]] + [
         int(bench.accepted_places[i])]
+
+
+def _sigma_cells(bench: LoopBench, i: int) -> list[Any]:
+    """Query i's reference sigmas [m], [deg] and unverifiable flag (empty: unknown)."""
+    if bench.reference_sigmas is None or bench.unverifiable is None:
+        return [""] * 3
+    sig = bench.reference_sigmas[i]
+    if not np.isfinite(sig).all():
+        return [""] * 3
+    return [f"{np.hypot(sig[0], sig[1]):.4f}", f"{np.degrees(sig[2]):.3f}",
+            int(bench.unverifiable[i])]
 
 
 def _nearest_cells(bench: LoopBench, i: int) -> list[Any]:

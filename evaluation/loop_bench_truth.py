@@ -29,6 +29,13 @@ keyframe; ``max_distance`` = 2 m by default):
   recall reached;
 * **recall@K** (`recall_at_k`): fraction of the queries with a revisit for which one
   of the K best-ranked database keyframes is within ``max_distance`` of the query.
+* **unverifiable** (`within_reference_uncertainty`, a diagnosis beside the measures
+  above, which it does not change): a wrong detection after the check whose place
+  distance and pose errors are all within the tolerance plus ``k`` standard
+  deviations of the reference's own relative pose between the two keyframes (a
+  relations reference knows them: `evaluation.slam_reference.relative_sigmas`).
+  The recall at 100% / 99% precision with those detections set aside (neither
+  correct nor wrong) says how much of a cap the reference, not the detector, sets.
 """
 
 from __future__ import annotations
@@ -184,6 +191,29 @@ def recall_at_k(hits: ArrayLike, has_revisit: ArrayLike, ks: tuple[int, ...]) ->
         found = h[:, :k].any(axis=1) & rv
         out[int(k)] = float(found.sum() / n) if n else 0.0
     return out
+
+
+def within_reference_uncertainty(
+    errors: ArrayLike, place_m: ArrayLike, sigmas: ArrayLike, *, max_distance: float = 2.0,
+    trans_tol: float = 0.2, rot_tol_deg: float = 2.0, k: float = 3.0,
+) -> NDArray[np.bool_]:
+    """``(n,)`` True where a detection's errors are all inside the tolerances widened by
+    `k` reference sigmas (module docstring, *unverifiable*).
+
+    Args:
+        errors: ``(n, 2)`` pose errors [m], [deg] (`pose_errors`).
+        place_m: ``(n,)`` reference distance of the two keyframes [m].
+        sigmas: ``(n, 3)`` standard deviations (x, y [m], theta [rad]) of the
+            reference's relative pose; NaN (unknown) gives False.
+    """
+    e = np.asarray(errors, float).reshape(-1, 2)
+    d = np.asarray(place_m, float).reshape(-1)
+    sig = np.asarray(sigmas, float).reshape(-1, 3)
+    s_m = np.hypot(sig[:, 0], sig[:, 1])
+    s_deg = np.degrees(sig[:, 2])
+    with np.errstate(invalid="ignore"):
+        return ((e[:, 0] <= trans_tol + k * s_m) & (e[:, 1] <= rot_tol_deg + k * s_deg)
+                & (d <= max_distance + k * s_m))
 
 
 def curve_summary(curve: PRCurve) -> dict[str, float]:

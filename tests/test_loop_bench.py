@@ -107,6 +107,20 @@ def test_pose_correct_hand_checked() -> None:
 # ------------------------------------------------------------------------ bad input
 
 
+def test_within_reference_uncertainty_hand_checked() -> None:
+    """Tolerances 2 m / 0.2 m / 2 deg widened by 3 sigma: a 2.9 deg error with a
+    reference heading sigma of 0.5 deg is inside (2 + 1.5 = 3.5), with 0.2 deg not
+    (2.6); a place 2.1 m apart needs a position sigma of at least 0.1 / 3 m; an unknown
+    sigma (NaN) is never inside."""
+    deg = np.radians
+    errors = [[0.05, 2.9], [0.05, 2.9], [0.05, 0.3], [0.05, 0.3], [0.05, 2.9]]
+    place = [1.0, 1.0, 2.1, 2.1, 1.0]
+    sig = [[0.0, 0.0, deg(0.5)], [0.0, 0.0, deg(0.2)], [0.03, 0.04, 0.0],
+           [0.02, 0.0, 0.0], [np.nan, np.nan, np.nan]]
+    got = truth.within_reference_uncertainty(errors, place, sig)
+    assert got.tolist() == [True, False, True, False, False]
+
+
 def test_empty_and_one_keyframe_databases_give_no_candidate() -> None:
     run = simulate_run("box", seed=0)
     db = PlaceDatabase()
@@ -224,7 +238,8 @@ def test_report_outputs(bench: lb.LoopBench, tmp_path: Path) -> None:
     assert lines[0].endswith("prefilter_rank,nearest_key,nearest_m,nearest_dtheta_deg,"
                              "nearest_overlap,check_fitness,check_consistency,"
                              "check_matched_length,check_margin,check_degeneracy,"
-                             "accepted_places")
+                             "accepted_places,reference_sigma_m,reference_sigma_deg,"
+                             "unverifiable")
     rows = list(csv.DictReader(io.StringIO(paths["queries"].read_text())))
     for row in rows:  # an accepted final place has its check's figures
         if row["final_match"]:
@@ -279,3 +294,27 @@ def test_command_with_a_tum_reference(sim: SimulatedRun, tmp_path: Path,
                  str(files["groundtruth"]), *args]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["keyframes_with_reference"] == doc["keyframes"] and doc["queries"] == 10
+
+
+def test_command_with_relations_reports_the_reference_uncertainty(
+        sim: SimulatedRun, tmp_path: Path) -> None:
+    """A relations reference knows its own uncertainty: every accepted final detection
+    gets its sigmas, and the figures with the unverifiable ones set aside are never
+    below the benchmark's own."""
+    from data.relations import write_relations
+    from data.sim import write_run
+    from tests.test_slam_benchmark import ground_truth_relations
+
+    files = write_run(sim, tmp_path / "sim")
+    write_relations(tmp_path / "sim.relations", ground_truth_relations(sim))
+    assert main(["bench", "loops", str(files["log"]), "--relations",
+                 str(tmp_path / "sim.relations"), "--max-queries", "12", "--limit", "400",
+                 "--stages", "prefilter,fused", "--out", str(tmp_path / "o")]) == 0
+    doc = json.loads((tmp_path / "o" / "results.json").read_text())
+    final = doc["final"]
+    assert 0 <= final["unverifiable"] <= final["accepted"]
+    assert final["verifiable"]["recall_at_p100"] >= final["recall_at_p100"]
+    rows = list(csv.DictReader((tmp_path / "o" / "queries.csv").open()))
+    accepted = [r for r in rows if r["check_verdict"] == "accepted"]
+    assert accepted and all(float(r["reference_sigma_deg"]) > 0 for r in accepted)
+    assert all(r["reference_sigma_m"] == "" for r in rows if r["check_verdict"] != "accepted")
