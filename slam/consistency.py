@@ -129,6 +129,7 @@ from slam.pose_graph import (
     poses_from_values,
     to_gtsam_pose,
 )
+from slam.selected_inverse import SelectedInverse
 
 Array = NDArray[np.float64]
 GATES = ("stated", "calibrated")
@@ -139,6 +140,9 @@ PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_so
 LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySolver`)
 RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
+# `InnovationTest.blocks` from selected entries of H^-1 (`slam.selected_inverse`); False:
+# from full solves of H^-1 B^T (the same numbers to rounding; `benchmarks/recheck_speed.py`).
+SELECTED_INVERSE = True
 POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the error
 DEFER_MODES = ("off", "candidate", "all")  # `incremental_tls`'s deferral of powerless tests
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
@@ -204,6 +208,7 @@ class InnovationTest:
             (triplets[2][keep], (rows[keep], cols[keep])), shape=(int(rows.max()) + 1, n)
         ).tocsc()
         self._lu = factor_information(jac)
+        self._selected: SelectedInverse | None = None
         self._values = values
         self._column = {k: n_ * dof for n_, k in enumerate(sorted(keys))}
         self.dof = dof
@@ -212,6 +217,17 @@ class InnovationTest:
     def covariance(self, rhs: Array) -> Array:
         """``H^-1 rhs`` for ``rhs`` of shape (n, d)."""
         return self._lu.solve(rhs)
+
+    @property
+    def selected(self) -> SelectedInverse:
+        """Selected entries of ``H^-1`` (marginal covariance blocks) from the same LU."""
+        if self._selected is None:
+            self._selected = SelectedInverse(self._lu)
+        return self._selected
+
+    def pose_index(self, key: int) -> int:
+        """First row of pose `key` in ``H`` (tangent coordinates, gtsam order)."""
+        return self._column[key]
 
     def _linearised(
         self, candidates: Sequence[gtsam.NonlinearFactor]
@@ -258,10 +274,27 @@ class InnovationTest:
         ``H^-1 B^T`` rows, which take (m, r, d) memory."""
         d = self.dof
         b, bi, bj, ci, cj = self._linearised(candidates)
+        if SELECTED_INVERSE:
+            return b, self._gram(bi, bj, ci, cj)
         gram = np.empty((len(b), d, d))
         for q, y in self._solved(bi, bj, ci, cj):
             gram[q] = bi[q] @ y[ci[q] : ci[q] + d] + bj[q] @ y[cj[q] : cj[q] + d]
         return b, gram
+
+    def _gram(
+        self, bi: Array, bj: Array, ci: NDArray[np.int64], cj: NDArray[np.int64]
+    ) -> Array:
+        """``M = B H^-1 B^T`` (m, d, d) of binary factors with Jacobian blocks ``B_i``,
+        ``B_j`` on the poses of first rows ``ci``, ``cj`` from the marginal covariance
+        blocks of their two poses alone (``S = H^-1``)::
+
+            M = B_i S_ii B_i^T + B_i S_ij B_j^T + B_j S_ji B_i^T + B_j S_jj B_j^T
+        """
+        d, m = self.dof, len(bi)
+        s = self.selected.blocks(np.concatenate([ci, ci, cj, cj]),
+                                 np.concatenate([ci, cj, ci, cj]), d).reshape(4, m, d, d)
+        left, right = (bi, bi, bj, bj), (bi, bj, bi, bj)
+        return sum(np.einsum("mab,mbc,mdc->mad", left[t], s[t], right[t]) for t in range(4))
 
     def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
         """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""

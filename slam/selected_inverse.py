@@ -1,0 +1,76 @@
+"""Selected entries of the inverse of a sparse matrix from its LU factors.
+
+SuperLU factorises ``Pr H Pc = L U`` (``L`` unit lower triangular, ``U`` upper
+triangular, ``Pr`` and ``Pc`` the row and column permutations of `SuperLU.perm_r` and
+`SuperLU.perm_c`).  Hence ``H^-1 = Pc U^-1 L^-1 Pr`` and one entry of the inverse is::
+
+    (H^-1)_ab = (U^-T e_p)^T (L^-1 e_q),     p = perm_c[a],  q = perm_r[b]
+
+(the same operators as a full solve ``H^-1 e_b`` read at row ``a``).  Both vectors are
+sparse: ``L^-1 e_q`` is non-zero only on the rows that column ``q`` reaches in the graph of
+``L`` (on a factor of a symmetric matrix, the path from ``q`` to the root of the
+elimination tree), and likewise ``U^-T e_p``.  A marginal covariance block of a few poses
+therefore costs the columns of ``L`` and ``U`` on those paths, a small part of the two
+full triangular solves per column that ``SuperLU.solve`` makes (pose graphs: the path
+of a pose is typically a few percent of ``n``).  Entries are computed once per distinct
+row and column index of a request, then one sparse dot product per entry.
+
+The triangular solves and dot products are compiled kernels (`slam.selected_inverse_kernel`,
+numba, imported on first use).
+
+Units: those of ``H^-1``; for the information matrix of a whitened pose graph, the
+covariance in tangent coordinates (m^2, m rad, rad^2 in 2D).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse.linalg import SuperLU
+
+Array = NDArray[np.float64]
+Index = NDArray[np.int64]
+
+
+class SelectedInverse:
+    """Entries of ``H^-1`` for a matrix ``H`` factorised by SuperLU (module docstring).
+
+    `lu`: the factorisation (`slam.least_squares.factor_information`, or any `splu`).
+    """
+
+    def __init__(self, lu: SuperLU) -> None:
+        lower = lu.L.tocsc()
+        lower.sort_indices()
+        upper_t = lu.U.T.tocsc()  # U^T: lower triangular, column k = row k of U
+        upper_t.sort_indices()
+        self.n = int(lower.shape[0])
+        self._lower = (lower.indptr.astype(np.int64), lower.indices.astype(np.int64),
+                       lower.data.astype(np.float64))
+        self._upper_t = (upper_t.indptr.astype(np.int64), upper_t.indices.astype(np.int64),
+                         upper_t.data.astype(np.float64))
+        self._perm_r = np.asarray(lu.perm_r, dtype=np.int64)
+        self._perm_c = np.asarray(lu.perm_c, dtype=np.int64)
+
+    def entries(self, rows: Index, cols: Index) -> Array:
+        """``(H^-1)[rows[t], cols[t]]`` for every ``t`` (original, unpermuted indices)."""
+        return self.blocks(rows, cols, 1)[:, 0, 0]
+
+    def blocks(self, a: Index, b: Index, d: int) -> Array:
+        """The (K, d, d) blocks ``H^-1[a_t : a_t + d, b_t : b_t + d]`` for the first indices
+        `a`, `b` (K,) of pairs of variables (e.g. the tangent coordinates of two poses:
+        their cross-covariance).  One sparse solve of ``d`` columns per distinct first
+        index of `a` (by ``U^T``) and of `b` (by ``L``), one sparse product per distinct
+        pair."""
+        from slam.selected_inverse_kernel import sparse_block_dots, sparse_block_solves
+
+        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+        if not len(a):
+            return np.zeros((0, d, d))
+        pairs, where = np.unique(a * self.n + b, return_inverse=True)
+        rows, ia = np.unique(pairs // self.n, return_inverse=True)
+        cols, ib = np.unique(pairs % self.n, return_inverse=True)
+        span = np.arange(d)
+        y = sparse_block_solves(*self._upper_t, self._perm_c[rows[:, None] + span], self.n)
+        x = sparse_block_solves(*self._lower, self._perm_r[cols[:, None] + span], self.n)
+        values = sparse_block_dots(*y, *x, ia.astype(np.int64), ib.astype(np.int64))
+        return values[where.reshape(-1)]
