@@ -222,7 +222,7 @@ class InnovationTest:
     def selected(self) -> SelectedInverse:
         """Selected entries of ``H^-1`` (marginal covariance blocks) from the same LU."""
         if self._selected is None:
-            self._selected = SelectedInverse(self._lu)
+            self._selected = SelectedInverse(self._lu, symmetric=True)
         return self._selected
 
     def pose_index(self, key: int) -> int:

@@ -36,20 +36,28 @@ class SelectedInverse:
     """Entries of ``H^-1`` for a matrix ``H`` factorised by SuperLU (module docstring).
 
     `lu`: the factorisation (`slam.least_squares.factor_information`, or any `splu`).
+    `symmetric`: ``H`` is symmetric; when the LU kept one permutation for rows and
+    columns (``perm_r == perm_c``: no off-diagonal pivot), ``U = D L^T`` (``D`` the
+    diagonal of ``U``) and ``U^-T e_p = D^-1 L^-1 e_p``, so only ``L`` is solved.
     """
 
-    def __init__(self, lu: SuperLU) -> None:
+    def __init__(self, lu: SuperLU, symmetric: bool = False) -> None:
         lower = lu.L.tocsc()
         lower.sort_indices()
-        upper_t = lu.U.T.tocsc()  # U^T: lower triangular, column k = row k of U
-        upper_t.sort_indices()
         self.n = int(lower.shape[0])
         self._lower = (lower.indptr.astype(np.int64), lower.indices.astype(np.int64),
                        lower.data.astype(np.float64))
-        self._upper_t = (upper_t.indptr.astype(np.int64), upper_t.indices.astype(np.int64),
-                         upper_t.data.astype(np.float64))
         self._perm_r = np.asarray(lu.perm_r, dtype=np.int64)
         self._perm_c = np.asarray(lu.perm_c, dtype=np.int64)
+        self._pivots: Array | None = None
+        self._upper_t: tuple[Index, Index, Array] | None = None
+        if symmetric and np.array_equal(self._perm_r, self._perm_c):
+            self._pivots = np.asarray(lu.U.diagonal(), dtype=np.float64)
+        else:
+            upper_t = lu.U.T.tocsc()  # U^T: lower triangular, column k = row k of U
+            upper_t.sort_indices()
+            self._upper_t = (upper_t.indptr.astype(np.int64),
+                             upper_t.indices.astype(np.int64), upper_t.data.astype(np.float64))
 
     def entries(self, rows: Index, cols: Index) -> Array:
         """``(H^-1)[rows[t], cols[t]]`` for every ``t`` (original, unpermuted indices)."""
@@ -60,17 +68,32 @@ class SelectedInverse:
         `a`, `b` (K,) of pairs of variables (e.g. the tangent coordinates of two poses:
         their cross-covariance).  One sparse solve of ``d`` columns per distinct first
         index of `a` (by ``U^T``) and of `b` (by ``L``), one sparse product per distinct
-        pair."""
-        from slam.selected_inverse_kernel import sparse_block_dots, sparse_block_solves
-
+        pair (of the two orders of a pair, once, when ``H`` is `symmetric`)."""
         a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
         if not len(a):
             return np.zeros((0, d, d))
+        if self._pivots is not None:  # H^-1 symmetric: block (b, a) is block (a, b)^T
+            swap = a > b
+            out = self._blocks(np.where(swap, b, a), np.where(swap, a, b), d)
+            out[swap] = out[swap].transpose(0, 2, 1)
+            return out
+        return self._blocks(a, b, d)
+
+    def _blocks(self, a: Index, b: Index, d: int) -> Array:
+        """`blocks`, every pair as asked."""
+        from slam.selected_inverse_kernel import sparse_block_dots, sparse_block_solves
+
         pairs, where = np.unique(a * self.n + b, return_inverse=True)
         rows, ia = np.unique(pairs // self.n, return_inverse=True)
         cols, ib = np.unique(pairs % self.n, return_inverse=True)
         span = np.arange(d)
-        y = sparse_block_solves(*self._upper_t, self._perm_c[rows[:, None] + span], self.n)
-        x = sparse_block_solves(*self._lower, self._perm_r[cols[:, None] + span], self.n)
+        if self._pivots is None:
+            y = sparse_block_solves(*self._upper_t, self._perm_c[rows[:, None] + span], self.n)
+            x = sparse_block_solves(*self._lower, self._perm_r[cols[:, None] + span], self.n)
+        else:  # U^-T e_p = D^-1 L^-1 e_p: one solve per pose of either side
+            both, where_both = np.unique(np.concatenate([rows, cols]), return_inverse=True)
+            ia, ib = where_both[ia], where_both[len(rows) + ib]
+            x = sparse_block_solves(*self._lower, self._perm_r[both[:, None] + span], self.n)
+            y = (x[0], x[1], x[2] / self._pivots[x[1], None])
         values = sparse_block_dots(*y, *x, ia.astype(np.int64), ib.astype(np.int64))
         return values[where.reshape(-1)]

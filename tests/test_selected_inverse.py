@@ -20,13 +20,22 @@ def _spd(n: int = 40, seed: int = 1) -> sp.csc_matrix:
     return (a.T @ a + sp.eye(n)).tocsc()
 
 
-@pytest.mark.parametrize("symmetric", [True, False])
-def test_entries_and_blocks_equal_the_dense_inverse(symmetric: bool) -> None:
-    h = _spd()
-    lu = (splu(h, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-               options={"SymmetricMode": True}) if symmetric else splu(h))
+@pytest.mark.parametrize(("case", "symmetric"),
+                         [("spd", True), ("spd", False), ("pivoted", True), ("pivoted", False)])
+def test_entries_and_blocks_equal_the_dense_inverse(case: str, symmetric: bool) -> None:
+    if case == "spd":  # the symmetric LU of `slam.least_squares.factor_information`
+        h = _spd()
+        lu = splu(h, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    else:  # a non-symmetric matrix whose LU pivots off the diagonal
+        h = (sp.random(40, 40, density=0.08, random_state=2)
+             + 5.0 * sp.eye(40, k=7) + 5.0 * sp.eye(40, k=-33)).tocsc()
+        lu = splu(h)
+    assert np.array_equal(lu.perm_r, lu.perm_c) == (case == "spd")
     dense = np.linalg.inv(h.toarray())
-    selected = SelectedInverse(lu)
+    # A claim of symmetry is used only with one permutation for rows and columns (the
+    # pivoted case falls back to solving by U^T).
+    selected = SelectedInverse(lu, symmetric=symmetric)
     rows, cols = np.random.default_rng(0).integers(0, 40, (2, 300))
     np.testing.assert_allclose(selected.entries(rows, cols), dense[rows, cols],
                                rtol=0, atol=1e-13)
