@@ -9,7 +9,7 @@ Each graph (e.g. a mapper run's ``graph.g2o``) is brought to where the final pas
 path re-checks it (`slam.optimize._clean_optimum`: the plain least-squares optimum over
 every loop, solved down the odometry ladder from the file's poses), then
 `slam.recheck.segment_recheck` (with its group test) runs there with
-``slam.consistency.SELECTED_INVERSE`` off (full SuperLU solves of ``H^-1 B^T``, the
+``slam.innovation.SELECTED_INVERSE`` off (full SuperLU solves of ``H^-1 B^T``, the
 earlier path) and on (`slam.selected_inverse`), alternately `--repeat` times in one
 process; then the whole final pass (`slam.optimize.optimize`, ``gnc`` with
 ``gnc_start="incremental"``) once each way.  Printed: CPU and wall seconds of each (best
@@ -31,8 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from data.g2o import read_g2o
-from slam import consistency
-from slam.consistency import ODOMETRY_LADDER, needs_qr
+from slam import innovation
+from slam.consistency import LM_BUDGET, ODOMETRY_LADDER, needs_qr
 from slam.least_squares import StickySolver, solve
 from slam.optimize import optimize
 from slam.pose_graph import PoseGraph, RobustKernel
@@ -55,7 +55,7 @@ def _start(graph: PoseGraph):
 
 
 def _recheck(graph: PoseGraph, values, unit, dogleg: bool) -> SegmentRecheck:
-    solver = StickySolver(lm_budget=consistency.LM_BUDGET, sticky=False)
+    solver = StickySolver(lm_budget=LM_BUDGET, sticky=False)
     solver.dogleg = dogleg
     return segment_recheck(graph, values, np.ones(len(graph.loops)), solver=solver,
                            unit=unit)
@@ -75,7 +75,7 @@ def _innovations(check: SegmentRecheck) -> np.ndarray:
 
 
 def _timed(selected: bool, run, *args, **kwargs):
-    consistency.SELECTED_INVERSE = selected
+    innovation.SELECTED_INVERSE = selected
     cpu, wall = time.process_time(), time.perf_counter()
     out = run(*args, **kwargs)
     return out, time.process_time() - cpu, time.perf_counter() - wall
@@ -124,7 +124,7 @@ def main() -> None:
               f"{results[False].loop_outliers} new {results[True].loop_outliers}, max "
               f"position difference {diff:.2g} m, max angle difference "
               f"{float(np.max(np.abs(pa[:, 2] - pb[:, 2]))):.2g} rad", flush=True)
-    consistency.SELECTED_INVERSE = True
+    innovation.SELECTED_INVERSE = True
 
 
 if __name__ == "__main__":

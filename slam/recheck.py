@@ -114,8 +114,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from slam import consistency
-from slam.consistency import (
+from slam import innovation
+from slam.innovation import (
     InnovationTest,
     _Gains,
     greedy_admission,
@@ -686,9 +686,9 @@ def joint_costs(
     endpoint poses (``H^-1`` blocks, `slam.selected_inverse`: every group's blocks in one
     request), ``J_G`` (``d g`` x ``2 d g``) the members' Jacobian blocks, ``B_i`` of member
     ``p`` at endpoint ``2p`` and ``B_j`` at ``2p + 1``.  With
-    ``slam.consistency.SELECTED_INVERSE`` False: one sparse solve per loop instead."""
+    ``slam.innovation.SELECTED_INVERSE`` False: one sparse solve per loop instead."""
     linear = [test._linearised([unit[k] for k in members]) for members in groups]
-    if not consistency.SELECTED_INVERSE:
+    if not innovation.SELECTED_INVERSE:
         return np.array([_joint_cost(test, *lin, removal) for lin in linear])
     d = test.dof
     ends = [np.stack([ci, cj], axis=1).ravel() for *_, ci, cj in linear]  # (2g,) first rows

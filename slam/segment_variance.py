@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.sparse.linalg import SuperLU
 
-from slam.consistency import solve_columns
+from slam.innovation import solve_columns
 from slam.least_squares import factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
 

@@ -8,8 +8,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from slam import consistency
-from slam.consistency import InnovationTest
+from slam import innovation
+from slam.innovation import InnovationTest
 from slam.recheck import joint_costs, loop_groups
 from slam.selected_inverse import SelectedInverse
 from tests.test_segment_variance import _laps, _solved
@@ -82,7 +82,7 @@ def test_innovation_blocks_equal_the_dense_reference_and_the_full_solves(
     b, gram = test.blocks(unit)
     reference = _dense_gram(test, unit, cov)
     np.testing.assert_allclose(gram, reference, rtol=1e-9, atol=1e-12)
-    monkeypatch.setattr(consistency, "SELECTED_INVERSE", False)
+    monkeypatch.setattr(innovation, "SELECTED_INVERSE", False)
     b_old, gram_old = test.blocks(unit)
     np.testing.assert_array_equal(b, b_old)
     np.testing.assert_allclose(gram, gram_old, rtol=1e-9, atol=1e-12)
@@ -93,6 +93,6 @@ def test_joint_costs_equal_the_full_solves(monkeypatch: pytest.MonkeyPatch) -> N
     groups = [g for g in loop_groups(graph.loops, range(len(unit)), window=3) if len(g) > 1]
     groups += [[0, 5, 17], [2]]  # loops far apart, and a single loop
     new = [joint_costs(test, unit, groups, removal=r) for r in (True, False)]
-    monkeypatch.setattr(consistency, "SELECTED_INVERSE", False)
+    monkeypatch.setattr(innovation, "SELECTED_INVERSE", False)
     old = [joint_costs(test, unit, groups, removal=r) for r in (True, False)]
     np.testing.assert_allclose(new, old, rtol=1e-9)
