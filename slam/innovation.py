@@ -41,8 +41,9 @@ from slam.selected_inverse import SelectedInverse
 
 Array = NDArray[np.float64]
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
-# `InnovationTest.blocks` from selected entries of H^-1 (`slam.selected_inverse`); False:
-# from full solves of H^-1 B^T (the same numbers to rounding; `benchmarks/recheck_speed.py`).
+# `InnovationTest.blocks` from selected entries of H^-1 and the segment estimate's probe
+# solves by the compiled kernels (`slam.selected_inverse`); False: by SuperLU solves of
+# H^-1 B^T and of the probes (the same numbers to rounding; `benchmarks/recheck_speed.py`).
 SELECTED_INVERSE = True
 
 
@@ -166,7 +167,9 @@ class InnovationTest:
     def blocks(self, candidates: Sequence[gtsam.NonlinearFactor]) -> tuple[Array, Array]:
         """Whitened residuals ``b`` (m, d) and ``M = B H^-1 B^T`` (m, d, d) of every candidate
         (binary factors on poses of `keys`): `gains`' ``b`` and ``M`` without its
-        ``H^-1 B^T`` rows, which take (m, r, d) memory."""
+        ``H^-1 B^T`` rows, which take (m, r, d) memory.  ``M`` from the marginal covariance
+        blocks of each candidate's two poses (`_gram`), or, with `SELECTED_INVERSE` False,
+        from full solves of ``H^-1 B^T``, `SOLVE_WIDTH` columns per solve."""
         d = self.dof
         b, bi, bj, ci, cj = self._linearised(candidates)
         if SELECTED_INVERSE:

@@ -49,13 +49,13 @@ alone is below ``c`` are offered back (`slam.consistency.greedy_admission` at ``
 changes (at most `MAX_ROUNDS`).  A loop removed by the re-check is never re-admitted by
 it, so the rounds end.  The caller solves the *stated* graph with the decisions.
 
-Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and one solve per
-accepted loop (`InnovationTest.blocks`); the choice runs it for one or two candidates,
-only when the candidates' loops differ.  The re-check runs it every round, even when
-nothing changes, which on large graphs costs many times the admission (off by default
-for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains`,
-memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
-and for the rejected loops admissible alone.
+Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and the marginal
+covariance blocks of every accepted loop's two poses (`InnovationTest.blocks`); the
+choice runs it for one or two candidates, only when the candidates' loops differ.  The
+re-check runs it every round, even when nothing changes, which on large graphs costs many
+times the admission (off by default for that reason); the Woodbury updates' ``H^-1 B^T``
+rows (`InnovationTest.gains`, memory of loops x touched rows x dof) are built only when
+some ``rho`` exceeds the gate, and for the rejected loops admissible alone.
 
 Limits of one factor for all the odometry: a graph whose odometry is noisier in some
 stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
@@ -100,9 +100,11 @@ group is tested again (``delta_G``, same gate) against the graph without all rem
 groups, re-calibrated, and re-admitted when it passes; and every loop rejected before
 (removed groups aside) whose innovation against that graph is below ``c`` is offered in.
 
-Cost of the segment re-check: two calibrated solves, one accepted-loop solve each
-(`InnovationTest.blocks`) and per segment estimate a few sparse LUs with 64-column
-solves; nothing when no loop's ``rho`` exceeds ``c`` beyond the first solve and blocks.
+Cost of the segment re-check: a few calibrated solves, the marginal covariance blocks of
+the tested loops' poses and of every group's endpoint poses (`InnovationTest.blocks`,
+`joint_costs`: selected entries of ``H^-1``, `slam.selected_inverse`, one sparse solve per
+distinct pose along its path of the elimination tree instead of full solves per loop),
+and per segment estimate a few sparse LUs with 64-column solves.
 """
 
 from __future__ import annotations

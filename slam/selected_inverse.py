@@ -15,8 +15,9 @@ full triangular solves per column that ``SuperLU.solve`` makes (pose graphs: the
 of a pose is typically a few percent of ``n``).  Entries are computed once per distinct
 row and column index of a request, then one sparse dot product per entry.
 
-The triangular solves and dot products are compiled kernels (`slam.selected_inverse_kernel`,
-numba, imported on first use).
+`SelectedInverse.solve` applies the same factors to a dense block of right-hand sides
+(all columns of each triangular solve at once).  The triangular solves and dot products
+are compiled kernels (`slam.selected_inverse_kernel`, numba, imported on first use).
 
 Units: those of ``H^-1``; for the information matrix of a whitened pose graph, the
 covariance in tangent coordinates (m^2, m rad, rad^2 in 2D).
@@ -51,6 +52,8 @@ class SelectedInverse:
         self._perm_c = np.asarray(lu.perm_c, dtype=np.int64)
         self._pivots: Array | None = None
         self._upper_t: tuple[Index, Index, Array] | None = None
+        self._upper: tuple[Index, Index, Array] | None = None  # U (CSC), for `solve`
+        self._lu_upper = lu.U
         if symmetric and np.array_equal(self._perm_r, self._perm_c):
             self._pivots = np.asarray(lu.U.diagonal(), dtype=np.float64)
         else:
@@ -58,6 +61,23 @@ class SelectedInverse:
             upper_t.sort_indices()
             self._upper_t = (upper_t.indptr.astype(np.int64),
                              upper_t.indices.astype(np.int64), upper_t.data.astype(np.float64))
+
+    def solve(self, rhs: Array) -> Array:
+        """``H^-1 rhs`` for a dense ``rhs`` (n, k): ``Pc U^-1 L^-1 Pr rhs``, both triangular
+        solves applied to all ``k`` columns at once (`SuperLU.solve` is several times
+        slower per column with many columns, and with few per call)."""
+        from slam.selected_inverse_kernel import lu_solve_rows
+
+        if self._upper is None:
+            upper = self._lu_upper.tocsc()
+            upper.sort_indices()
+            self._upper = (upper.indptr.astype(np.int64), upper.indices.astype(np.int64),
+                           upper.data.astype(np.float64))
+        rhs = np.asarray(rhs, dtype=np.float64)
+        x = np.empty((self.n, rhs.shape[1]))
+        x[self._perm_r] = rhs  # Pr rhs
+        lu_solve_rows(*self._lower, *self._upper, x)
+        return x[self._perm_c]  # Pc x
 
     def entries(self, rows: Index, cols: Index) -> Array:
         """``(H^-1)[rows[t], cols[t]]`` for every ``t`` (original, unpermuted indices)."""

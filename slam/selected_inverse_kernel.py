@@ -4,7 +4,8 @@ machine).
 `sparse_block_solves` solves ``T X = [e_s1 ... e_sd]`` for a lower-triangular ``T`` (CSC,
 sorted row indices, diagonal stored first in each column) and many blocks of ``d`` start
 columns (a pose's ``d`` coordinates), visiting only the columns the solution reaches;
-`sparse_block_dots` forms the ``d x d`` products ``Y_a^T X_b`` of two such solutions.
+`sparse_block_dots` forms the ``d x d`` products ``Y_a^T X_b`` of two such solutions;
+`lu_solve_rows` applies ``U^-1 L^-1`` to a dense block of right-hand sides.
 Units are those of the matrix entries.
 """
 
@@ -119,3 +120,33 @@ def sparse_block_dots(
             else:
                 j += 1
     return out
+
+
+@numba.njit(cache=True)
+def lu_solve_rows(
+    l_ptr: Index, l_idx: Index, l_val: Array, u_ptr: Index, u_idx: Index, u_val: Array,
+    x: Array,
+) -> None:
+    """In place, ``x <- U^-1 L^-1 x`` for ``x`` (n, k) in row-major order: forward
+    substitution by the columns of ``L`` (CSC, lower triangular, diagonal first), then
+    back substitution by the columns of ``U`` (CSC, upper triangular, diagonal last),
+    each column's update applied to all ``k`` right-hand sides at once."""
+    n, k = x.shape
+    for j in range(n):
+        pivot = l_val[l_ptr[j]]
+        for c in range(k):
+            x[j, c] /= pivot
+        for e in range(l_ptr[j] + 1, l_ptr[j + 1]):
+            i = l_idx[e]
+            v = l_val[e]
+            for c in range(k):
+                x[i, c] -= v * x[j, c]
+    for j in range(n - 1, -1, -1):
+        pivot = u_val[u_ptr[j + 1] - 1]
+        for c in range(k):
+            x[j, c] /= pivot
+        for e in range(u_ptr[j], u_ptr[j + 1] - 1):
+            i = u_idx[e]
+            v = u_val[e]
+            for c in range(k):
+                x[i, c] -= v * x[j, c]
