@@ -4,6 +4,7 @@ full solves.
 Run from the repository root::
 
     python benchmarks/recheck_speed.py GRAPH.g2o [GRAPH.g2o ...] [--repeat 3]
+        [--false-loops RATIO --policy random|local|grouped|local-grouped --seed 0]
 
 Each graph (e.g. a mapper run's ``graph.g2o``) is brought to where the final pass's fast
 path re-checks it (`slam.optimize._clean_optimum`: the plain least-squares optimum over
@@ -17,6 +18,12 @@ of the repeats), the ratio new / old, whether the re-check's decisions (loops re
 suspects, groups tested and their verdicts, loops re-admitted) are equal, the largest
 relative difference of its innovations (``rho``, ``delta``) and the largest position
 difference between the two final-pass solutions [m].
+
+`--false-loops`: that fraction of each graph's loops is made false first
+(`evaluation.outlier_policies.inject_false_loops` with `--policy` and `--seed`), so that
+the re-check removes loops and groups and its decisions are compared where they matter;
+the final pass (the whole incremental admission on such a graph: minutes) is then
+skipped.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from data.g2o import read_g2o
+from evaluation.outlier_policies import inject_false_loops
 from slam import innovation
 from slam.consistency import LM_BUDGET, ODOMETRY_LADDER, needs_qr
 from slam.least_squares import StickySolver, solve
@@ -85,10 +93,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("graphs", nargs="+")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--false-loops", type=float, default=0.0)
+    parser.add_argument("--policy", default="random")
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     for path in args.graphs:
         graph = PoseGraph.from_g2o(read_g2o(path))
-        print(f"{path}: {len(graph.keys)} poses, {len(graph.loops)} loops")
+        if args.false_loops > 0:
+            graph, _ = inject_false_loops(graph, args.false_loops,
+                                          np.random.default_rng(args.seed), args.policy)
+        print(f"{path}: {len(graph.keys)} poses, {len(graph.loops)} loops "
+              f"({args.false_loops:g} false, {args.policy})")
         values, unit, dogleg = _start(graph)
         _recheck(graph, values, unit, dogleg)  # compiles the kernels (cached per machine)
         best = {False: (np.inf, np.inf), True: (np.inf, np.inf)}
@@ -109,6 +124,8 @@ def main() -> None:
               f"wall {best[True][1] / best[False][1]:.3f}; decisions equal "
               f"{_decisions(old) == _decisions(new)} (removed {new.removed}); "
               f"max relative difference of rho/delta {rel:.2g}")
+        if args.false_loops > 0:
+            continue
         results, times = {}, {}
         for selected in (False, True):
             results[selected], cpu, wall = _timed(selected, optimize, graph, "none", "gnc",
