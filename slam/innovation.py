@@ -41,9 +41,8 @@ from slam.selected_inverse import SelectedInverse
 
 Array = NDArray[np.float64]
 SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
-# `InnovationTest.blocks` from selected entries of H^-1 and the segment estimate's probe
-# solves by the compiled kernels (`slam.selected_inverse`); False: by SuperLU solves of
-# H^-1 B^T and of the probes (the same numbers to rounding; `benchmarks/recheck_speed.py`).
+# `InnovationTest.blocks` from selected entries of H^-1 (`slam.selected_inverse`); False:
+# from full solves of H^-1 B^T (the same numbers to rounding; `benchmarks/recheck_speed.py`).
 SELECTED_INVERSE = True
 
 

@@ -22,8 +22,8 @@ residuals ``r_k`` (``r_k^T W_k r_k = 2 E_k``, ``E_k`` its gtsam error) and its r
 
 The traces are estimated by Hutchinson's estimator of the hat matrix's diagonal,
 ``diag(A N^-1 A^T) ~ mean_z z * (A N^-1 A^T z)`` over `PROBES` Rademacher vectors
-``z`` (one sparse LU of ``N``; the probes solved together by its factors,
-`slam.selected_inverse.SelectedInverse.solve`), summed per group (anchors,
+``z`` (one sparse LU of ``N`` and a solve per few probes; the probes are drawn once per
+estimate), summed per group (anchors,
 each segment, the loops); the group redundancies are then scaled so that they sum to
 the exact total ``m - n``.  The factors are iterated as Helmert's estimate is: the
 odometry re-weighted by the last factors, the solution and the redundancies re-computed
@@ -48,11 +48,9 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.sparse.linalg import SuperLU
 
-from slam import innovation
 from slam.innovation import solve_columns
 from slam.least_squares import factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
-from slam.selected_inverse import SelectedInverse
 
 Array = NDArray[np.float64]
 SEGMENT = 100  # poses per odometry segment
@@ -128,10 +126,7 @@ def hat_diagonal(
         z = rademacher(jac.shape[0], probes, seed)
     if lu is None:
         lu = factor_information(jac)
-    rhs = np.asarray(jac.T @ z)
-    solved = SelectedInverse(lu).solve(rhs) if innovation.SELECTED_INVERSE else solve_columns(
-        lu, rhs)
-    y = jac @ solved
+    y = jac @ solve_columns(lu, np.asarray(jac.T @ z))
     return np.mean(z * y, axis=1)
 
 

@@ -15,9 +15,8 @@ full triangular solves per column that ``SuperLU.solve`` makes (pose graphs: the
 of a pose is typically a few percent of ``n``).  Entries are computed once per distinct
 row and column index of a request, then one sparse dot product per entry.
 
-`SelectedInverse.solve` applies the same factors to a dense block of right-hand sides
-(all columns of each triangular solve at once).  The triangular solves and dot products
-are compiled kernels (`slam.selected_inverse_kernel`, numba, imported on first use).
+The triangular solves and dot products are compiled kernels
+(`slam.selected_inverse_kernel`, numba, imported on first use).
 
 Units: those of ``H^-1``; for the information matrix of a whitened pose graph, the
 covariance in tangent coordinates (m^2, m rad, rad^2 in 2D).
@@ -27,10 +26,12 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import sparray, spmatrix
 from scipy.sparse.linalg import SuperLU
 
 Array = NDArray[np.float64]
 Index = NDArray[np.int64]
+Triangle = tuple[Index, Index, Array, Array]  # CSC indptr, indices, data; the diagonal
 
 
 class SelectedInverse:
@@ -43,41 +44,17 @@ class SelectedInverse:
     """
 
     def __init__(self, lu: SuperLU, symmetric: bool = False) -> None:
-        lower = lu.L.tocsc()
-        lower.sort_indices()
-        self.n = int(lower.shape[0])
-        self._lower = (lower.indptr.astype(np.int64), lower.indices.astype(np.int64),
-                       lower.data.astype(np.float64))
+        upper = lu.U
+        self._lower = _triangle(lu.L)
+        self.n = len(self._lower[3])
         self._perm_r = np.asarray(lu.perm_r, dtype=np.int64)
         self._perm_c = np.asarray(lu.perm_c, dtype=np.int64)
         self._pivots: Array | None = None
-        self._upper_t: tuple[Index, Index, Array] | None = None
-        self._upper: tuple[Index, Index, Array] | None = None  # U (CSC), for `solve`
-        self._lu_upper = lu.U
+        self._upper_t: Triangle | None = None
         if symmetric and np.array_equal(self._perm_r, self._perm_c):
-            self._pivots = np.asarray(lu.U.diagonal(), dtype=np.float64)
+            self._pivots = np.asarray(upper.diagonal(), dtype=np.float64)
         else:
-            upper_t = lu.U.T.tocsc()  # U^T: lower triangular, column k = row k of U
-            upper_t.sort_indices()
-            self._upper_t = (upper_t.indptr.astype(np.int64),
-                             upper_t.indices.astype(np.int64), upper_t.data.astype(np.float64))
-
-    def solve(self, rhs: Array) -> Array:
-        """``H^-1 rhs`` for a dense ``rhs`` (n, k): ``Pc U^-1 L^-1 Pr rhs``, both triangular
-        solves applied to all ``k`` columns at once (`SuperLU.solve` is several times
-        slower per column with many columns, and with few per call)."""
-        from slam.selected_inverse_kernel import lu_solve_rows
-
-        if self._upper is None:
-            upper = self._lu_upper.tocsc()
-            upper.sort_indices()
-            self._upper = (upper.indptr.astype(np.int64), upper.indices.astype(np.int64),
-                           upper.data.astype(np.float64))
-        rhs = np.asarray(rhs, dtype=np.float64)
-        x = np.empty((self.n, rhs.shape[1]))
-        x[self._perm_r] = rhs  # Pr rhs
-        lu_solve_rows(*self._lower, *self._upper, x)
-        return x[self._perm_c]  # Pc x
+            self._upper_t = _triangle(upper.T)  # U^T: lower triangular, column k = row k of U
 
     def entries(self, rows: Index, cols: Index) -> Array:
         """``(H^-1)[rows[t], cols[t]]`` for every ``t`` (original, unpermuted indices)."""
@@ -117,3 +94,11 @@ class SelectedInverse:
             y = (x[0], x[1], x[2] / self._pivots[x[1], None])
         values = sparse_block_dots(*y, *x, ia.astype(np.int64), ib.astype(np.int64))
         return values[where.reshape(-1)]
+
+
+def _triangle(matrix: sparray | spmatrix) -> Triangle:
+    """A triangular factor as the kernels take it: CSC arrays (rows within a column in any
+    order) and its diagonal."""
+    csc = matrix.tocsc()
+    return (csc.indptr.astype(np.int64), csc.indices.astype(np.int64),
+            csc.data.astype(np.float64), np.asarray(csc.diagonal(), dtype=np.float64))

@@ -1,11 +1,10 @@
 """Compiled kernels of `slam.selected_inverse` (numba, ``cache=True``: compiled once per
 machine).
 
-`sparse_block_solves` solves ``T X = [e_s1 ... e_sd]`` for a lower-triangular ``T`` (CSC,
-sorted row indices, diagonal stored first in each column) and many blocks of ``d`` start
+`sparse_block_solves` solves ``T X = [e_s1 ... e_sd]`` for a lower-triangular ``T`` (CSC in
+any order of rows within a column; its diagonal given apart) and many blocks of ``d`` start
 columns (a pose's ``d`` coordinates), visiting only the columns the solution reaches;
-`sparse_block_dots` forms the ``d x d`` products ``Y_a^T X_b`` of two such solutions;
-`lu_solve_rows` applies ``U^-1 L^-1`` to a dense block of right-hand sides.
+`sparse_block_dots` forms the ``d x d`` products ``Y_a^T X_b`` of two such solutions.
 Units are those of the matrix entries.
 """
 
@@ -35,15 +34,17 @@ def _reach_counts(indptr: Index, indices: Index, starts: Index, n: int) -> Index
             if mark[k] != t:
                 continue
             count += 1
-            for e in range(indptr[k] + 1, indptr[k + 1]):
-                mark[indices[e]] = t
+            for e in range(indptr[k], indptr[k + 1]):
+                if indices[e] > k:
+                    mark[indices[e]] = t
         counts[t] = count
     return counts
 
 
 @numba.njit(cache=True)
 def _solves(
-    indptr: Index, indices: Index, data: Array, starts: Index, n: int, ptr: Index
+    indptr: Index, indices: Index, data: Array, diag: Array, starts: Index, n: int,
+    ptr: Index,
 ) -> tuple[Index, Array]:
     """Rows (increasing) and values (rows, d) of ``T^-1 [e_s1 ... e_sd]`` of every block
     ``t``, at ``ptr[t]:ptr[t + 1]``: forward substitution column by column,
@@ -64,13 +65,15 @@ def _solves(
         for k in range(first, n):
             if mark[k] != t:
                 continue
-            pivot = data[indptr[k]]
+            pivot = diag[k]
             idx[o] = k
             for c in range(d):
                 val[o, c] = x[k, c] / pivot
                 x[k, c] = 0.0
-            for e in range(indptr[k] + 1, indptr[k + 1]):
+            for e in range(indptr[k], indptr[k + 1]):
                 i = indices[e]
+                if i <= k:
+                    continue
                 mark[i] = t
                 v = data[e]
                 for c in range(d):
@@ -80,17 +83,18 @@ def _solves(
 
 
 def sparse_block_solves(
-    indptr: Index, indices: Index, data: Array, starts: Index, n: int
+    indptr: Index, indices: Index, data: Array, diag: Array, starts: Index, n: int
 ) -> tuple[Index, Index, Array]:
     """``T^-1 [e_s1 ... e_sd]`` for every row ``(s1 ... sd)`` of `starts` (P, d), ``T``
-    lower triangular (n, n) in CSC (`indptr`, `indices`, `data`; sorted indices, diagonal
-    first): compressed blocks ``(ptr, idx, val)``, block ``t`` at ``ptr[t]:ptr[t + 1]``
-    with increasing rows ``idx`` and values ``val`` (rows, d)."""
+    lower triangular (n, n) in CSC (`indptr`, `indices`, `data`: entries above the
+    diagonal and the diagonal itself are skipped) with diagonal `diag`: compressed
+    blocks ``(ptr, idx, val)``, block ``t`` at ``ptr[t]:ptr[t + 1]`` with increasing rows
+    ``idx`` and values ``val`` (rows, d)."""
     starts = np.ascontiguousarray(starts, dtype=np.int64)
     counts = _reach_counts(indptr, indices, starts, n)
     ptr = np.zeros(len(starts) + 1, np.int64)
     np.cumsum(counts, out=ptr[1:])
-    idx, val = _solves(indptr, indices, data, starts, n, ptr)
+    idx, val = _solves(indptr, indices, data, diag, starts, n, ptr)
     return ptr, idx, val
 
 
@@ -120,33 +124,3 @@ def sparse_block_dots(
             else:
                 j += 1
     return out
-
-
-@numba.njit(cache=True)
-def lu_solve_rows(
-    l_ptr: Index, l_idx: Index, l_val: Array, u_ptr: Index, u_idx: Index, u_val: Array,
-    x: Array,
-) -> None:
-    """In place, ``x <- U^-1 L^-1 x`` for ``x`` (n, k) in row-major order: forward
-    substitution by the columns of ``L`` (CSC, lower triangular, diagonal first), then
-    back substitution by the columns of ``U`` (CSC, upper triangular, diagonal last),
-    each column's update applied to all ``k`` right-hand sides at once."""
-    n, k = x.shape
-    for j in range(n):
-        pivot = l_val[l_ptr[j]]
-        for c in range(k):
-            x[j, c] /= pivot
-        for e in range(l_ptr[j] + 1, l_ptr[j + 1]):
-            i = l_idx[e]
-            v = l_val[e]
-            for c in range(k):
-                x[i, c] -= v * x[j, c]
-    for j in range(n - 1, -1, -1):
-        pivot = u_val[u_ptr[j + 1] - 1]
-        for c in range(k):
-            x[j, c] /= pivot
-        for e in range(u_ptr[j], u_ptr[j + 1] - 1):
-            i = u_idx[e]
-            v = u_val[e]
-            for c in range(k):
-                x[i, c] -= v * x[j, c]
