@@ -10,10 +10,13 @@ triangular, ``Pr`` and ``Pc`` the row and column permutations of `SuperLU.perm_r
 sparse: ``L^-1 e_q`` is non-zero only on the rows that column ``q`` reaches in the graph of
 ``L`` (on a factor of a symmetric matrix, the path from ``q`` to the root of the
 elimination tree), and likewise ``U^-T e_p``.  A marginal covariance block of a few poses
-therefore costs the columns of ``L`` and ``U`` on those paths, a small part of the two
-full triangular solves per column that ``SuperLU.solve`` makes (pose graphs: the path
-of a pose is typically a few percent of ``n``).  Entries are computed once per distinct
-row and column index of a request, then one sparse dot product per entry.
+therefore costs the columns of ``L`` and ``U`` on those paths, on a pose graph a small
+part of the two full triangular solves per column that ``SuperLU.solve`` makes.  A
+request of ``d x d`` blocks solves the ``d`` columns of each distinct pose once (one
+reach for the ``d`` of them), then forms one sparse product ``Y_a^T X_b`` per distinct
+pair of poses.  For a symmetric ``H`` factorised with one permutation,
+``U = D L^T`` (``D`` the diagonal of ``U``), so ``U^-T e_p = D^-1 L^-1 e_p``: one solve by
+``L`` serves both sides, and each unordered pair is formed once (``S_ba = S_ab^T``).
 
 The triangular solves and dot products are compiled kernels
 (`slam.selected_inverse_kernel`, numba, imported on first use).
