@@ -49,13 +49,13 @@ alone is below ``c`` are offered back (`slam.consistency.greedy_admission` at ``
 changes (at most `MAX_ROUNDS`).  A loop removed by the re-check is never re-admitted by
 it, so the rounds end.  The caller solves the *stated* graph with the decisions.
 
-Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and one solve per
-accepted loop (`InnovationTest.blocks`); the choice runs it for one or two candidates,
-only when the candidates' loops differ.  The re-check runs it every round, even when
-nothing changes, which on large graphs costs many times the admission (off by default
-for that reason); the Woodbury updates' ``H^-1 B^T`` rows (`InnovationTest.gains`,
-memory of loops x touched rows x dof) are built only when some ``rho`` exceeds the gate,
-and for the rejected loops admissible alone.
+Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and the marginal
+covariance blocks of every accepted loop's two poses (`InnovationTest.blocks`); the
+choice runs it for one or two candidates, only when the candidates' loops differ.  The
+re-check runs it every round, even when nothing changes, which on large graphs costs many
+times the admission (off by default for that reason); the Woodbury updates' ``H^-1 B^T``
+rows (`InnovationTest.gains`, memory of loops x touched rows x dof) are built only when
+some ``rho`` exceeds the gate, and for the rejected loops admissible alone.
 
 Limits of one factor for all the odometry: a graph whose odometry is noisier in some
 stretches than others (heavy-tailed loop residuals under one calibrated factor) keeps
@@ -100,9 +100,11 @@ group is tested again (``delta_G``, same gate) against the graph without all rem
 groups, re-calibrated, and re-admitted when it passes; and every loop rejected before
 (removed groups aside) whose innovation against that graph is below ``c`` is offered in.
 
-Cost of the segment re-check: two calibrated solves, one accepted-loop solve each
-(`InnovationTest.blocks`) and per segment estimate a few sparse LUs with 64-column
-solves; nothing when no loop's ``rho`` exceeds ``c`` beyond the first solve and blocks.
+Cost of the segment re-check: a few calibrated solves, the marginal covariance blocks of
+the tested loops' poses and of every group's endpoint poses (`InnovationTest.blocks`,
+`joint_costs`: selected entries of ``H^-1``, `slam.selected_inverse`, one sparse solve per
+distinct pose along its path of the elimination tree instead of full solves per loop),
+and per segment estimate a few sparse LUs with 64-column solves.
 """
 
 from __future__ import annotations
@@ -114,7 +116,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from slam.consistency import (
+from slam import innovation
+from slam.innovation import (
     InnovationTest,
     _Gains,
     greedy_admission,
@@ -679,23 +682,54 @@ def joint_costs(
     gtsam error units: ``rho_G = 0.5 b_G^T (I - M_GG)^-1 b_G`` (`removal`: the groups are
     in the solved graph) or ``delta_G = 0.5 b_G^T (I + M_GG)^-1 b_G`` (they are not), with
     ``b_G`` the stacked whitened residuals and ``M_GG = B_G H^-1 B_G^T`` the joint block
-    (module docstring).  One sparse solve per loop."""
-    d, out = test.dof, np.zeros(len(groups))
-    span = np.arange(d)
-    for n, members in enumerate(groups):
-        b, bi, bj, ci, cj = test._linearised([unit[k] for k in members])
-        g = len(members)
-        rhs = np.zeros((test.n, g * d))
-        for q in range(g):
-            rhs[ci[q] + span, q * d:(q + 1) * d] += bi[q].T
-            rhs[cj[q] + span, q * d:(q + 1) * d] += bj[q].T
-        y = solve_columns(test._lu, rhs)
-        m = np.concatenate([bi[q] @ y[ci[q] + span] + bj[q] @ y[cj[q] + span]
-                            for q in range(g)])
+    (module docstring).
+
+    ``M_GG = J_G S_EE J_G^T``: ``S_EE`` the marginal covariance of the members' ``2g``
+    endpoint poses (``H^-1`` blocks, `slam.selected_inverse`: every group's blocks in one
+    request), ``J_G`` (``d g`` x ``2 d g``) the members' Jacobian blocks, ``B_i`` of member
+    ``p`` at endpoint ``2p`` and ``B_j`` at ``2p + 1``.  With
+    ``slam.innovation.SELECTED_INVERSE`` False: one sparse solve per loop instead."""
+    linear = [test._linearised([unit[k] for k in members]) for members in groups]
+    if not innovation.SELECTED_INVERSE:
+        return np.array([_joint_cost(test, *lin, removal) for lin in linear])
+    d = test.dof
+    ends = [np.stack([ci, cj], axis=1).ravel() for *_, ci, cj in linear]  # (2g,) first rows
+    rows = np.concatenate([np.repeat(e, len(e)) for e in ends]) if ends else np.zeros(0, int)
+    cols = np.concatenate([np.tile(e, len(e)) for e in ends]) if ends else np.zeros(0, int)
+    blocks = test.selected.blocks(rows, cols, d)
+    out, start = np.zeros(len(groups)), 0
+    for n, ((b, bi, bj, _, _), e) in enumerate(zip(linear, ends, strict=True)):
+        g, size = len(b), len(e)
+        cov = blocks[start:start + size * size].reshape(size, size, d, d)
+        cov = cov.transpose(0, 2, 1, 3).reshape(size * d, size * d)
+        start += size * size
+        jac = np.zeros((g, d, size, d))
+        jac[np.arange(g), :, 2 * np.arange(g), :] = bi
+        jac[np.arange(g), :, 2 * np.arange(g) + 1, :] = bj
+        jac = jac.reshape(g * d, size * d)
+        m = jac @ cov @ jac.T
         s = np.eye(g * d) + (-m if removal else m)
         r = b.ravel()
         out[n] = 0.5 * r @ np.linalg.solve(s, r)
     return out
+
+
+def _joint_cost(
+    test: InnovationTest, b: Array, bi: Array, bj: Array, ci: NDArray[np.int64],
+    cj: NDArray[np.int64], removal: bool,
+) -> float:
+    """`joint_costs` of one group by full solves of ``H^-1 B_G^T`` (one per loop)."""
+    d, g = test.dof, len(b)
+    span = np.arange(d)
+    rhs = np.zeros((test.n, g * d))
+    for q in range(g):
+        rhs[ci[q] + span, q * d:(q + 1) * d] += bi[q].T
+        rhs[cj[q] + span, q * d:(q + 1) * d] += bj[q].T
+    y = solve_columns(test._lu, rhs)
+    m = np.concatenate([bi[q] @ y[ci[q] + span] + bj[q] @ y[cj[q] + span] for q in range(g)])
+    s = np.eye(g * d) + (-m if removal else m)
+    r = b.ravel()
+    return float(0.5 * r @ np.linalg.solve(s, r))
 
 
 def group_recheck(

@@ -22,7 +22,8 @@ residuals ``r_k`` (``r_k^T W_k r_k = 2 E_k``, ``E_k`` its gtsam error) and its r
 
 The traces are estimated by Hutchinson's estimator of the hat matrix's diagonal,
 ``diag(A N^-1 A^T) ~ mean_z z * (A N^-1 A^T z)`` over `PROBES` Rademacher vectors
-``z`` (one sparse LU of ``N`` and a solve per few probes), summed per group (anchors,
+``z`` (one sparse LU of ``N`` and a solve per few probes; the probes are drawn once per
+estimate), summed per group (anchors,
 each segment, the loops); the group redundancies are then scaled so that they sum to
 the exact total ``m - n``.  The factors are iterated as Helmert's estimate is: the
 odometry re-weighted by the last factors, the solution and the redundancies re-computed
@@ -47,7 +48,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix, diags
 from scipy.sparse.linalg import SuperLU
 
-from slam.consistency import solve_columns
+from slam.innovation import solve_columns
 from slam.least_squares import factor_information
 from slam.pose_graph import Constraint, PoseGraph, pose_dof
 
@@ -106,15 +107,23 @@ def _jacobian(
     return jac, rhs
 
 
+def rademacher(rows: int, probes: int = PROBES, seed: int = 0) -> Array:
+    """(rows, probes) Rademacher vectors (entries -1 or 1, equally likely) of `seed`."""
+    rng = np.random.default_rng(seed)
+    return rng.choice(np.array([-1.0, 1.0]), size=(rows, probes))
+
+
 def hat_diagonal(
-    jac: csr_matrix, probes: int = PROBES, seed: int = 0, lu: SuperLU | None = None
+    jac: csr_matrix, probes: int = PROBES, seed: int = 0, lu: SuperLU | None = None,
+    z: Array | None = None,
 ) -> Array:
     """Hutchinson estimate of ``diag(A N^-1 A^T)`` (``N = A^T A``) for a whitened Jacobian
     ``A`` (rows, n): ``mean_z z * (A N^-1 A^T z)`` over `probes` Rademacher vectors.
     `lu`: the factorisation of ``N`` (`slam.least_squares.factor_information`), when
-    the caller has it."""
-    rng = np.random.default_rng(seed)
-    z = rng.choice(np.array([-1.0, 1.0]), size=(jac.shape[0], probes))
+    the caller has it.  `z`: the probes, ``rademacher(rows, probes, seed)``, when the
+    caller has them."""
+    if z is None:
+        z = rademacher(jac.shape[0], probes, seed)
     if lu is None:
         lu = factor_information(jac)
     y = jac @ solve_columns(lu, np.asarray(jac.T @ z))
@@ -176,6 +185,7 @@ def segment_factors(
     rows = np.repeat(group, d)
     odometry_rows = rows < n_seg
     scale = np.ones(n_seg)  # the factors the odometry information is divided by
+    z = rademacher(jac0.shape[0], probes, seed)  # the same probes in every iteration
     result = None
     for it in range(iterations):
         row_scale = np.ones(len(rows))
@@ -184,7 +194,7 @@ def segment_factors(
         rhs = row_scale * rhs0
         lu = factor_information(jac)
         residual = rhs - jac @ lu.solve(jac.T @ rhs)
-        redundancy_rows = 1.0 - hat_diagonal(jac, probes, seed, lu)
+        redundancy_rows = 1.0 - hat_diagonal(jac, probes, seed, lu, z)
         redundancy_rows[rows == n_seg + 1] = 0.0  # anchors fix their poses alone
         red = np.maximum(np.bincount(rows, weights=redundancy_rows, minlength=n_seg + 2), 0.0)
         if red.sum() > 0:

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from evaluation.robustness import aligned_position_error, inject_false_loops
-from slam.consistency import _isam_or_batch, _IsamPrefix, admit_incrementally, incremental_tls
+from slam.consistency import admit_incrementally, incremental_tls
+from slam.isam_prefix import IsamPrefix, isam_or_batch
 from slam.least_squares import StickySolver
 from slam.optimize import initial_guess, optimize
 from slam.pose_graph import Constraint, poses_from_values
@@ -50,11 +51,11 @@ def test_lm_budget_hands_an_unconverged_solve_to_dogleg() -> None:
 
 
 def _chain_with_loop(false_loop: bool):
-    """The square graph's anchor and odometry in an `_IsamPrefix`, one loop added after
+    """The square graph's anchor and odometry in an `IsamPrefix`, one loop added after
     the chain is solved: the given first loop, or the same loop moved 5 m off."""
     graph, _ = _square_graph(noise=0.02, laps=3)
     values = graph.gtsam_values(initial_guess(graph, "odometry"))
-    isam = _IsamPrefix(max_updates=1)
+    isam = IsamPrefix(max_updates=1)
     factors = gtsam.NonlinearFactorGraph()
     for key in graph.anchor_keys():
         factors.add(graph.prior_factor(key))
@@ -77,7 +78,7 @@ def _chain_with_loop(false_loop: bool):
 
 def test_isam2_prefix_hands_over_to_batch_when_its_updates_do_not_converge() -> None:
     isam, factors, current = _chain_with_loop(false_loop=True)
-    solved, nxt = _isam_or_batch(isam, StickySolver(), factors, current)
+    solved, nxt = isam_or_batch(isam, StickySolver(), factors, current)
     assert not isam.converged  # one update cannot absorb a loop 5 m off
     assert nxt is None
     batch = StickySolver()(factors, current)
@@ -87,7 +88,7 @@ def test_isam2_prefix_hands_over_to_batch_when_its_updates_do_not_converge() -> 
 def test_isam2_prefix_keeps_isam2_while_its_updates_converge() -> None:
     isam, factors, current = _chain_with_loop(false_loop=False)
     isam.max_updates = 20
-    solved, nxt = _isam_or_batch(isam, StickySolver(), factors, current)
+    solved, nxt = isam_or_batch(isam, StickySolver(), factors, current)
     assert isam.converged and nxt is isam
     batch = StickySolver()(factors, current)
     assert abs(factors.error(solved) - factors.error(batch)) < 1e-6 * max(1.0, factors.error(batch))
@@ -149,7 +150,7 @@ def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_les
     from slam.consistency import AdmissionPass
     from slam.variance_components import with_information_scaled
 
-    monkeypatch.setattr("slam.consistency.SNAPSHOTS", 12)  # a snapshot before every block
+    monkeypatch.setattr("slam.admission.SNAPSHOTS", 12)  # a snapshot before every block
     # Odometry stated 100 times looser than it is: the calibrated gate is far lower.
     graph, _ = _square_graph(noise=0.02, laps=3)
     corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,

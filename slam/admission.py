@@ -1,0 +1,500 @@
+"""One time-ordered admission pass of loop closures under the TLS loss.
+
+The pass of `slam.consistency` (its module docstring, steps 1-3): poses are added in
+blocks of `block` ids (odometry composed onto the solved prefix); every loop whose later
+end falls in the block is decided against the solved prefix, first by the residual rule
+``e_k <= c`` (gtsam error units; ``c`` = `slam.innovation.tls_threshold`), then by the
+innovation test (`slam.innovation`) under the ``"stated"`` gate ``c`` or the
+``"calibrated"`` gate ``c min(1, s0^2)``, ``s0^2 = 2 J_accepted / (m - n)`` the
+a-posteriori variance factor of the accepted prefix (used once the redundancy is at
+least `MIN_REDUNDANCY_LOOPS` loops' worth).  The prefix is re-solved after every
+admission round by one iSAM2 per pass (`slam.isam_prefix`) or by batch solves.
+
+`AdmissionPass` holds the state of a pass so that it can stop after a fold, resume, and
+be resumed from a snapshot by a pass that differs from a given block on
+(`slam.consistency.incremental_tls`, `slam.consistency.bar_search`); `admit_incrementally`
+runs one pass to its end.  `tls_cost` is the TLS objective every search compares.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from data import se2
+from data.errors import UserError
+from slam.deferral import (
+    MIN_POWER,
+    alternative_offsets,
+    alternative_places,
+    consensus,
+    power,
+    whitened_offsets,
+)
+from slam.innovation import (
+    InnovationTest,
+    admission_costs,
+    greedy_admission,
+    tls_threshold,
+)
+from slam.isam_prefix import IsamPrefix, isam_or_batch
+from slam.least_squares import StickySolver
+from slam.pose_graph import (
+    PoseGraph,
+    RobustKernel,
+    pose_dof,
+    poses_from_values,
+    to_gtsam_pose,
+)
+
+Array = NDArray[np.float64]
+GATES = ("stated", "calibrated")
+MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
+PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
+SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
+
+
+@dataclass(slots=True)
+class Admission:
+    """Result of a TLS solve by time-ordered admission.
+
+    Attributes:
+        values: solution (gtsam Values of every pose).
+        weights: 1 for loops kept, 0 for loops rejected (order of `graph.loops`).
+        tls_cost: `tls_cost` of the solution under the graph's stated covariances.
+        blocks: prefix solves of the incremental pass.
+        gate: ``"stated"`` or ``"calibrated"`` (module docstring).
+        prefix: how the prefix was solved, ``"batch"``, ``"isam2"`` or
+            ``"isam2-then-batch"`` (iSAM2 until its updates stopped converging; see
+            `slam.isam_prefix.IsamPrefix`).
+    """
+
+    values: gtsam.Values
+    weights: Array
+    tls_cost: float
+    blocks: int
+    gate: str
+    prefix: str = "batch"
+
+
+StatedFactors = tuple[gtsam.NonlinearFactorGraph, list[int]]  # `PoseGraph.factor_graph`'s result
+
+
+def tls_cost(
+    graph: PoseGraph, values: gtsam.Values, probability: float = 0.99,
+    factors: StatedFactors | None = None,
+) -> float:
+    """TLS objective at `values`: odometry and prior error plus ``min(e_k, c)`` per loop.
+
+    `factors`: ``graph.factor_graph(RobustKernel("none"))`` when the caller already built
+    it (a few milliseconds per thousand constraints, which a search over many runs of the
+    same graph would otherwise repeat).
+    """
+    base, loop_index = factors or graph.factor_graph(RobustKernel("none"))
+    c = tls_threshold(graph.dim, probability)
+    n_fixed = base.size() - len(loop_index)
+    fixed = sum(base.at(k).error(values) for k in range(n_fixed))
+    loops = sum(min(base.at(k).error(values), c) for k in loop_index)
+    return float(fixed + loops)
+
+
+def has_odometry_spine(graph: PoseGraph) -> bool:
+    """The first pose is anchored and odometry reaches every other pose from an earlier
+    one: what the time-ordered admission needs (a graph of two sessions joined by
+    loops alone has no spine)."""
+    try:
+        _check_spine(graph)
+    except UserError:
+        return False
+    return True
+
+
+def _check_spine(graph: PoseGraph) -> list[int]:
+    """Pose ids in order, after checking the anchor and the odometry spine."""
+    keys = graph.keys
+    if keys[0] not in graph.anchor_keys():
+        raise UserError(f"time-ordered admission needs the first pose ({keys[0]}) anchored")
+    reached = {max(o.i, o.j) for o in graph.odometry if o.i != o.j}
+    missing = len(set(keys[1:]) - reached)
+    if missing:
+        raise UserError(
+            f"time-ordered admission needs odometry from an earlier pose to every pose; "
+            f"{missing} poses have none"
+        )
+    return keys
+
+
+def _extend(
+    solved: dict[int, Array], given: dict[int, Array], ref: int | None, new: list[int], dim: int
+) -> None:
+    """New poses keep their given pose relative to `ref`, which moved to its solved pose."""
+    if ref is None:
+        solved.update((k, given[k]) for k in new)
+        return
+    if dim == 2:
+        moved = se2.compose(solved[ref], se2.inverse(given[ref]))
+        solved.update(zip(new, se2.compose(moved, np.array([given[k] for k in new])), strict=True))
+    else:
+        moved = solved[ref] @ np.linalg.inv(given[ref])
+        solved.update((k, moved @ given[k]) for k in new)
+
+
+def _with(
+    fixed: gtsam.NonlinearFactorGraph, factors: list, indices: NDArray[np.int64]
+) -> gtsam.NonlinearFactorGraph:
+    """A copy of `fixed` plus ``factors[k]`` for every k in `indices`."""
+    graph = gtsam.NonlinearFactorGraph(fixed)
+    for k in indices:
+        graph.add(factors[k])
+    return graph
+
+
+def _variance_factor(
+    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, poses: int, dof: int
+) -> float | None:
+    """A-posteriori variance of unit weight ``2 J / (m - n)``; None without enough redundancy."""
+    redundancy = dof * factors.size() - dof * poses
+    if redundancy < dof * MIN_REDUNDANCY_LOOPS:
+        return None
+    return 2.0 * factors.error(values) / redundancy
+
+
+def admit_incrementally(
+    graph: PoseGraph,
+    values: gtsam.Values,
+    *,
+    probability: float = 0.99,
+    block: int = 50,
+    gate: str = "stated",
+    max_rounds: int = 50,
+    solver: StickySolver | None = None,
+    barred: Sequence[int] = (),
+    prefix_solver: str = "auto",
+    unit: list[gtsam.NonlinearFactor] | None = None,
+    defer: bool = False,
+) -> Admission:
+    """One time-ordered TLS pass (`slam.consistency`'s module docstring, steps 1-3) from
+    initial `values`.
+
+    Args:
+        graph: the pose graph (2D or 3D); its loops are the candidates.
+        values: initial guess of every pose (e.g. the odometry chain); only the poses'
+            relative placement within each new block is used.
+        probability: chi-square probability of the TLS threshold ``c``.
+        block: poses added per step (ids in increasing order).
+        gate: ``"stated"`` or ``"calibrated"`` innovation gate.
+        max_rounds: admission rounds per block (each ends with a prefix solve).
+        solver: least-squares solver (shared by the calls of `slam.consistency.incremental_tls`).
+        barred: loops never admitted (weight 0).
+        prefix_solver: ``"batch"`` (`solver` on the whole accepted prefix after every
+            admission round) or ``"isam2"`` (`IsamPrefix`, handing over to batch solves
+            for the rest of the pass once its updates stop converging); ``"auto"`` is
+            ``"isam2"``: on a prefix that stays consistent its updates cost a fraction
+            of the batch solves, and a folded prefix costs about what batch does.
+        unit: the Gaussian factor of every loop (computed when None).
+        defer: loops whose innovation test has no power are deferred and decided by
+            consensus (`slam.deferral`); loops still deferred at the end are rejected.
+            False (the default) decides every loop in its own block.
+    """
+    run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
+                        max_rounds=max_rounds, solver=solver, barred=barred,
+                        prefix_solver=prefix_solver, unit=unit, defer=defer)
+    run.advance()
+    return run.result()
+
+
+@dataclass(slots=True)
+class _Snapshot:
+    """The state of an `AdmissionPass` before block `step` (index into its block ends),
+    taken while its prefix had not folded; never mutated (`AdmissionPass.resumed` copies
+    it)."""
+
+    step: int
+    last: int
+    blocks: int
+    current: gtsam.Values
+    weights: Array
+    fixed: gtsam.NonlinearFactorGraph
+    isam: IsamPrefix | None
+    deferred: NDArray[np.int64]
+
+
+class AdmissionPass:
+    """The state of one `admit_incrementally` pass, which can stop after a fold.
+
+    `advance` adds blocks until the end of the graph, or, with ``until_fold``, until the
+    end of the block in which the iSAM2 prefix stopped converging (`IsamPrefix`: the
+    admitted loops folded the prefix); `folded` then says so, and a later `advance`
+    goes on with the batch solves the pass would have used anyway, so a resumed pass
+    equals one that never stopped.  `slam.consistency.incremental_tls` uses this to finish
+    a folded pass only when its decided prefix is still cheaper than the best finished pass's
+    (`prefix_cost`).  Arguments as `admit_incrementally`.
+
+    `record`: keep `SNAPSHOTS` snapshots of the state before evenly spaced blocks (while
+    the prefix has not folded), from which `resumed` starts a pass that differs from
+    this one only from a given block on: one more barred loop
+    (`slam.consistency.bar_search`: every block before the barred loop's is decided as
+    here) or the calibrated gate (`calibrated_step`: a stated pass tracks the first block
+    in which the calibrated gate would have admitted less).  A resumed pass computes what
+    a new pass would, bit for bit.
+    """
+
+    def __init__(
+        self, graph: PoseGraph, values: gtsam.Values, *, probability: float = 0.99,
+        block: int = 50, gate: str = "stated", max_rounds: int = 50,
+        solver: StickySolver | None = None, barred: Sequence[int] = (),
+        prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
+        record: bool = False, defer: bool = False,
+    ) -> None:
+        if prefix_solver not in PREFIX_SOLVERS:
+            raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
+                            f"{', '.join(PREFIX_SOLVERS)}")
+        if gate not in GATES:
+            raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
+        self.prefix_solver = "isam2" if prefix_solver == "auto" else prefix_solver
+        self._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
+        self._solve = solver or StickySolver()
+        self.graph, self.gate, self.barred = graph, gate, barred
+        self._max_rounds = max_rounds
+        self.keys = _check_spine(graph)
+        self._d, self._c = pose_dof(graph.dim), tls_threshold(graph.dim, probability)
+        self.position = {k: n for n, k in enumerate(self.keys)}
+        self._given = poses_from_values(values, graph.dim)
+        self.unit = unit if unit is not None else [graph.between_factor(lp) for lp in graph.loops]
+        self.odometry_end = np.array([max(self.position[o.i], self.position[o.j])
+                                      for o in graph.odometry], dtype=int)
+        self.loop_end = np.array([max(self.position[lp.i], self.position[lp.j])
+                                  for lp in graph.loops], dtype=int)
+        self._anchors = set(graph.anchor_keys())
+        self.weights = np.zeros(len(graph.loops))
+        self.defer = defer
+        self.deferred = np.zeros(0, dtype=np.int64)  # loops whose test had no power yet
+        self._fixed = gtsam.NonlinearFactorGraph()
+        self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
+        self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
+        self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
+        self._step = 0
+        self.folded = False  # the iSAM2 prefix stopped converging (batch solves from then on)
+        self._released = False  # the iSAM2 prefix dropped by `release_prefix` (not folded)
+        self.snapshots: list[_Snapshot] | None = [] if record else None
+        self._stride = max(1, -(-len(self._ends) // SNAPSHOTS))
+        # A stated pass: the first block in which the calibrated gate would admit less.
+        self.calibrated_step: int | None = None
+
+    @property
+    def done(self) -> bool:
+        return self._step == len(self._ends)
+
+    def release_prefix(self) -> None:
+        """Drop the iSAM2 of the solved prefix (memory: one per pass, and
+        `slam.consistency.incremental_tls` keeps several passes until it chooses among
+        them); only for a pass that will not `advance` again."""
+        if self._isam is not None:
+            self._isam = None
+            self._released = True
+
+    def advance(self, until_fold: bool = False, blocks: int | None = None) -> None:
+        """Add blocks to the end, or until the block that folded (`until_fold`), or
+        `blocks` more blocks."""
+        n = 0
+        while not self.done and (blocks is None or n < blocks):
+            if (self.snapshots is not None and not self.folded
+                    and self._step % self._stride == 0
+                    and (not self.snapshots or self.snapshots[-1].step < self._step)):
+                self.snapshots.append(self._snapshot())
+            self._add_block(self._ends[self._step])
+            self._step += 1
+            n += 1
+            if until_fold and self.folded:
+                return
+
+    def _snapshot(self) -> _Snapshot:
+        return _Snapshot(self._step, self.last, self.blocks, gtsam.Values(self.current),
+                         self.weights.copy(), gtsam.NonlinearFactorGraph(self._fixed),
+                         None if self._isam is None else self._isam.copy(),
+                         self.deferred.copy())
+
+    def block_of(self, loop: int) -> int:
+        """Index of the block in which `loop` (index into `graph.loops`) is decided."""
+        return int(np.searchsorted(self._ends, self.loop_end[loop]))
+
+    def resumed(
+        self, step: int, *, barred: Sequence[int] | None = None, gate: str | None = None
+    ) -> AdmissionPass:
+        """A new pass with `barred` (default this pass's) and `gate` (default this pass's),
+        from this pass's latest snapshot before block `step` or earlier: right when the new
+        pass decides every block before `step` as this one did.  It keeps the snapshots it
+        shares with this pass and records its own."""
+        if self.snapshots is None:
+            raise ValueError("resumed() needs a pass made with record=True")
+        earlier = [snap for snap in self.snapshots if snap.step <= step]
+        run = copy.copy(self)  # the graph, factors and positions are shared, never mutated
+        run.barred = self.barred if barred is None else barred
+        run.gate = self.gate if gate is None else gate
+        run.folded, run._released, run.calibrated_step = False, False, None
+        run.snapshots = earlier
+        if not earlier:  # before the first block: a new pass
+            run.last, run.blocks, run._step = -1, 0, 0
+            run.current, run.weights = gtsam.Values(), np.zeros(len(self.graph.loops))
+            run.deferred = np.zeros(0, dtype=np.int64)
+            run._fixed = gtsam.NonlinearFactorGraph()
+            run._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
+            return run
+        snap = earlier[-1]
+        run.last, run.blocks, run._step = snap.last, snap.blocks, snap.step
+        run.current, run.weights = gtsam.Values(snap.current), snap.weights.copy()
+        run.deferred = np.setdiff1d(snap.deferred, run.barred).astype(np.int64)
+        run._fixed = gtsam.NonlinearFactorGraph(snap.fixed)
+        run._isam = None if snap.isam is None else snap.isam.copy()
+        return run
+
+    def _add_block(self, end: int) -> None:
+        graph, keys, unit, c = self.graph, self.keys, self.unit, self._c
+        last, current, fixed, isam = self.last, self.current, self._fixed, self._isam
+        new = keys[last + 1 : end + 1]
+        ref = keys[last] if last >= 0 else None
+        solved = {} if ref is None else {ref: _pose_of(current, ref, graph.dim)}
+        _extend(solved, self._given, ref, new, graph.dim)
+        for k in new:
+            pose = to_gtsam_pose(solved[k], graph.dim)
+            current.insert(k, pose)
+            if k in self._anchors:
+                fixed.add(graph.prior_factor(k))
+                if isam is not None:
+                    isam.add(graph.prior_factor(k))
+            if isam is not None:
+                isam.insert(k, pose)
+        for n in np.flatnonzero((self.odometry_end > last) & (self.odometry_end <= end)):
+            fixed.add(graph.between_factor(graph.odometry[n]))
+            if isam is not None:
+                isam.add(fixed.at(fixed.size() - 1))
+        arrived = np.setdiff1d(
+            np.flatnonzero((self.loop_end > last) & (self.loop_end <= end)), self.barred)
+        final = end == len(keys) - 1
+        self.last = end
+        # Deferred loops are re-tested with every block that brings loops, and at the end.
+        if len(arrived) == 0 and not (final and len(self.deferred)):
+            return
+        pending = np.union1d(arrived, self.deferred).astype(np.int64)
+        self.blocks += 1
+        prefix = keys[: end + 1]
+        accepted = np.zeros(len(pending), dtype=bool)
+        waiting = np.zeros(0, dtype=np.int64)  # positions in `pending` deferred (`slam.deferral`)
+        factors = fixed  # the accepted graph, whose solution is `current`
+        for _ in range(self._max_rounds):
+            errors = np.array([unit[k].error(current) for k in pending])
+            newly = ~accepted & (errors <= c)
+            if newly.any():  # step 1
+                accepted |= newly
+                factors = _with(fixed, unit, pending[accepted])
+                current, isam = self._prefix_solve(factors, current, pending[newly])
+                continue
+            rest = np.flatnonzero(~accepted)
+            waiting = np.zeros(0, dtype=np.int64)
+            if len(rest) == 0:
+                break
+            # Step 2, at the solution of the accepted graph.
+            limit = c
+            if self.gate == "calibrated":
+                s0 = _variance_factor(factors, current, len(prefix), self._d)
+                limit = c * min(1.0, s0) if s0 is not None else c
+            try:
+                test = InnovationTest(factors, current, prefix, self._d)
+            except RuntimeError:  # singular information: no innovation test possible
+                break
+            gains = test.gains([unit[pending[q]] for q in rest])
+            decide = np.arange(len(rest))
+            weak = np.zeros(0, dtype=np.int64)
+            white = None
+            if self.defer:
+                # The deferral's classes use the stated ``c`` whatever the gate, so a stated
+                # and a calibrated pass defer alike until they admit differently.
+                ends = [unit[pending[q]].keys()[1] for q in rest]
+                white = whitened_offsets(gains, alternative_offsets(
+                    current, ends, alternative_places(prefix), graph.dim))
+                eye = np.eye(self._d)
+                strong = power(eye + gains.M, white, c) >= MIN_POWER
+                weak = np.flatnonzero(~strong & (admission_costs(gains) < c))
+                decide = np.flatnonzero(strong)
+            costs: list[float] = []
+            admitted: list[int] = []
+            if len(decide):
+                chosen, _ = greedy_admission(gains.subset(decide), limit, costs)
+                admitted = [int(decide[q]) for q in chosen]
+            if not admitted and len(weak):
+                agreeing = consensus(gains.subset(weak), white[weak], c)
+                if len(agreeing):
+                    pick = weak[agreeing]
+                    chosen, _ = greedy_admission(gains.subset(pick), limit, costs)
+                    admitted = [int(pick[q]) for q in chosen]
+            if self.gate == "stated" and self.calibrated_step is None and admitted:
+                s0 = _variance_factor(factors, current, len(prefix), self._d)
+                if s0 is not None and max(costs) >= c * min(1.0, s0):
+                    self.calibrated_step = self._step
+            if not admitted:
+                waiting = rest[weak] if not final else waiting
+                break
+            accepted[rest[admitted]] = True
+            factors = _with(fixed, unit, pending[accepted])
+            current, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
+        self.current = current
+        self.weights[pending] = accepted
+        self.deferred = pending[waiting[~accepted[waiting]]]
+        for q in np.flatnonzero(accepted):
+            fixed.add(unit[pending[q]])
+
+    def _prefix_solve(
+        self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        added: NDArray[np.int64],
+    ) -> tuple[gtsam.Values, IsamPrefix | None]:
+        """The accepted prefix `factors` solved from `current` after the loops `added`."""
+        if self._isam is None:
+            return self._solve(factors, current), None
+        for k in added:
+            self._isam.add(self.unit[k])
+        current, self._isam = isam_or_batch(self._isam, self._solve, factors, current)
+        if self._isam is None:
+            self.folded = True
+        return current, self._isam
+
+    def prefix_cost(
+        self, values: gtsam.Values, factors: StatedFactors, probability: float = 0.99
+    ) -> float:
+        """`tls_cost` at `values` of the part of `factors` (the stated graph of the same
+        poses, odometry and loops) that this pass has decided: anchors and odometry
+        among the poses added so far, and the loops that end among them."""
+        base, loop_index = factors
+        c = tls_threshold(self.graph.dim, probability)
+        n_priors = base.size() - len(loop_index) - len(self.graph.odometry)
+        seen = set(self.keys[: self.last + 1])
+        cost = sum(base.at(k).error(values) for k in range(n_priors)
+                   if base.at(k).keys()[0] in seen)
+        n_odometry = np.flatnonzero(self.odometry_end <= self.last)
+        cost += sum(base.at(n_priors + int(n)).error(values) for n in n_odometry)
+        cost += sum(min(base.at(loop_index[k]).error(values), c)
+                    for k in np.flatnonzero(self.loop_end <= self.last))
+        return float(cost)
+
+    def result(self) -> Admission:
+        """The pass's `Admission` (after `advance` reached the end)."""
+        errors = np.array([f.error(self.current) for f in self.unit])
+        w = self.weights
+        cost = self._fixed.error(self.current) - errors[w > 0.5].sum() + np.minimum(
+            errors, self._c).sum()
+        prefix = self.prefix_solver
+        if prefix == "isam2" and self._isam is None and not self._released:
+            prefix = "isam2-then-batch"
+        return Admission(self.current, w, float(cost), self.blocks, self.gate, prefix)
+
+
+def _pose_of(values: gtsam.Values, key: int, dim: int) -> Array:
+    """Pose `key` of `values` as (x, y, theta) or a 4x4 matrix."""
+    if dim == 2:
+        p = values.atPose2(key)
+        return np.array([p.x(), p.y(), p.theta()])
+    return values.atPose3(key).matrix()
