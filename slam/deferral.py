@@ -69,7 +69,7 @@ ALTERNATIVES = 128  # places of the map a gate's power is measured against
 
 
 class GainsLike(Protocol):
-    """`slam.consistency._Gains`: ``b`` (m, d), ``Bj`` (m, d, d), ``M`` (m, d, d),
+    """`slam.innovation._Gains`: ``b`` (m, d), ``Bj`` (m, d, d), ``M`` (m, d, d),
     ``Y`` (m, r, d), ``cross(y) -> (m, d, d)``."""
 
     b: Array
