@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+from collections.abc import Callable
 
 import numpy as np
 
@@ -101,14 +102,21 @@ def cache_is_cold() -> bool:
     return not all(os.path.exists(p) for p in paths)
 
 
-def warm_up_isolated() -> None:
-    """`warm_up`, compiling in a spawned child process first when the cache is cold
-    (module docstring); the kernels are then loaded here from the cache."""
-    if cache_is_cold():
-        child = multiprocessing.get_context("spawn").Process(target=warm_up)
+def warm_up_isolated(
+    warm: Callable[[], None] | None = None, cold: Callable[[], bool] | None = None
+) -> None:
+    """`warm` (default `warm_up`), compiling in a spawned child process first when
+    `cold()` (default `cache_is_cold`) says the cache is cold (module docstring); the
+    kernels are then loaded here from the cache.  A higher layer passes its own pair
+    (a module-level `warm`, which the child imports) that also covers this module's
+    kernels (`slam.kernel_warm_up`)."""
+    warm = warm or warm_up
+    cold = cold or cache_is_cold
+    if cold():
+        child = multiprocessing.get_context("spawn").Process(target=warm)
         child.start()
         child.join()  # a child that failed leaves the compiling to the call below
-    warm_up()
+    warm()
 
 
 __all__ = ["cache_is_cold", "room_scan", "warm_up", "warm_up_isolated"]

@@ -53,10 +53,10 @@ from data.errors import UserError
 from data.types import PointCloud, Scan
 from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
-from loopclosure.warm_up import warm_up_isolated
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.front_end_worker import BATCH, map_in_worker, worker_available
+from slam.kernel_warm_up import warm_up_isolated
 from slam.keyframes import GrowingRows, Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry

@@ -55,3 +55,35 @@ def test_after_a_warm_up_the_cache_is_warm(monkeypatch):
                         lambda method: _Context)
     warm_up_isolated()
     assert children == [warm_up]
+
+
+def test_the_mapper_warm_up_covers_the_back_end_kernels(monkeypatch):
+    """`slam.kernel_warm_up` compiles the re-check's selected-inverse kernels as well,
+    and hands its own pair to the isolated warm-up's child."""
+    from slam import kernel_warm_up, selected_inverse_kernel
+
+    kernel_warm_up.warm_up()
+    assert all(k.signatures for k in (selected_inverse_kernel._reach_counts,
+                                       selected_inverse_kernel._solves,
+                                       selected_inverse_kernel.sparse_block_dots))
+    assert not kernel_warm_up.cache_is_cold()
+    seen = []
+
+    class _Child:
+        def __init__(self, target):
+            seen.append(target)
+
+        def start(self):
+            pass
+
+        def join(self):
+            pass
+
+    class _Context:
+        Process = _Child
+
+    monkeypatch.setattr("loopclosure.warm_up.multiprocessing.get_context",
+                        lambda method: _Context)
+    monkeypatch.setattr(kernel_warm_up, "cache_is_cold", lambda: True)
+    kernel_warm_up.warm_up_isolated()
+    assert seen == [kernel_warm_up.warm_up]

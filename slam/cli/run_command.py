@@ -158,7 +158,7 @@ def _open_input(
             "no input given: running the embedded demo (simulated box world, drifting "
             "wheel odometry)", err=True,
         )
-        from loopclosure.warm_up import warm_up_isolated
+        from slam.kernel_warm_up import warm_up_isolated
 
         warm_up_isolated()  # the first run after an install compiles the kernels
         demo = simulate_run(
