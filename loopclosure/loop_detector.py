@@ -65,7 +65,11 @@ and calls, for every keyframe:
    prior); one outside it (a revisit the odometry cannot explain: large drift, a
    kidnap, an unknown start) from the database's heading hypotheses
    (`loopclosure.headings`) at a centroid-aligned translation and at zero
-   translation (`GeometricCheckConfig.origin_guesses`), with no pose prior.
+   translation (`GeometricCheckConfig.origin_guesses`), with no pose prior.  When
+   none of a query's candidates checked so is accepted, the first `circle_fallback`
+   of them rejected for their fit are checked again over the whole circle of
+   headings (the hypotheses can all miss a revisit's heading; same rules; off by
+   default).
    That check is a search (several ICP starts) and on a log with good odometry it
    nearly always meets a look-alike place, so it runs only when no candidate inside
    the gate was accepted for this query (the two would contradict each other), and
@@ -210,6 +214,15 @@ class LoopClosureConfig:
             proposes up to `global_verify`; the more of them count, the more often a
             look-alike is supported by chance and checked in vain).
         max_loops: accepted loops per query at most.
+        circle_fallback: when no place checked with no prior was accepted for a
+            query, at most this many of them, rejected for their fit, are checked
+            again over the whole circle of headings instead of their heading
+            hypotheses (`LoopClosureDetector._circle_fallback`; 0: never, the
+            default).  Each re-check costs about as much as a check and nearly every
+            query without a revisit pays for them, while the revisits they recover
+            (a true place whose hypotheses all missed its heading, often ranked
+            below several look-alikes) are a fraction of a percent of the real
+            logs' revisits: off unless asked for.
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
         full_circle_deg: a sensor covering at least this is described by its own scan.
@@ -243,6 +256,7 @@ class LoopClosureConfig:
     sequence_keys: int = 3
     sequence_places: int = 1
     max_loops: int = 2
+    circle_fallback: int = 0
     virtual_beams: int = 360
     virtual_range: float = 20.0
     full_circle_deg: float = 359.0
@@ -269,6 +283,8 @@ class LoopClosureConfig:
             raise UserError(f"loops.wide_keyframes must be >= 0, got {self.wide_keyframes}")
         if self.wide_every < 1:
             raise UserError(f"loops.wide_every must be >= 1, got {self.wide_every}")
+        if self.circle_fallback < 0:
+            raise UserError(f"loops.circle_fallback must be >= 0, got {self.circle_fallback}")
         if not self.prior_max_sigma > 0:
             raise UserError(
                 f"loops.prior_max_sigma must be > 0 m, got {self.prior_max_sigma}")
@@ -847,7 +863,8 @@ class LoopClosureDetector:
         `query_points` is the query's submap (``(N, 2)`` [m], its sensor frame;
         default ``submap(key)``).  Each check starts from the match's heading
         hypotheses and a centroid-aligned translation, as for a candidate outside the
-        pose gate.  `allowed` (keys; None: every eligible keyframe) bounds the
+        pose gate (and, when none is accepted, the whole-circle re-checks of
+        `circle_fallback`).  `allowed` (keys; None: every eligible keyframe) bounds the
         keyframes a check may move to when it finds the query nearer another one
         (`_nearer_place`): a benchmark's keyframes with a reference pose.  For
         benchmarks that judge the appearance search alone (no search, no counters).
@@ -866,10 +883,12 @@ class LoopClosureDetector:
         budget: int, allowed: ArrayLike | None = None,
     ) -> list[LoopCandidate]:
         """Checks with no prior of `matches`, in order, until `budget` are accepted
-        (`allowed`: as `verify_places`);
-        then accepted candidates in one frame that put the query more than
-        `agree_distance` apart (``poses[match] * relative``) are all rejected."""
+        (`allowed`: as `verify_places`); none accepted, the whole-circle re-checks
+        (`_circle_fallback`); then accepted candidates in one frame that put the
+        query more than `agree_distance` apart (``poses[match] * relative``) are all
+        rejected."""
         out: list[LoopCandidate] = []
+        checked: list[PlaceMatch] = []
         for m in matches:
             if sum(c.accepted for c in out) >= budget:
                 break
@@ -877,6 +896,9 @@ class LoopClosureDetector:
                 db, asked = self.views(key)[m.view]
                 m = db.with_headings(db.descriptors(asked), [m])[0]
             out.append(self._check_global(key, m, query_points, poses, allowed))
+            checked.append(m)
+        if not any(c.accepted for c in out):
+            out = self._circle_fallback(key, checked, out, query_points, poses, budget)
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
             return out
@@ -890,6 +912,47 @@ class LoopClosureDetector:
                     out[i], accepted=False,
                     reason=f"ambiguous places (another accepted place puts the query "
                            f"{spread:.1f} m away)")
+        return out
+
+    def _circle_fallback(
+        self, key: int, matches: list[PlaceMatch], out: list[LoopCandidate],
+        query_points: Array, poses: Array | None, budget: int,
+    ) -> list[LoopCandidate]:
+        """The whole-circle re-checks of a query none of whose `matches` (checked, in
+        order, with verdicts `out`) was accepted from its heading hypotheses.
+
+        A place's hypotheses (`loopclosure.headings`) can all miss the heading of a
+        revisit (a place seen the other way, a range function dragged by open space):
+        the check then searches the wrong headings and fits a wrong pose, or none, at
+        the true place.  The first `circle_fallback` places rejected for their fit
+        (every verdict but "not a revisit": a check that fitted well but too far
+        away has found the query elsewhere, `_nearer_place`) are checked again by
+        the same rules with no hypotheses: the correlative search then covers the
+        whole circle of headings at its coarse heading step
+        (`loopclosure.prior_free`), the ambiguity test included (a runner-up
+        anywhere on the circle counts).  An accepted re-check replaces the place's
+        verdict; a rejected one leaves it.  Stops once `budget` are accepted.
+        Only for the correlative check (``check.method``); the multi-start ICP check
+        without hypotheses would start from one heading only."""
+        cfg = self.config
+        if cfg.circle_fallback <= 0 or cfg.check.method != "correlative":
+            return out
+        out = list(out)
+        tried = accepted = 0
+        for i, (m, c) in enumerate(zip(matches, out, strict=True)):
+            if tried >= cfg.circle_fallback or accepted >= budget:
+                break
+            if c.reason.startswith(NOT_A_REVISIT):
+                continue
+            tried += 1
+            cand = int(c.match)
+            result = verify(query_points, self._target(cand), headings=None,
+                            max_distance=cfg.max_distance, config=cfg.check)
+            if result.accepted:
+                accepted += 1
+                out[i] = LoopCandidate.checked(
+                    key, cand, "appearance", result,
+                    predicted_distance=c.predicted_distance, **_place_figures(m))
         return out
 
     def _check_global(
