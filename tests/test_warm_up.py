@@ -31,11 +31,9 @@ def test_warm_up_compiles_every_kernel_the_mapper_calls():
     assert all(k.signatures for k in kernels)
 
 
-def test_after_a_warm_up_the_cache_is_warm(monkeypatch):
-    warm_up()  # writes numba's on-disk cache (the package's __pycache__ or the user's)
-    assert not cache_is_cold()
-    # A cold cache: the isolated warm-up compiles in a child first, then loads here.
-    children = []
+def _children_spawned(monkeypatch) -> list:
+    """Stand in for the spawned child: record each child's target, run nothing."""
+    children: list = []
 
     class _Child:
         def __init__(self, target):
@@ -50,9 +48,17 @@ def test_after_a_warm_up_the_cache_is_warm(monkeypatch):
     class _Context:
         Process = _Child
 
-    monkeypatch.setattr("loopclosure.warm_up.cache_is_cold", lambda: True)
     monkeypatch.setattr("loopclosure.warm_up.multiprocessing.get_context",
                         lambda method: _Context)
+    return children
+
+
+def test_after_a_warm_up_the_cache_is_warm(monkeypatch):
+    warm_up()  # writes numba's on-disk cache (the package's __pycache__ or the user's)
+    assert not cache_is_cold()
+    # A cold cache: the isolated warm-up compiles in a child first, then loads here.
+    children = _children_spawned(monkeypatch)
+    monkeypatch.setattr("loopclosure.warm_up.cache_is_cold", lambda: True)
     warm_up_isolated()
     assert children == [warm_up]
 
@@ -67,23 +73,7 @@ def test_the_mapper_warm_up_covers_the_back_end_kernels(monkeypatch):
                                        selected_inverse_kernel._solves,
                                        selected_inverse_kernel.sparse_block_dots))
     assert not kernel_warm_up.cache_is_cold()
-    seen = []
-
-    class _Child:
-        def __init__(self, target):
-            seen.append(target)
-
-        def start(self):
-            pass
-
-        def join(self):
-            pass
-
-    class _Context:
-        Process = _Child
-
-    monkeypatch.setattr("loopclosure.warm_up.multiprocessing.get_context",
-                        lambda method: _Context)
+    children = _children_spawned(monkeypatch)
     monkeypatch.setattr(kernel_warm_up, "cache_is_cold", lambda: True)
     kernel_warm_up.warm_up_isolated()
-    assert seen == [kernel_warm_up.warm_up]
+    assert children == [kernel_warm_up.warm_up]
