@@ -37,7 +37,6 @@ def relations_reference_fn(data: Any, relations: Path, name: str | None = None) 
     ``(match, query)`` (`relative_sigmas`; NaN where a keyframe has no reference)."""
     from data.relations import read_relations
     from evaluation.slam_reference import (
-        reference_graph,
         relations_in_range,
         relations_reference,
         relative_sigmas,
@@ -75,8 +74,7 @@ def relations_reference_fn(data: Any, relations: Path, name: str | None = None) 
         out = np.full((len(scans), 3), np.nan)
         known = np.isin(scans, ref.scan_index).all(axis=1)
         if known.any():
-            built = reference_graph(data.stamps, used, kf, result.odometry_poses)
-            out[known] = relative_sigmas(built, ref.node_poses, scans[known])
+            out[known] = relative_sigmas(ref.graph, ref.node_poses, scans[known])
         return out
 
     reference.sigmas = sigmas  # type: ignore[attr-defined]

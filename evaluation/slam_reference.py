@@ -107,6 +107,8 @@ class RelationsReference:
         keyframes: keyframes asked for; gap_odometry: which odometry filled the gaps.
         fit_trans_mean_m, fit_rot_mean_deg: relations metric of the solved nodes.
         node_index, node_poses: every node (scan index, pose), for plots.
+        graph: the graph that was solved (`reference_graph`; None without relations),
+            for the reference's own uncertainty (`relative_sigmas`).
     """
 
     scan_index: NDArray[np.intp]
@@ -119,6 +121,7 @@ class RelationsReference:
     fit_rot_mean_deg: float
     node_index: NDArray[np.intp]
     node_poses: Array
+    graph: ReferenceGraph | None = None
 
     def trajectory(self) -> Trajectory:
         """The keyframe reference in scan-index time (stamp = scan index)."""
@@ -269,6 +272,7 @@ def relations_reference(
         fit_rot_mean_deg=fit.rot_abs_mean_deg,
         node_index=nodes,
         node_poses=node_poses,
+        graph=built,
     )
 
 
