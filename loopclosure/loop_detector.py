@@ -146,6 +146,7 @@ from loopclosure.geometric_check import (
     LoopVerification,
     verify,
 )
+from loopclosure.key_table import KeyTable
 from loopclosure.place_config import PlaceDatabaseConfig
 from loopclosure.place_database import Descriptors, PlaceDatabase, PlaceMatch
 from loopclosure.polygon import DegeneratePolygonError, PolygonConfig, polygon_from_scan
@@ -401,17 +402,16 @@ class LoopClosureDetector:
         self._wide_centroids: dict[int, Array] = {}
         self._wide_keys: list[int] = []  # key -> the key whose wide view it queries with
         self._wide_described = np.zeros(0, np.int64)  # keys with a wide view, in order
-        self._stamps: list[float] = []
+        # key -> stamp, session, frame its pose estimates are given in (module
+        # docstring, "Sessions"), described: arrays that grow in place.
+        self._table = KeyTable()
         self._clock = True  # stamps tell time (see `eligible`)
         self._centroids: list[Array] = []
-        self._described: list[bool] = []
         # key -> (submap version it was built from, target), least recently used first.
         self._targets: OrderedDict[int, tuple[Hashable, RegistrationTarget]] = OrderedDict()
         self._since_global = 0
         self._since_free = 0  # keyframes since a prior-free check or an accepted loop
         self._proposed: dict[int, NDArray[np.int64]] = {}  # key -> appearance proposals
-        self._sessions: list[int] = []  # key -> session (module docstring, "Sessions")
-        self._frames: list[int] = []  # key -> frame its pose estimates are given in
         self._place_scans: list[Scan | None] = []
 
     # -- keyframes -------------------------------------------------------------------
@@ -444,11 +444,10 @@ class LoopClosureDetector:
         if place is None:
             place = self.describe_keyframe(key, stamp, scan, session=session,
                                            place_scan=place_scan)
-        if self._stamps and self._sessions[-1] == session and float(stamp) == self._stamps[-1]:
+        if (len(self._table) and self._sessions[-1] == session
+                and float(stamp) == self._stamps[-1]):
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
-        self._stamps.append(float(stamp))
-        self._sessions.append(int(session))
-        self._frames.append(int(session))
+        self._table.append(float(stamp), int(session), place.descriptors is not None)
         self._place_scans.append(place.place_scan)
         self._wide_keys.append(place.wide_key)
         if place.wide_descriptors is not None:
@@ -458,10 +457,8 @@ class LoopClosureDetector:
             self.wide_database.add_descriptors(key, place.wide_descriptors, stamp=stamp)
         if place.descriptors is None:
             self._centroids.append(np.zeros(2))
-            self._described.append(False)
             return False
         self._centroids.append(place.centroid)
-        self._described.append(True)
         self.database.add_descriptors(key, place.descriptors, stamp=stamp)
         return True
 
@@ -524,14 +521,12 @@ class LoopClosureDetector:
     def join(self, session: int, frame: int) -> None:
         """From now on the pose estimates of `session`'s keyframes are given in `frame`
         (the frame of an older session it was joined to: module docstring)."""
-        for k, s in enumerate(self._sessions):
-            if s == session:
-                self._frames[k] = int(frame)
+        self._frames[self._sessions == session] = int(frame)
 
     def frame(self, key: int) -> int:
         """The frame keyframe `key`'s pose estimates are given in."""
         self._check_key(key)
-        return self._frames[key]
+        return int(self._frames[key])
 
     def release_caches(self) -> None:
         """Drop the cached registration targets of the submaps (rebuilt on demand):
@@ -572,13 +567,27 @@ class LoopClosureDetector:
         (every keyframe of another session is)."""
         self._check_key(key)
         cfg = self.config
-        stamps = np.asarray(self._stamps[:key])
-        ids = np.arange(key)
-        ok = ids < key - cfg.exclude_recent
+        ok = np.arange(key) < key - cfg.exclude_recent
         if self._clock:
-            ok &= np.abs(stamps - self._stamps[key]) >= cfg.exclude_recent_s
-        ok |= np.asarray(self._sessions[:key]) != self._sessions[key]
-        return ok & np.asarray(self._described[:key], dtype=bool)
+            ok &= np.abs(self._stamps[:key] - self._stamps[key]) >= cfg.exclude_recent_s
+        ok |= self._sessions[:key] != self._sessions[key]
+        return ok & self._described[:key]
+
+    @property
+    def _stamps(self) -> Array:
+        return self._table.stamps
+
+    @property
+    def _sessions(self) -> NDArray[np.int64]:
+        return self._table.sessions
+
+    @property
+    def _frames(self) -> NDArray[np.int64]:
+        return self._table.frames
+
+    @property
+    def _described(self) -> NDArray[np.bool_]:
+        return self._table.described
 
     def _check_key(self, key: int) -> None:
         if not 0 <= key < len(self._stamps):
@@ -613,8 +622,8 @@ class LoopClosureDetector:
         cov, sigma, gate = self._gate(covariance)
         query_points = self._submap_points(key)
         appearance = self._appearance(key, eligible, poses, matches)
-        frames = np.asarray(self._frames[: len(eligible)])
-        same = frames == self._frames[key]  # pose estimates comparable with the query's
+        # Pose estimates comparable with the query's:
+        same = self._frames[: len(eligible)] == self._frames[key]
         pose = [] if cfg.search == "appearance" else self._local(
             key, poses, eligible & same, gate)
         out: list[LoopCandidate] = []
@@ -667,7 +676,7 @@ class LoopClosureDetector:
         if not eligible.any() or not self._described[key]:
             return []
         cov, sigma, gate = self._gate(covariance)
-        same = np.asarray(self._frames[: len(eligible)]) == self._frames[key]
+        same = self._frames[: len(eligible)] == self._frames[key]
         out: list[LoopCandidate] = []
         query_points = self._submap_points(key)
         for k in self._local(key, poses, eligible & same, gate):
@@ -1007,9 +1016,8 @@ class LoopClosureDetector:
         cfg = self.config
         at = se2.compose(poses[cand], result.relative)
         eligible = self.eligible(key)
-        ids = np.flatnonzero(eligible & np.asarray(self._described[: len(eligible)])
-                             & (np.asarray(self._frames[: len(eligible)])
-                                == self._frames[cand]))
+        ids = np.flatnonzero(eligible & self._described[: len(eligible)]
+                             & (self._frames[: len(eligible)] == self._frames[cand]))
         if allowed is not None:
             ids = ids[np.isin(ids, np.asarray(allowed, dtype=np.int64))]
         if len(ids) == 0:
