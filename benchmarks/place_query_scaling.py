@@ -3,7 +3,7 @@
 Run from the repository root::
 
     python benchmarks/place_query_scaling.py [--data DIR] [--scans N]
-        [--sizes 1000,2500,5000,10000] [--queries Q]
+        [--sizes 1000,2500,5000,10000] [--queries Q] [--baseline REV [--repeat R]]
 
 Every 5th of the Intel log's scans (``carmen/intel.clf.bz2``), up to N of them, is
 made a place (`loopclosure.polygon.polygon_from_scan`) and described once with the
@@ -18,34 +18,37 @@ place (once per keyframe, whatever the size).  The geometric check of the
 candidates that follows a query checks at most `loops.global_places` places whatever
 the database's size, so it is not part of this figure (`bench loops` reports the
 whole query, check included).
+
+With ``--baseline REV`` the same measurement runs R times (default 3) in fresh
+processes with the code of revision REV (``git archive``) and with the working tree,
+alternately, and the script prints per size the median CPU ms of each and their
+ratio (baseline / now): a speed change measured in one sitting.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from data.carmen import CarmenLog
-from loopclosure.place_config import PlaceDatabaseConfig
-from loopclosure.place_database import PlaceDatabase
-from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
+ROOT = Path(__file__).resolve().parents[1]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    root = Path(__file__).resolve().parents[1]
-    parser.add_argument("--data", type=Path, default=root.parent / "shared" / "data")
-    parser.add_argument("--scans", type=int, default=2000, help="places described")
-    parser.add_argument("--sizes", default="1000,2500,5000,10000")
-    parser.add_argument("--queries", type=int, default=100)
-    args = parser.parse_args()
-    sizes = [int(s) for s in args.sizes.split(",")]
+def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
+            verbose: bool = True) -> dict[int, float]:
+    """CPU ms per query for every database size (module docstring), with the code
+    on ``sys.path``."""
+    from data.carmen import CarmenLog
+    from loopclosure.place_config import PlaceDatabaseConfig
+    from loopclosure.place_database import PlaceDatabase
+    from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
 
-    log = args.data / "carmen" / "intel.clf.bz2"
+    log = data / "carmen" / "intel.clf.bz2"
     scans = [s for i, s in enumerate(CarmenLog(log)) if i % 5 == 0]
     polygons = []
     for scan in scans:
@@ -53,18 +56,18 @@ def main() -> None:
             polygons.append(polygon_from_scan(scan))
         except DegeneratePolygonError:
             continue
-        if len(polygons) == args.scans + args.queries:
+        if len(polygons) == n_scans + n_queries:
             break
-    places, queries = polygons[: args.scans], polygons[args.scans:]
+    places, queries = polygons[:n_scans], polygons[n_scans:]
     probe = PlaceDatabase(PlaceDatabaseConfig())
     described = [probe.describe(p) for p in places]
     start = time.process_time()
     asked = [probe.describe(p) for p in queries]
     describe_ms = 1e3 * (time.process_time() - start) / max(len(queries), 1)
-    print(f"{len(described)} places, {len(asked)} queries; stages "
-          f"{', '.join(probe.config.stages)}; describing a place: {describe_ms:.2f} ms CPU")
-
-    base = None
+    if verbose:
+        print(f"{len(described)} places, {len(asked)} queries; stages "
+              f"{', '.join(probe.config.stages)}; describing a place: {describe_ms:.2f} ms CPU")
+    out: dict[int, float] = {}
     for m in sizes:
         db = PlaceDatabase(PlaceDatabaseConfig())
         for key in range(m):
@@ -73,9 +76,58 @@ def main() -> None:
         start = time.process_time()
         for q in asked:
             db.query(q, headings=False)
-        ms = 1e3 * (time.process_time() - start) / len(asked)
-        base = ms if base is None else base
-        print(f"database {m:6d} entries: {ms:7.2f} ms CPU per query  (ratio {ms / base:.2f})")
+        out[m] = 1e3 * (time.process_time() - start) / len(asked)
+        if verbose:
+            print(f"database {m:6d} entries: {out[m]:7.2f} ms CPU per query  "
+                  f"(ratio {out[m] / out[sizes[0]]:.2f})")
+    return out
+
+
+def against_baseline(args: argparse.Namespace, sizes: list[int]) -> None:
+    """The measurement with REV's code and the working tree's, alternately."""
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(tmp) / "baseline"
+        base.mkdir()
+        archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+        runs: dict[str, list[dict]] = {"baseline": [], "now": []}
+        order = [("baseline", base), ("now", ROOT)]
+        for r in range(args.repeat):
+            for label, code in order if r % 2 == 0 else order[::-1]:
+                done = subprocess.run(
+                    [sys.executable, __file__, "--worker", str(code), "--data", str(args.data),
+                     "--scans", str(args.scans), "--sizes", args.sizes,
+                     "--queries", str(args.queries)],
+                    check=True, capture_output=True, text=True, cwd=code)
+                runs[label].append({int(k): v for k, v in json.loads(done.stdout).items()})
+        for m in sizes:
+            old = statistics.median(x[m] for x in runs["baseline"])
+            new = statistics.median(x[m] for x in runs["now"])
+            print(f"database {m:6d} entries: {old:7.2f} ms ({args.baseline}) -> {new:7.2f} ms "
+                  f"(now) CPU per query, ratio {old / new:.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    parser.add_argument("--scans", type=int, default=2000, help="places described")
+    parser.add_argument("--sizes", default="1000,2500,5000,10000")
+    parser.add_argument("--queries", type=int, default=100)
+    parser.add_argument("--baseline", help="a revision to compare with (git archive)")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    if args.worker:
+        sys.path.insert(0, args.worker)
+        print(json.dumps(measure(args.data, args.scans, sizes, args.queries, verbose=False)))
+        return
+    sys.path.insert(0, str(ROOT))
+    if args.baseline:
+        against_baseline(args, sizes)
+        return
+    measure(args.data, args.scans, sizes, args.queries)
 
 
 if __name__ == "__main__":

@@ -62,9 +62,9 @@ def collect(log: Path, relations: Path | None, out: Path, max_queries: int | Non
     context: dict = {}
     target_keys: dict[int, int] = {}
 
-    def check_global(self, key, m, query_points, poses=None):
+    def check_global(self, key, m, query_points, *args, **kwargs):
         context.update(query=int(key), score=float(m.score))
-        return real_check(self, key, m, query_points, poses)
+        return real_check(self, key, m, query_points, *args, **kwargs)
 
     def target(self, key):
         t = real_target(self, key)

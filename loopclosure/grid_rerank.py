@@ -68,20 +68,29 @@ def grid_similarity(query_grid: ArrayLike, stored_grids: ArrayLike) -> Array:
     Raises:
         UserError: the grids' shapes disagree.
     """
-    qb = dilate_polar(query_grid)
+    qb = np.asarray(query_grid, dtype=bool)
     gb = np.asarray(stored_grids, dtype=bool)
     if gb.ndim == 2:
         gb = gb[None]
     if qb.shape != gb.shape[1:]:
         raise UserError(f"polar grids disagree: query {qb.shape}, stored {gb.shape[1:]}")
     gb = dilate_polar(gb)
-    q, g = qb.astype(np.float32), gb.astype(np.float32)
+    return dilated_similarity(dilate_polar(qb), gb, np.count_nonzero(gb, axis=(1, 2)))
+
+
+def dilated_similarity(query_dilated: ArrayLike, stored_dilated: ArrayLike,
+                       stored_counts: ArrayLike) -> Array:
+    """`grid_similarity` of grids dilated already: the query's ``D(Q)`` ``(R, S)``,
+    the stored ``D(G_j)`` ``(K, R, S)`` and their occupied cell counts ``|D(G_j)|``
+    ``(K,)`` (a database dilates and counts each stored grid once, when it is added)."""
+    qb = np.asarray(query_dilated, dtype=bool)
+    q, g = qb.astype(np.float32), np.asarray(stored_dilated, dtype=np.float32)
     sectors = q.shape[-1]
     # float32 FFTs (scipy keeps the precision: a correlation of a few thousand cells
     # comes out within about 1e-3 of a cell); the ring sum is taken in frequency space.
     spec = (np.conj(scipy.fft.rfft(g, axis=2)) * scipy.fft.rfft(q, axis=1)[None]).sum(axis=1)
     best = scipy.fft.irfft(spec, n=sectors, axis=1).max(axis=1).astype(float)
-    denom = np.sqrt(float(np.count_nonzero(qb)) * np.count_nonzero(gb, axis=(1, 2)))
+    denom = np.sqrt(float(np.count_nonzero(qb)) * np.asarray(stored_counts, dtype=float))
     with np.errstate(divide="ignore", invalid="ignore"):
         c = np.where(denom > 0, best / denom, 0.0)
     return np.clip(c, 0.0, 1.0)
@@ -114,4 +123,4 @@ def union_of_rankings(prefilter: ArrayLike, similarity: ArrayLike, k: int, extra
     return base[np.lexsort((base, p[base]))]
 
 
-__all__ = ["dilate_polar", "grid_similarity", "union_of_rankings"]
+__all__ = ["dilate_polar", "dilated_similarity", "grid_similarity", "union_of_rankings"]

@@ -1038,7 +1038,7 @@ def merge_views(per_view: Sequence[Sequence[PlaceMatch]]) -> list[PlaceMatch]:
     keyframe once, as its match with the highest fused score, marked with that view's
     index (`PlaceMatch.view`); by decreasing fused score (ties: the database's own
     order, the first view first)."""
-    found = [dataclasses.replace(m, view=view)
+    found = [m if m.view == view else dataclasses.replace(m, view=view)
              for view, matches in enumerate(per_view) for m in matches]
     found.sort(key=lambda m: -m.score)
     seen: set[Hashable] = set()

@@ -86,7 +86,7 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from loopclosure.fusion import LogisticFusion, reciprocal_rank_fusion
-from loopclosure.grid_rerank import grid_similarity, union_of_rankings
+from loopclosure.grid_rerank import dilate_polar, dilated_similarity, union_of_rankings
 from loopclosure.headings import (
     headings_from_polar_grids,
     headings_from_range_functions,
@@ -268,6 +268,10 @@ class PlaceDatabase:
         self._stores: dict[str, VectorStore] = {}
         self._descriptors: list[Descriptors] = []  # per row: what `descriptors` returns
         self._ranges: FloatRows | None = None  # range functions of the heading hypotheses
+        # Per row, its polar grid dilated (`grid_rerank.dilate_polar`, bit-packed; zeros
+        # for a row without a grid) and the dilated grid's occupied cells: made once.
+        self._dilated: FloatRows | None = None
+        self._dilated_counts: FloatRows | None = None
         self._keys = KeyIndex()
         self._stamps: list[float | None] = []
         self._poses: list[Any] = []
@@ -366,8 +370,10 @@ class PlaceDatabase:
             if self._ranges is None:
                 self._ranges = FloatRows(len(r))
             self._ranges.append(r)
-        if self._grid_on and descriptors.get(GRID) is not None:
-            kept[GRID] = descriptors[GRID]
+        if self._grid_on:
+            if descriptors.get(GRID) is not None:
+                kept[GRID] = descriptors[GRID]
+            self._append_dilated(descriptors.get(GRID))
         self._descriptors.append(kept)
         self._keys.add(key)
         self._stamps.append(stamp)
@@ -560,19 +566,33 @@ class PlaceDatabase:
         """Whether a query adds the grids' candidates (module docstring, step 1)."""
         return self._grid_on and self.config.grid_extra > 0 and q.get(GRID) is not None
 
+    def _append_dilated(self, packed: NDArray[np.uint8] | None) -> None:
+        """Store the next row's dilated grid and its count (zeros without a grid)."""
+        cfg = self.config
+        cells = cfg.grid_rings * cfg.grid_sectors
+        if self._dilated is None or self._dilated_counts is None:
+            self._dilated = FloatRows((cells + 7) // 8, dtype=np.uint8)
+            self._dilated_counts = FloatRows(1)
+        if packed is None:
+            self._dilated.append(np.zeros((cells + 7) // 8, np.uint8))
+            self._dilated_counts.append([0.0])
+            return
+        dilated = dilate_polar(self._unpack(packed))
+        self._dilated.append(np.packbits(dilated.ravel()))
+        self._dilated_counts.append([np.count_nonzero(dilated)])
+
     def _grid_similarity(self, q: Descriptors, rows: NDArray[np.intp]) -> Array:
         """``(len(rows),)`` grid similarity c of the query with those rows (0 where a
-        row has no grid)."""
-        grids = [self._descriptors[i].get(GRID) for i in rows.tolist()]
-        have = np.array([g is not None for g in grids], bool)
-        out = np.zeros(len(rows))
-        if have.any():
-            cfg = self.config
-            packed = np.stack([g for g, h in zip(grids, have, strict=True) if h])
-            stored = np.unpackbits(packed, axis=1, count=cfg.grid_rings * cfg.grid_sectors)
-            out[have] = grid_similarity(self._unpack(q[GRID]), stored.reshape(
-                -1, cfg.grid_rings, cfg.grid_sectors))
-        return out
+        row has no grid: its dilated grid is empty)."""
+        if len(rows) == 0 or self._dilated is None or self._dilated_counts is None:
+            return np.zeros(len(rows))
+        cfg = self.config
+        stored = np.unpackbits(self._dilated.data[rows], axis=1,
+                               count=cfg.grid_rings * cfg.grid_sectors)
+        return dilated_similarity(
+            dilate_polar(self._unpack(q[GRID])),
+            stored.reshape(-1, cfg.grid_rings, cfg.grid_sectors),
+            self._dilated_counts.data[rows, 0])
 
     def query(
         self,
@@ -659,7 +679,8 @@ class PlaceDatabase:
                 known[i] = self._match(i, float(short.prefilter[at[j]]), 0, dist[:, j],
                                        float(scores[j]), ())
         known = {i: known[i] for i in pick.tolist()}
-        pool = [replace(known[i], prefilter_rank=j) for j, i in enumerate(pick.tolist())]
+        pool = [known[i] if known[i].prefilter_rank == j else replace(known[i], prefilter_rank=j)
+                for j, i in enumerate(pick.tolist())]
         matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
         self._last_stored = (key, self._scales_at, rows, short, known)
         return matches

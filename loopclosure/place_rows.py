@@ -4,7 +4,8 @@ Every stored keyframe is one row, numbered in insertion order.  Two structures k
 that bookkeeping out of `loopclosure.place_database.PlaceDatabase`:
 
 - `FloatRows`: a float32 ``(M, D)`` array grown by amortised doubling (appending never
-  re-stacks the stored rows), e.g. the range functions behind the heading hypotheses.
+  re-stacks the stored rows), e.g. the range functions behind the heading hypotheses
+  (another dtype on request: the bit-packed dilated polar grids are uint8 rows).
   The prefilter vectors use `loopclosure.matchers.vector_search.VectorStore`, the same
   growth with squared norms for the distance arithmetic.
 - `KeyIndex`: the keys (any hashable values, e.g. keyframe ids) in insertion order and
@@ -25,16 +26,16 @@ from data.errors import UserError
 
 
 class FloatRows:
-    """A float32 ``(M, D)`` array grown by amortised doubling."""
+    """A float32 (or `dtype`) ``(M, D)`` array grown by amortised doubling."""
 
-    def __init__(self, dim: int, capacity: int = 64) -> None:
-        self._data = np.zeros((capacity, dim), np.float32)
+    def __init__(self, dim: int, capacity: int = 64, dtype: type = np.float32) -> None:
+        self._data = np.zeros((capacity, dim), dtype)
         self._size = 0
 
     def append(self, row: ArrayLike) -> None:
-        """Store one ``(D,)`` row (cast to float32)."""
+        """Store one ``(D,)`` row (cast to the rows' dtype)."""
         if self._size == len(self._data):
-            grown = np.zeros((2 * len(self._data), self._data.shape[1]), np.float32)
+            grown = np.zeros((2 * len(self._data), self._data.shape[1]), self._data.dtype)
             grown[: self._size] = self._data
             self._data = grown
         self._data[self._size] = row

@@ -10,7 +10,12 @@ import pytest
 
 from data.errors import UserError
 from loopclosure import PlaceDatabase, PlaceDatabaseConfig
-from loopclosure.grid_rerank import dilate_polar, grid_similarity, union_of_rankings
+from loopclosure.grid_rerank import (
+    dilate_polar,
+    dilated_similarity,
+    grid_similarity,
+    union_of_rankings,
+)
 from loopclosure.polygon import Polygon
 
 
@@ -92,3 +97,15 @@ def test_database_candidates_are_the_k_best_and_the_grids_extras() -> None:
         none.add(i, poly)
     np.testing.assert_array_equal(none.candidates(q).indices, short[:4])
 
+
+
+def test_dilated_similarity_equals_grid_similarity_on_grids_dilated_once() -> None:
+    rng = np.random.default_rng(3)
+    query = rng.random((6, 24)) < 0.15
+    stored = rng.random((5, 6, 24)) < 0.15
+    stored[4] = False  # an empty grid: similarity 0
+    dilated = dilate_polar(stored)
+    counts = np.count_nonzero(dilated, axis=(1, 2))
+    got = dilated_similarity(dilate_polar(query), dilated, counts)
+    np.testing.assert_array_equal(got, grid_similarity(query, stored))
+    assert got[4] == 0.0
