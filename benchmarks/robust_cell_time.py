@@ -9,6 +9,8 @@ Builds the cell as `benchmarks/robustness.py` does (`evaluation.robustness`: the
 with its odometry information scaled, false loops injected by the policy), solves it
 with the default robust back end (``optimize(..., "gnc", gnc_start=GNC_START)``) under
 cProfile and prints the wall time and the cumulative seconds of each stage: the
+fast path's check (the plain least-squares optimum over every loop at each odometry
+rung, solved before any admission and discarded when a loop fails there), the
 time-ordered admission passes, the calibrated choice (its own-factor estimates and
 judgements), the offer back, the bar search, the segment re-check, and every
 least-squares solve.  Stages nest (the bar search runs admission passes), so the
@@ -34,7 +36,8 @@ from slam.optimize import optimize
 from slam.pose_graph import PoseGraph
 
 STAGES = {
-    "admission passes": ("consistency.py", "advance"),
+    "fast-path check": ("optimize.py", "_clean_optimum"),
+    "admission passes": ("admission.py", "advance"),
     "calibrated choice": ("recheck.py", "calibrated_choices"),
     "  own factors": ("recheck.py", "own_factor"),
     "  judgements": ("recheck.py", "winner_at"),

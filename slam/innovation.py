@@ -18,7 +18,9 @@ equations, `slam.least_squares.factor_information`).  ``M`` alone needs only the
 covariance blocks of each loop's two poses, ``M = B_i S_ii B_i^T + B_i S_ij B_j^T +
 B_j S_ji B_i^T + B_j S_jj B_j^T`` with ``S = H^-1``, taken from selected entries of the
 inverse (`slam.selected_inverse`); the Woodbury updates need ``H^-1 B^T`` on every row
-some candidate touches, solved in full (`solve_columns`).
+some candidate touches, ``S_ai B_i^T + S_aj B_j^T`` on the rows of each touched pose ``a``:
+from the blocks of every pair of touched poses while they are few, else solved in full
+(`solve_columns`).
 
 `tls_threshold` is the cost ``c`` of a rejected loop under the truncated-least-squares
 loss (`slam.consistency`): admitting ``k`` lowers that objective iff ``delta_k < c``.
@@ -44,6 +46,10 @@ SOLVE_WIDTH = 6  # right-hand sides per SuperLU solve (`solve_columns`)
 # `InnovationTest.blocks` from selected entries of H^-1 (`slam.selected_inverse`); False:
 # from full solves of H^-1 B^T (the same numbers to rounding; `benchmarks/recheck_speed.py`).
 SELECTED_INVERSE = True
+# `InnovationTest.gains` reads ``H^-1 B^T`` from selected entries of H^-1 when the
+# candidates touch more poses than the first number and at most the second (one sparse
+# product per pair of them); outside, full solves (`solve_columns`) cost less.
+SELECTED_GAINS_POSES = (16, 128)
 
 
 def tls_threshold(dim: int, probability: float = 0.99) -> float:
@@ -193,6 +199,28 @@ class InnovationTest:
         left, right = (bi, bi, bj, bj), (bi, bj, bi, bj)
         return sum(np.einsum("mab,mbc,mdc->mad", left[t], s[t], right[t]) for t in range(4))
 
+    def _selected_columns(
+        self, bi: Array, bj: Array, pi: NDArray[np.int64], pj: NDArray[np.int64],
+        poses: NDArray[np.int64],
+    ) -> Array:
+        """``Y_q = H^-1 B_q^T`` (m, r, d) on the r rows of the touched `poses` (first rows in
+        ``H``, ascending; ``pi``, ``pj``: each candidate's rows among them) from the
+        marginal covariance blocks ``S_ab`` of every pair of touched poses (selected
+        entries of ``H^-1``, `slam.selected_inverse`)::
+
+            Y_q[a] = S_{a i} B_i^T + S_{a j} B_j^T     (rows of pose a, i and j the
+                                                        candidate's two poses)
+        """
+        d, t = self.dof, len(poses)
+        a, b = np.triu_indices(t)
+        blocks = self.selected.blocks(poses[a], poses[b], d)  # (K, d, d)
+        s = np.empty((t, t, d, d))
+        s[a, b] = blocks
+        s[b, a] = blocks.transpose(0, 2, 1)
+        full = s.transpose(0, 2, 1, 3).reshape(t * d, t * d)  # S on the touched rows
+        return np.einsum("rmc,mac->mra", full[:, pi], bi) + np.einsum(
+            "rmc,mac->mra", full[:, pj], bj)
+
     def gains(self, candidates: Sequence[gtsam.NonlinearFactor]) -> _Gains:
         """Linearise `candidates` (binary factors on poses of `keys`) at the solution."""
         d, m = self.dof, len(candidates)
@@ -202,9 +230,13 @@ class InnovationTest:
         touched, where = np.unique(np.concatenate([ri, rj], axis=1), return_inverse=True)
         where = where.reshape(m, 2 * d)
         pi, pj = where[:, :d], where[:, d:]
-        y = np.empty((m, len(touched), d))  # (m, r, d)
-        for q, column in self._solved(bi, bj, ci, cj):
-            y[q] = column[touched]
+        poses = touched[::d]  # first rows of the touched poses, ascending
+        if SELECTED_INVERSE and SELECTED_GAINS_POSES[0] < len(poses) <= SELECTED_GAINS_POSES[1]:
+            y = self._selected_columns(bi, bj, pi, pj, poses)
+        else:
+            y = np.empty((m, len(touched), d))  # (m, r, d)
+            for q, column in self._solved(bi, bj, ci, cj):
+                y[q] = column[touched]
         own = np.arange(m)[:, None]
         # M_q = B_q H^-1 B_q^T = B_q Y_q: candidate q's own rows of its Y only.
         gram = np.einsum("mab,mbc->mac", bi, y[own, pi]) + np.einsum(

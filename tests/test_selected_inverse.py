@@ -96,3 +96,22 @@ def test_joint_costs_equal_the_full_solves(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setattr(innovation, "SELECTED_INVERSE", False)
     old = [joint_costs(test, unit, groups, removal=r) for r in (True, False)]
     np.testing.assert_allclose(new, old, rtol=1e-9)
+
+
+@pytest.mark.parametrize("count", [5, 12, 40])
+def test_gains_from_selected_entries_equal_the_full_solves(
+    monkeypatch: pytest.MonkeyPatch, count: int,
+) -> None:
+    _, test, unit, cov = _laps_test()
+    candidates = unit[:count]
+    monkeypatch.setattr(innovation, "SELECTED_GAINS_POSES", (0, 10**9))
+    new = test.gains(candidates)
+    monkeypatch.setattr(innovation, "SELECTED_GAINS_POSES", (0, 0))
+    old = test.gains(candidates)
+    np.testing.assert_array_equal(new.b, old.b)
+    np.testing.assert_array_equal(new.ri, old.ri)
+    np.testing.assert_array_equal(new.rj, old.rj)
+    np.testing.assert_allclose(new.Y, old.Y, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(new.M, old.M, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(new.M, _dense_gram(test, candidates, cov), rtol=1e-9,
+                               atol=1e-12)
