@@ -251,6 +251,8 @@ class LoopVerification:
         conflict_ratio: fraction of both submaps' points in the other's free space.
         matched_length: length of surface the best run matched [m] (correlative
             check, `GeometricCheckConfig.min_matched_length`; NaN otherwise).
+        degenerate_axis: ``(2,)`` unit direction of the best run's least translational
+            information, the candidate's frame (zeros when no ICP ran).
     """
 
     accepted: bool
@@ -266,6 +268,7 @@ class LoopVerification:
     consistency: float = float("nan")
     conflict_ratio: float = float("nan")
     matched_length: float = float("nan")
+    degenerate_axis: Array = field(default_factory=lambda: np.zeros(2))
 
 
 def _offset_grid(step: float) -> Array:
@@ -368,6 +371,7 @@ def _verify_correlative(
         rms=float(best.rms), degeneracy=float(best.degeneracy), margin=float(margin),
         hypotheses=len(multi.results), consistency=float(free.consistency),
         conflict_ratio=float(free.conflict_ratio), matched_length=float(matched),
+        degenerate_axis=np.asarray(best.degenerate_axis, dtype=float).copy(),
     )
 
 
@@ -484,4 +488,5 @@ def verify(
         degeneracy=float(best.degeneracy),
         margin=float(margin),
         hypotheses=len(multi.results),
+        degenerate_axis=np.asarray(best.degenerate_axis, dtype=float).copy(),
     )

@@ -15,11 +15,20 @@ search and the same rules (`loopclosure.geometric_check.verify` with no prior), 
 longer submaps: each of the two keyframes' submaps joined with the map of the
 `longer_keyframes` keyframes of path behind it, in the same keyframe's sensor frame
 (the host's ``trailing_map``).  The search starts from the heading of the degenerate
-fit (and, as always, its opposite).  That check's verdict is the candidate's: its
-pose, figures and reason (a rejection names both: the first check's rule, then the
-longer check's).  A wrong fit slid along the corridor meets the longer submaps'
-ends and openings in the other's free space (consistency) or off its walls
-(fitness); a true revisit now has them where the other pass saw them.
+fit (and, as always, its opposite).  A wrong fit slid along the corridor meets the
+longer submaps' ends and openings in the other's free space (consistency) or off
+its walls (fitness); a true revisit now has them where the other pass saw them.
+
+The longer check decides, and it gives the one number the first check lacked: the
+translation along the first fit's degenerate axis (`LoopVerification.degenerate_axis`,
+the candidate's frame).  The heading and the translation across that axis stay the
+first fit's, which its short submaps constrain well: the longer submaps reach tens
+of metres of front-end path, whose drift tilts their far ends and, outdoors, pulls
+a fit by decimetres about a far pivot.  A longer fit more than the check's
+``ambiguity_distance`` across the axis or ``ambiguity_angle_deg`` in heading from
+the first fit is a different answer and rejects the candidate.  The verdict carries
+the longer check's figures and covariance; a rejection's reason names the first
+check's rule, then the longer check's.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from data import se2
 from loopclosure.geometric_check import (
     DEGENERATE,
     PARTIAL_DEGENERATE,
@@ -71,8 +81,8 @@ def recheck_longer(
             ``compiled_icp`` also picks the candidate's normal estimation).
 
     Returns:
-        The longer check's verdict; a rejection's reason names the first check's
-        rule and then the longer check's.
+        The longer check's verdict, its pose the first fit's moved along the
+        degenerate axis by the longer fit (module docstring).
     """
     normals = None
     if config.compiled_icp:
@@ -81,6 +91,19 @@ def recheck_longer(
     target = RegistrationTarget(candidate_points, config.icp, normals=normals)
     second = verify(query_points, target, headings=[float(first.relative[2])],
                     max_distance=max_distance, config=config)
-    if second.accepted:
-        return second
-    return dataclasses.replace(second, reason=f"{first.reason}; longer submaps: {second.reason}")
+    if not second.accepted:
+        return dataclasses.replace(
+            second, reason=f"{first.reason}; longer submaps: {second.reason}")
+    axis = np.asarray(first.degenerate_axis, dtype=float)
+    step = second.relative[:2] - first.relative[:2]
+    along = float(step @ axis)
+    across = float(np.hypot(*(step - along * axis)))
+    turn = abs(float(np.degrees(se2.wrap_angle(second.relative[2] - first.relative[2]))))
+    if across > config.ambiguity_distance or turn > config.ambiguity_angle_deg:
+        return dataclasses.replace(
+            second, accepted=False,
+            reason=f"{first.reason}; longer submaps fit elsewhere ({across:.2f} m across "
+                   f"the degenerate axis, {turn:.1f} deg)")
+    relative = first.relative.copy()
+    relative[:2] += along * axis
+    return dataclasses.replace(second, relative=relative)

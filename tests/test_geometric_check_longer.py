@@ -139,3 +139,21 @@ def test_the_detector_rechecks_a_degenerate_verdict_on_longer_submaps(
     np.testing.assert_allclose(query, np.vstack([scans[11].points(), np.full((3, 2), 111.0)]))
     np.testing.assert_allclose(candidate, np.vstack([scans[2].points(),
                                                      np.full((3, 2), 102.0)]))
+
+
+def test_the_longer_fit_moves_the_first_one_along_its_axis_only() -> None:
+    first = _short_check(WORLD)
+    np.testing.assert_allclose(np.abs(first.degenerate_axis), [1.0, 0.0], atol=1e-3)
+    # A first fit slid 1.2 m along the corridor and 3 cm across it: the longer fit
+    # takes back the slide, the 3 cm across stay (the first fit's own figure).
+    off = dataclasses.replace(first, relative=first.relative + np.array([1.2, 0.03, 0.0]))
+    query = _submap(WORLD, QUERY, -3, 10)
+    cand = _submap(WORLD, CANDIDATE, -3, 10)
+    second = recheck_longer(off, query, cand, max_distance=2.0, config=CFG)
+    assert second.accepted, second.reason
+    np.testing.assert_allclose(second.relative, QUERY + np.array([0.0, 0.03, 0.0]), atol=0.02)
+    # 0.8 m across the axis: the longer fit is another answer.
+    far = dataclasses.replace(first, relative=first.relative + np.array([0.0, 0.8, 0.0]))
+    rejected = recheck_longer(far, query, cand, max_distance=2.0, config=CFG)
+    assert not rejected.accepted
+    assert "longer submaps fit elsewhere (0.80 m across" in rejected.reason
