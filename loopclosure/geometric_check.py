@@ -75,9 +75,9 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   fits off along its axis with a fair overlap and a degeneracy just above
   `min_degeneracy`, while partial true revisits are well above it);
 - ``degeneracy >= min_degeneracy``: no direction left unconstrained (a corridor
-  seen twice matches anywhere along its axis; the loop detector checks a prior-free
-  candidate rejected by this rule or the next again on longer submaps,
-  `loopclosure.longer_check`);
+  seen twice matches anywhere along its axis; with ``longer_keyframes`` the loop
+  detector checks a prior-free candidate rejected by this rule or the next again on
+  longer submaps, `loopclosure.longer_check`);
 - when a prior relative pose with covariance is given (a pose-gated, local
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
@@ -191,7 +191,10 @@ class GeometricCheckConfig:
         longer_keyframes: a prior-free check rejected for its degeneracy is checked
             again on longer submaps, each keyframe's joined with the map of this many
             keyframes of path behind it (`loopclosure.longer_check`; the loop
-            detector, given a ``trailing_map``).  0: never.
+            detector, given a ``trailing_map``).  0 (the default): never.  Off by
+            default: indoors it accepts corridor revisits, but outdoors the longer
+            submaps let fits a few decimetres off, and at 10 keyframes look-alike
+            places, through.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -225,7 +228,7 @@ class GeometricCheckConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
-    longer_keyframes: int = 30
+    longer_keyframes: int = 0
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:

@@ -3,30 +3,31 @@
 A corridor's two walls constrain the fit across the corridor and in heading, not
 along it: the geometric check (`loopclosure.geometric_check`) measures that as the
 smallest eigenvalue of the fit's translational information over its sum (its
-*degeneracy*) and rejects a fit below ``min_degeneracy`` (or, for a partial
-overlap, below ``min_degeneracy_partial``).  A submap of a few metres of a corridor
-often holds nothing else; what pins the along-axis position (a corridor's end, a
-crossing, a doorway's jambs, a room's walls) lies a few metres further on, seen from
-keyframes outside it.
+*degeneracy*) and rejects a fit below ``min_degeneracy`` (or, for a partial overlap,
+below ``min_degeneracy_partial``). A submap of a few metres of a corridor often
+holds nothing else; what pins the along-axis position (a corridor's end, a crossing,
+a doorway's jambs, a room's walls) lies a few metres further on, seen from keyframes
+outside it.
 
-So a prior-free check rejected for its degeneracy alone (every rule before that one
-held: matched length, free-space consistency, rms) is checked again, by the same
-search and the same rules (`loopclosure.geometric_check.verify` with no prior), on
-longer submaps: each of the two keyframes' submaps joined with the map of the
-`longer_keyframes` keyframes of path behind it, in the same keyframe's sensor frame
-(the host's ``trailing_map``).  The search starts from the heading of the degenerate
-fit (and, as always, its opposite).  A wrong fit slid along the corridor meets the
-longer submaps' ends and openings in the other's free space (consistency) or off
-its walls (fitness); a true revisit now has them where the other pass saw them.
+So, when ``longer_keyframes`` is set (off by default), a prior-free check rejected
+for its degeneracy alone (every rule before that one held: matched length,
+free-space consistency, rms) is checked again, by the same search and the same rules
+(`loopclosure.geometric_check.verify` with no prior), on longer submaps: each of the
+two keyframes' submaps joined with the map of the `longer_keyframes` keyframes of
+path behind it, in the same keyframe's sensor frame (the host's ``trailing_map``).
+The search starts from the heading of the degenerate fit (and, as always, its
+opposite). A wrong fit slid along the corridor meets the longer submaps' ends and
+openings in the other's free space (consistency) or off its walls (fitness); a true
+revisit now has them where the other pass saw them.
 
 The longer check decides, and it gives the one number the first check lacked: the
-translation along the first fit's degenerate axis (`LoopVerification.degenerate_axis`,
-the candidate's frame).  The heading and the translation across that axis stay the
-first fit's, which its short submaps constrain well: the longer submaps reach tens
-of metres of front-end path, whose drift tilts their far ends and, outdoors, pulls
-a fit by decimetres about a far pivot.  A longer fit more than the check's
+translation along the first fit's degenerate axis
+(`LoopVerification.degenerate_axis`, the candidate's frame). The heading and the
+translation across that axis stay the first fit's, which its short submaps constrain
+well: the longer submaps reach metres to tens of metres of front-end path, whose
+drift can tilt their far ends. A longer fit more than the check's
 ``ambiguity_distance`` across the axis or ``ambiguity_angle_deg`` in heading from
-the first fit is a different answer and rejects the candidate.  The verdict carries
+the first fit is a different answer and rejects the candidate. The verdict carries
 the longer check's figures and covariance; a rejection's reason names the first
 check's rule, then the longer check's.
 """
