@@ -75,7 +75,9 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   fits off along its axis with a fair overlap and a degeneracy just above
   `min_degeneracy`, while partial true revisits are well above it);
 - ``degeneracy >= min_degeneracy``: no direction left unconstrained (a corridor
-  seen twice matches anywhere along its axis);
+  seen twice matches anywhere along its axis; with ``longer_keyframes`` the loop
+  detector checks a prior-free candidate rejected by this rule or the next again on
+  longer submaps, `loopclosure.longer_check`);
 - when a prior relative pose with covariance is given (a pose-gated, local
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
@@ -123,6 +125,10 @@ Array = NDArray[np.float64]
 NOT_A_REVISIT = "not a revisit"
 """Start of the verdict of a check that fits but places the two keyframes more than
 ``max_distance`` apart (every other rule held)."""
+DEGENERATE = "degenerate"
+"""Start of the verdict of a check rejected by ``min_degeneracy``."""
+PARTIAL_DEGENERATE = "partial overlap"
+"""Start of the verdict of a check rejected by ``min_degeneracy_partial``."""
 
 
 @dataclass(slots=True)
@@ -182,6 +188,13 @@ class GeometricCheckConfig:
         covariance_floor: standard deviations (x [m], y [m], theta [deg]) below which
             the loop constraint's covariance never goes.
         icp: ICP parameters (wider gate than odometry: the guesses are coarser).
+        longer_keyframes: a prior-free check rejected for its degeneracy is checked
+            again on longer submaps, each keyframe's joined with the map of this many
+            keyframes of path behind it (`loopclosure.longer_check`; the loop
+            detector, given a ``trailing_map``).  0 (the default): never.  Off by
+            default: indoors it accepts corridor revisits, but outdoors the longer
+            submaps let fits a few decimetres off, and at 10 keyframes look-alike
+            places, through.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -215,6 +228,7 @@ class GeometricCheckConfig:
     icp: IcpConfig = field(
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
+    longer_keyframes: int = 0
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:
@@ -240,6 +254,8 @@ class LoopVerification:
         conflict_ratio: fraction of both submaps' points in the other's free space.
         matched_length: length of surface the best run matched [m] (correlative
             check, `GeometricCheckConfig.min_matched_length`; NaN otherwise).
+        degenerate_axis: ``(2,)`` unit direction of the best run's least translational
+            information, the candidate's frame (zeros when no ICP ran).
     """
 
     accepted: bool
@@ -255,6 +271,7 @@ class LoopVerification:
     consistency: float = float("nan")
     conflict_ratio: float = float("nan")
     matched_length: float = float("nan")
+    degenerate_axis: Array = field(default_factory=lambda: np.zeros(2))
 
 
 def _offset_grid(step: float) -> Array:
@@ -341,9 +358,9 @@ def _verify_correlative(
     elif best.rms > cfg.max_rms:
         reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"
     elif best.degeneracy < cfg.min_degeneracy:
-        reason = f"degenerate (corridor-like, {best.degeneracy:.3f})"
+        reason = f"{DEGENERATE} (corridor-like, {best.degeneracy:.3f})"
     elif partial and best.degeneracy < cfg.min_degeneracy_partial:
-        reason = (f"partial overlap {best.fitness:.2f} and degenerate "
+        reason = (f"{PARTIAL_DEGENERATE} {best.fitness:.2f} and degenerate "
                   f"(corridor-like, {best.degeneracy:.3f})")
     elif margin < required_margin(best.fitness, cfg):
         reason = f"ambiguous (fitness margin {margin:.2f})"
@@ -357,6 +374,7 @@ def _verify_correlative(
         rms=float(best.rms), degeneracy=float(best.degeneracy), margin=float(margin),
         hypotheses=len(multi.results), consistency=float(free.consistency),
         conflict_ratio=float(free.conflict_ratio), matched_length=float(matched),
+        degenerate_axis=np.asarray(best.degenerate_axis, dtype=float).copy(),
     )
 
 
@@ -473,4 +491,5 @@ def verify(
         degeneracy=float(best.degeneracy),
         margin=float(margin),
         hypotheses=len(multi.results),
+        degenerate_axis=np.asarray(best.degenerate_axis, dtype=float).copy(),
     )
