@@ -45,7 +45,10 @@ Protocol
      over the whole database (stacked once, rows selected per query), no prefilter;
    * **final**: the database's candidates through the geometric check exactly as the
      global search runs it (`LoopClosureDetector.verify_places`), whatever their
-     scores: the places `LoopClosureDetector.places` picks (the best
+     scores, joined as the detector joins them by the answers of the query's trail
+     (`LoopClosureDetector.with_trail`: the earlier queries of the keyframes within
+     ``loops.trail_radius`` of it on its way in, by the front end's poses): the
+     places `LoopClosureDetector.places` picks (the best
      ``loops.global_verify`` distinct places of the prefilter's K in fused order, then
      the grids' extras), checked with no prior until ``loops.max_loops`` are accepted,
      accepted ones that put the query in places farther apart than
@@ -558,6 +561,8 @@ class _Raw:
     reason: list[str] = field(default_factory=list)
     figures: list[Array] = field(default_factory=list)
     accepted_places: list[int] = field(default_factory=list)
+    # key -> the query's own views' matches, for its successors' trails (recent only)
+    answers: dict[int, list] = field(default_factory=dict)
 
     def put(self, row: str, match: int, score: float) -> None:
         self.match.setdefault(row, []).append(int(match))
@@ -756,7 +761,11 @@ def _cascade_rows(
             matcher.distances(desc[v], stacked)
             out.time(r, t_pre + time.perf_counter() - t)
     t = time.perf_counter()
-    checked = detector.verify_places(k, detector.places(matches, poses), poses,
+    out.answers[k] = matches
+    for old in [j for j in out.answers if j < k - detector.config.trail_keyframes]:
+        del out.answers[old]
+    trailed = detector.with_trail(k, matches, poses, out.answers, keys[sel])
+    checked = detector.verify_places(k, detector.places(trailed, poses), poses,
                                      mapper.query_submaps.get(k), allowed=keys[sel])
     out.time("final", t_query + time.perf_counter() - t)
     accepted = [c for c in checked if c.accepted]

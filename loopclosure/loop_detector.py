@@ -225,6 +225,11 @@ class LoopClosureConfig:
             (a true place whose hypotheses all missed its heading, often ranked
             below several look-alikes) are a fraction of a percent of the real
             logs' revisits: off unless asked for.
+        trail_radius: an appearance query also counts the place database's answers to
+            the keyframes of its trail (its session's last `trail_keyframes`
+            keyframes) whose map position lies within this of its own [m]: the place
+            seen from nearby viewpoints on the way in (0: none; `with_trail`).
+        trail_keyframes: ... at most this many keyframes back.
         virtual_beams: beams of the 360-degree virtual scan describing a keyframe.
         virtual_range: range of that virtual scan [m].
         full_circle_deg: a sensor covering at least this is described by its own scan.
@@ -259,6 +264,8 @@ class LoopClosureConfig:
     sequence_places: int = 1
     max_loops: int = 2
     circle_fallback: int = 0
+    trail_radius: float = 1.5
+    trail_keyframes: int = 10
     virtual_beams: int = 360
     virtual_range: float = 20.0
     full_circle_deg: float = 359.0
@@ -287,6 +294,9 @@ class LoopClosureConfig:
             raise UserError(f"loops.wide_every must be >= 1, got {self.wide_every}")
         if self.circle_fallback < 0:
             raise UserError(f"loops.circle_fallback must be >= 0, got {self.circle_fallback}")
+        if not self.trail_radius >= 0 or self.trail_keyframes < 0:
+            raise UserError("loops.trail_radius must be >= 0 m and loops.trail_keyframes "
+                            f">= 0, got {self.trail_radius} and {self.trail_keyframes}")
         if not self.prior_max_sigma > 0:
             raise UserError(
                 f"loops.prior_max_sigma must be > 0 m, got {self.prior_max_sigma}")
@@ -413,6 +423,8 @@ class LoopClosureDetector:
         self._since_global = 0
         self._since_free = 0  # keyframes since a prior-free check or an accepted loop
         self._proposed: dict[int, NDArray[np.int64]] = {}  # key -> appearance proposals
+        self._answers: dict[int, list[PlaceMatch]] = {}  # key -> its own views' matches
+        self._trails: dict[int, list[int]] = {}  # key -> the trail keys it queried with
         self._place_scans: list[Scan | None] = []
 
     # -- keyframes -------------------------------------------------------------------
@@ -717,7 +729,12 @@ class LoopClosureDetector:
     def views(self, key: int) -> list[tuple[PlaceDatabase, int]]:
         """``(database, key it is asked with)`` of every description `key` queries with:
         the database and `key`, then the wide view's with `wide_key(key)` when there
-        is one (a view's index is `PlaceMatch.view`)."""
+        is one, then the database and each keyframe of its trail (`with_trail`; a
+        view's index is `PlaceMatch.view`)."""
+        return self._own_views(key) + [(self.database, t) for t in self._trails.get(key, [])]
+
+    def _own_views(self, key: int) -> list[tuple[PlaceDatabase, int]]:
+        """`views` of `key`'s own descriptions: the database's, the wide view's."""
         out = [(self.database, key)] if key in self.database else []
         wide = self.wide_key(key)
         if self.wide_database is not None and wide is not None:
@@ -735,7 +752,7 @@ class LoopClosureDetector:
         if allowed is not None:
             allowed = np.asarray(allowed, dtype=np.int64).ravel()
         per_view = []
-        for db, asked in self.views(key):
+        for db, asked in self._own_views(key):
             if db is not self.wide_database:
                 per_view.append(db.query(db.descriptors(asked), allowed=allowed,
                                          headings=headings))
@@ -806,14 +823,64 @@ class LoopClosureDetector:
         if matches is None:
             matches = self.query_places(key, np.flatnonzero(eligible))
         frame = self._frames[key]
-        chosen = self.places([
-            m for m in matches
-            if m.score >= (cfg.min_score_across if self._frames[int(m.key)] != frame
-                           else cfg.min_score)
-        ], poses)
-        self._proposed[key] = np.array([int(m.key) for m in chosen[: cfg.sequence_places]],
+
+        def scored(found: list[PlaceMatch]) -> list[PlaceMatch]:
+            return [m for m in found
+                    if m.score >= (cfg.min_score_across if self._frames[int(m.key)] != frame
+                                   else cfg.min_score)]
+
+        # The sequence support counts what each keyframe's own views proposed: its
+        # trail shares its neighbours' answers, which must not support themselves.
+        own = self.places(scored(matches), poses)
+        self._proposed[key] = np.array([int(m.key) for m in own[: cfg.sequence_places]],
                                        dtype=np.int64)
-        return chosen
+        self._answers[key] = matches
+        for old in [k for k in self._answers if k < key - cfg.trail_keyframes]:
+            del self._answers[old]
+        trailed = self.with_trail(key, matches, poses, self._answers, np.flatnonzero(eligible))
+        return own if trailed is matches else self.places(scored(trailed), poses)
+
+    def with_trail(
+        self, key: int, matches: list[PlaceMatch], poses: ArrayLike,
+        answers: dict[int, list[PlaceMatch]], allowed: ArrayLike | None = None,
+    ) -> list[PlaceMatch]:
+        """`matches` of keyframe `key` (its own views', `query_places`) joined by the
+        answers of its trail: the keyframes ``key - trail_keyframes .. key - 1`` of its
+        session and frame whose position in `poses` (``(n, 3)``, the map's) lies
+        within `trail_radius` of its own and that have an answer in `answers` (key ->
+        that keyframe's own matches, as this call's `matches`).
+
+        A revisit a metre or two from the keyframe it revisits describes the place
+        from another viewpoint, and what a virtual scan sees changes with it; the
+        keyframes the robot passed on its way to `key` saw the place from nearby
+        viewpoints, and one of them often lies nearer the stored keyframe.  Their
+        answers (each one's own view: the database and that key) join as views of
+        `key` (`views`: indices after its own), each stored keyframe once, as its
+        best-scoring match (ties: the query's own first), restricted to `allowed`
+        (keys; None: all).  Their checks are `key`'s own (its submap), from the
+        heading hypotheses of the trail keyframe's description turned into `key`'s
+        frame, as for the wide view.  Returns `matches` itself when no trail
+        keyframe counts."""
+        cfg = self.config
+        self._check_key(key)
+        xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
+        trail = [t for t in range(key - 1, max(key - cfg.trail_keyframes, 0) - 1, -1)
+                 if cfg.trail_radius > 0 and t in answers
+                 and self._sessions[t] == self._sessions[key]
+                 and self._frames[t] == self._frames[key]
+                 and float(np.hypot(*(xy[t] - xy[key]))) <= cfg.trail_radius]
+        self._trails[key] = trail
+        if not trail:
+            return matches
+        keep = None if allowed is None else set(np.asarray(allowed).ravel().tolist())
+        base = len(self._own_views(key))
+        joined = list(matches) + [
+            dataclasses.replace(m, view=base + i)
+            for i, t in enumerate(trail) for m in answers[t]
+            if m.view == 0 and (keep is None or int(m.key) in keep)]
+        joined.sort(key=lambda m: -m.score)  # stable: the query's own first on ties
+        seen: set[Hashable] = set()
+        return [m for m in joined if not (m.key in seen or seen.add(m.key))]
 
     def _local(
         self, key: int, poses: Array, eligible: NDArray[np.bool_], gate: float
@@ -905,7 +972,8 @@ class LoopClosureDetector:
             if not m.headings:  # a query made without them (`_appearance`)
                 db, asked = self.views(key)[m.view]
                 m = db.with_headings(db.descriptors(asked), [m])[0]
-            out.append(self._check_global(key, m, query_points, poses, allowed))
+            c = self._check_global(key, m, query_points, poses, allowed)
+            out.append(c if c.match == int(m.key) else self._same_place(c, out, poses))
             checked.append(m)
         if not any(c.accepted for c in out):
             out = self._circle_fallback(key, checked, out, query_points, poses, budget)
@@ -923,6 +991,21 @@ class LoopClosureDetector:
                     reason=f"ambiguous places (another accepted place puts the query "
                            f"{spread:.1f} m away)")
         return out
+
+    def _same_place(self, c: LoopCandidate, before: list[LoopCandidate],
+                    poses: Array | None) -> LoopCandidate:
+        """`c`, a check that moved to a nearer keyframe (`_nearer_place`), rejected
+        when it landed within `place_separation` of a place accepted before it for
+        this query: that place is closed (one loop per place; the places chosen for
+        checking are distinct, `places`, but a move can join two)."""
+        if not c.accepted or poses is None:
+            return c
+        for b in before:
+            if (b.accepted and self._frames[b.match] == self._frames[c.match]
+                    and self._distance(poses, b.match, c.match) <= self.config.place_separation):
+                return dataclasses.replace(
+                    c, accepted=False, reason=f"same place as the accepted keyframe {b.match}")
+        return c
 
     def _circle_fallback(
         self, key: int, matches: list[PlaceMatch], out: list[LoopCandidate],
@@ -975,16 +1058,15 @@ class LoopClosureDetector:
         # Headings of the query in the candidate's frame (`loopclosure.headings`); align
         # the two places' centroids under the best one.
         headings = [h for h, _ in m.headings] or [0.0]
-        if m.view:  # the wide view, maybe an older keyframe's: into the query's frame
-            asked = self._wide_keys[key]
-            centroids = self._wide_centroids
-            own = centroids[asked]
-            if asked != key and poses is not None:
-                rel = se2.between(poses[key], poses[asked])  # `asked` in the query's frame
-                headings = [h - float(rel[2]) for h in headings]
-                own = se2.transform_points(rel, own[None, :])[0]
-        else:
-            centroids, own = self._centroids, self._centroids[key]
+        # The view's description may be another keyframe's (the wide view of an older
+        # one, a trail keyframe): its hypotheses and centroid into the query's frame.
+        db, asked = self.views(key)[m.view] if m.view else (self.database, key)
+        centroids = self._wide_centroids if db is self.wide_database else self._centroids
+        own = centroids[asked]
+        if asked != key and poses is not None:
+            rel = se2.between(poses[key], poses[asked])  # `asked` in the query's frame
+            headings = [h - float(rel[2]) for h in headings]
+            own = se2.transform_points(rel, own[None, :])[0]
         c, s = np.cos(headings[0]), np.sin(headings[0])
         rot = np.array([[c, -s], [s, c]])
         translation = centroids[cand] - rot @ own

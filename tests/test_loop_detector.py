@@ -484,3 +484,34 @@ def test_a_check_that_fits_beyond_a_revisit_is_repeated_at_the_nearest_keyframe(
     (cand,) = det.verify_places(11, [_match(2, 0.9)], poses,
                                 allowed=[k for k in range(12) if k != 5])
     assert cand.accepted and cand.match == 6 and len(calls) == 2
+
+
+def test_trail_joins_the_answers_of_keyframes_near_the_query(keyframes) -> None:
+    """Keyframe 5 asks with its own matches and the answer of keyframe 4 (1 m behind it),
+    not of keyframe 3 (2 m: beyond `trail_radius`); a keyframe answered twice counts at its
+    best score; a trail's wide-view matches and keys not allowed stay out."""
+    from loopclosure.place_database import PlaceMatch
+
+    det = LoopClosureDetector(LoopClosureConfig(trail_radius=1.5, trail_keyframes=10),
+                              submap=lambda key: keyframes[key].points())
+    for key in range(6):
+        det.add_keyframe(key, float(key), keyframes[key])
+
+    def match(key: int, score: float, view: int = 0) -> PlaceMatch:
+        return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
+                          score=score, headings=(), view=view)
+
+    poses = np.array([[9.0, 9.0, 0.0]] * 3 + [[2.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    own = [match(2, 0.6), match(0, 0.5)]
+    answers = {3: [match(1, 0.99)], 4: [match(0, 0.9), match(1, 0.95, view=1), match(2, 0.1)]}
+    got = det.with_trail(5, own, poses, answers, allowed=[0, 1, 2])
+    trail_view = len(det.views(5)) - 1
+    assert [(m.key, m.score, m.view) for m in got] == [(0, 0.9, trail_view), (2, 0.6, 0)]
+    assert det.views(5)[trail_view] == (det.database, 4)
+    got = det.with_trail(5, own, poses, answers, allowed=[2])
+    assert [(m.key, m.view) for m in got] == [(2, 0), (0, 0)]
+    off = LoopClosureDetector(LoopClosureConfig(trail_radius=0.0),
+                              submap=lambda key: keyframes[key].points())
+    for key in range(6):
+        off.add_keyframe(key, float(key), keyframes[key])
+    assert off.with_trail(5, own, poses, answers) is own
