@@ -4,28 +4,18 @@ a user's log."""
 
 from __future__ import annotations
 
-import importlib.util
 import pickle
 from pathlib import Path
 
 from data.sim import MotionConfig, simulate_run, write_run
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _benchmark(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_bench",
-                                                  ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.helpers import load_benchmark
 
 
 def test_prior_free_check_collect_records_the_checks_with_no_prior(tmp_path: Path) -> None:
     run = simulate_run("box", seed=3, motion=MotionConfig(laps=1.1))
     log = write_run(run, tmp_path / "sim")["log"]
     out = tmp_path / "pairs.pkl"
-    _benchmark("prior_free_check").collect(log, None, out, max_queries=None)
+    load_benchmark("prior_free_check").collect(log, None, out, max_queries=None)
     with open(out, "rb") as f:
         got = pickle.load(f)
     assert got["queries"] > 0 and got["revisits"] > 0

@@ -3,29 +3,17 @@ scale, and the noise floor of a simulated scan on an exact map."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 from data import se2
 from data.sim import MotionConfig, simulate_run
 from slam.odometry.icp2d import Icp2dConfig
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _benchmark(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_bench",
-                                                  ROOT / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.helpers import load_benchmark
 
 
 def test_lever_arm_of_relations_of_an_offset_point() -> None:
     """Relations of a point 0.3 m ahead of the laser: the fit finds (0.3, 0) and no residual."""
-    bench = _benchmark("short_relations")
+    bench = load_benchmark("short_relations")
     rng = np.random.default_rng(0)
     laser = np.column_stack([rng.uniform(-0.5, 0.5, (20, 2)), rng.uniform(-0.5, 0.5, 20)])
     mount = np.array([0.3, 0.0, 0.0])
@@ -45,7 +33,7 @@ def test_lever_arm_of_relations_of_an_offset_point() -> None:
 def test_along_track_scale() -> None:
     """A relation 2 % longer along the motion reads +2 %; a sideways error reads 0; a
     relation shorter than the minimum is left out (NaN)."""
-    bench = _benchmark("short_relations")
+    bench = load_benchmark("short_relations")
     ref = np.array([0.3, 0.4, 0.1])
     assert abs(bench._along(np.array([0.306, 0.408, 0.1]), ref) - 0.02) < 1e-12
     assert abs(bench._along(np.array([0.3 - 0.04, 0.4 + 0.03, 0.1]), ref)) < 1e-12
@@ -55,7 +43,7 @@ def test_along_track_scale() -> None:
 def test_noise_floor_is_millimetres_and_exact_without_noise() -> None:
     """Noise-free scans on their exact maps register to their true poses; with 1 cm noise
     the consecutive-scan error stays in millimetres."""
-    bench = _benchmark("front_end_precision")
+    bench = load_benchmark("front_end_precision")
     motion = MotionConfig(speed=0.5, rate_hz=5.0, laps=0.05)
     errors = []
     for sigma in (0.0, 0.01):
@@ -72,7 +60,7 @@ def test_pipeline_consecutive_errors_by_hand() -> None:
     """Four poses along x, the estimate's third step 1 cm too long and turned 0.3 deg:
     mean errors over the three steps are 1 cm / 3 and 0.3 deg / 3 (the turn comes
     after the step, so it moves no later position of that relation)."""
-    bench = _benchmark("pipeline")
+    bench = load_benchmark("pipeline")
     truth = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0], [0.3, 0.0, 0.0]])
     est = truth.copy()
     est[3] = [0.31, 0.0, np.radians(0.3)]
