@@ -32,6 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import loopclosure.candidate_checks as cc  # noqa: E402
 import loopclosure.loop_detector as ld  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import loop_benchmark, parse_stages  # noqa: E402
@@ -51,7 +52,7 @@ def main() -> None:
     records: list[dict] = []
     state: dict = {"on": False}
     real_fallback = ld.LoopClosureDetector._circle_fallback
-    real_verify = ld.verify
+    real_verify = cc.verify
     real_target = ld.LoopClosureDetector._target
     target_keys: dict[int, int] = {}
 
@@ -80,7 +81,7 @@ def main() -> None:
 
     ld.LoopClosureDetector._circle_fallback = fallback
     ld.LoopClosureDetector._target = target
-    ld.verify = verify
+    cc.verify = verify
     source = LoopSource(args.log, relations=args.relations,
                         reference_from_log=args.relations is None,
                         odometry_noise=None if args.relations else 0, folder=str(Path.cwd()))
@@ -90,7 +91,7 @@ def main() -> None:
     finally:
         ld.LoopClosureDetector._circle_fallback = real_fallback
         ld.LoopClosureDetector._target = real_target
-        ld.verify = real_verify
+        cc.verify = real_verify
     ref = bench.reference
     for r in records:
         k, m = r["query"], r["match"]

@@ -42,7 +42,7 @@ from data import se2  # noqa: E402
 
 
 def collect(logs: list[Path], out: Path, limit: int | None) -> None:
-    import loopclosure.loop_detector as ld
+    import loopclosure.candidate_checks as cc
     from evaluation.slam_input import load_input
     from loopclosure.warm_up import warm_up
     from slam.config import PipelineConfig
@@ -50,7 +50,7 @@ def collect(logs: list[Path], out: Path, limit: int | None) -> None:
 
     warm_up()
     records: list[dict] = []
-    real_verify = ld.verify
+    real_verify = cc.verify
 
     def recording(query_points, candidate, **kw):
         result = real_verify(query_points, candidate, **kw)
@@ -64,7 +64,7 @@ def collect(logs: list[Path], out: Path, limit: int | None) -> None:
             })
         return result
 
-    ld.verify = recording
+    cc.verify = recording
     try:
         for log in logs:
             current = log.name.split(".")[0]
@@ -75,7 +75,7 @@ def collect(logs: list[Path], out: Path, limit: int | None) -> None:
             Mapper(PipelineConfig(front_end_worker=False)).run(scans)
             print(f"{current}: {len(records) - n0} checks from a prior", flush=True)
     finally:
-        ld.verify = real_verify
+        cc.verify = real_verify
     with open(out, "wb") as fh:
         pickle.dump(records, fh)
 

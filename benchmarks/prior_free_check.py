@@ -45,6 +45,7 @@ from data import se2
 
 
 def collect(log: Path, relations: Path | None, out: Path, max_queries: int | None) -> None:
+    import loopclosure.candidate_checks as cc
     import loopclosure.loop_detector as ld
     from evaluation.cli_loops import _relations_fn, _trajectory_fn
     from evaluation.loop_bench import run_loop_bench
@@ -56,7 +57,7 @@ def collect(log: Path, relations: Path | None, out: Path, max_queries: int | Non
     ref_fn = (_relations_fn(data, relations) if relations
               else _trajectory_fn(data, logged_reference(data)))
     records: list[dict] = []
-    real_verify = ld.verify
+    real_verify = cc.verify
     real_check = ld.LoopClosureDetector._check_global
     real_target = ld.LoopClosureDetector._target
     context: dict = {}
@@ -85,14 +86,14 @@ def collect(log: Path, relations: Path | None, out: Path, max_queries: int | Non
             })
         return result
 
-    ld.verify = recording
+    cc.verify = recording
     ld.LoopClosureDetector._check_global = check_global
     ld.LoopClosureDetector._target = target
     try:
         bench = run_loop_bench(str(log), data.scans, PipelineConfig(), ref_fn,
                                stages=["fused"], max_queries=max_queries)
     finally:
-        ld.verify = real_verify
+        cc.verify = real_verify
         ld.LoopClosureDetector._check_global = real_check
         ld.LoopClosureDetector._target = real_target
     ref = bench.reference

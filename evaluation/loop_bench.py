@@ -39,7 +39,7 @@ Protocol
      database is mirrored the same way; a prefilter row's distance
      to a keyframe is the smaller of the two views' (each normalised by its
      database's scales), ``fused`` is the union of both views' queries
-     (`loopclosure.loop_detector.merge_views`, as the detector's search), and the
+     (`loopclosure.place_choice.merge_views`, as the detector's search), and the
      verifier rows read their distances from that union;
    * ``<name>-alone`` (optional, any stage matcher, e.g. ``flirt-alone``): that matcher
      over the whole database (stacked once, rows selected per query), no prefilter;
@@ -110,7 +110,7 @@ from evaluation.loop_bench_truth import (
     recall_at_k,
     within_reference_uncertainty,
 )
-from loopclosure.loop_detector import merge_views
+from loopclosure.place_choice import merge_views
 from loopclosure.place_database import PlaceDatabase
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper, MappingResult
@@ -710,7 +710,7 @@ def _cascade_rows(
     With the detector's wide view (`wide`, when the query has a wide description):
     a prefilter row's distance to a keyframe is the smaller of its two views' (both
     normalised by their database's scales), and ``fused`` is the union of the two
-    views' queries (`loopclosure.loop_detector.merge_views`), as the detector asks."""
+    views' queries (`loopclosure.place_choice.merge_views`), as the detector asks."""
     cfg = db.config
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers

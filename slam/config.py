@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from data.errors import UserError
-from loopclosure.loop_detector import LoopClosureConfig
+from loopclosure.loop_config import LoopClosureConfig
 from slam.keyframes import KeyframeConfig
 from slam.occupancy_map import MapConfig
 from slam.odometry.icp2d import Icp2dConfig

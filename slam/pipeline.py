@@ -51,7 +51,9 @@ from numpy.typing import NDArray
 from data import se2
 from data.errors import UserError
 from data.types import PointCloud, Scan
-from loopclosure.loop_detector import KeyframePlace, LoopCandidate, LoopClosureDetector
+from loopclosure.keyframe_store import KeyframePlace
+from loopclosure.loop_candidate import LoopCandidate
+from loopclosure.loop_detector import LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine

@@ -9,7 +9,7 @@ import pytest
 from data import se2
 from data.errors import UserError
 from data.sim import simulate_run
-from loopclosure import loop_detector
+from loopclosure import candidate_checks
 from loopclosure.geometric_check import LoopVerification
 from loopclosure.loop_detector import LoopClosureConfig, LoopClosureDetector
 from loopclosure.place_database import PlaceMatch
@@ -74,7 +74,7 @@ def _calls(monkeypatch, verdicts: dict[tuple[int, bool], LoopVerification]) -> l
         points[id(t)] = key
         return t
 
-    monkeypatch.setattr(loop_detector, "verify", fake_verify)
+    monkeypatch.setattr(candidate_checks, "verify", fake_verify)
     monkeypatch.setattr(LoopClosureDetector, "_target", target)
     return calls
 

@@ -9,7 +9,7 @@ import pytest
 
 from data import se2
 from data.sim import simulate_run
-from loopclosure import loop_detector
+from loopclosure import candidate_checks
 from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, verify
 from loopclosure.longer_check import is_degenerate, joined, recheck_longer
 from loopclosure.loop_detector import LoopClosureConfig, LoopClosureDetector
@@ -118,14 +118,14 @@ def test_the_detector_rechecks_a_degenerate_verdict_on_longer_submaps(
         det.add_keyframe(key, scan.stamp, scan)
     trailing.clear()
     first = _verdict(False, "degenerate (corridor-like, 0.010)", [0.5, 0.0, 0.1])
-    monkeypatch.setattr(loop_detector, "verify", lambda *args, **kwargs: first)
+    monkeypatch.setattr(candidate_checks, "verify", lambda *args, **kwargs: first)
     seen = []
 
     def fake_recheck(result, query, cand, *, max_distance, config):
         seen.append((result, query, cand))
         return _verdict(True, "accepted", [0.4, 0.0, 0.1])
 
-    monkeypatch.setattr(loop_detector, "recheck_longer", fake_recheck)
+    monkeypatch.setattr(candidate_checks, "recheck_longer", fake_recheck)
     (cand,) = det.verify_places(11, [_match(2, 0.9)], np.zeros((12, 3)))
     if longer_keyframes == 0:
         assert cand.reason == first.reason and not seen and not trailing

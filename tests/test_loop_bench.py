@@ -13,7 +13,7 @@ import pytest
 
 import evaluation.loop_bench as lb
 import evaluation.loop_bench_truth as truth
-import loopclosure.loop_detector as loop_detector
+import loopclosure.keyframe_store as keyframe_store
 from data.errors import UserError
 from data.sim import MotionConfig, SimulatedRun, simulate_run
 from loopclosure.place_database import PlaceDatabase
@@ -168,7 +168,7 @@ def test_short_runs_and_undescribed_keyframes_propose_nothing(
 ) -> None:
     """Every database is empty (all keyframes within the recent window), and one keyframe
     gets no polygon: no row proposes anything, every score is -inf, nothing is NaN."""
-    real = loop_detector.polygon_from_scan
+    real = keyframe_store.polygon_from_scan
     calls = []
 
     def polygon(scan, config=None):
@@ -177,7 +177,7 @@ def test_short_runs_and_undescribed_keyframes_propose_nothing(
             raise DegeneratePolygonError("no valid beams")
         return real(scan, config)
 
-    monkeypatch.setattr(loop_detector, "polygon_from_scan", polygon)
+    monkeypatch.setattr(keyframe_store, "polygon_from_scan", polygon)
     bench = lb.run_loop_bench("sim", sim.scans[:80], PipelineConfig(), _truth(sim))
     assert "no descriptor" in bench.reasons
     assert len(bench.query_keys) == bench.keyframes

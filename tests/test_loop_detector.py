@@ -11,14 +11,12 @@ import pytest
 from data import se2
 from data.errors import UserError
 from data.sim import simulate_run
-from loopclosure import loop_detector
+from loopclosure import candidate_checks
 from loopclosure.geometric_check import LoopVerification
-from loopclosure.loop_detector import (
-    LoopCandidate,
-    LoopClosureConfig,
-    LoopClosureDetector,
-    merge_views,
-)
+from loopclosure.loop_candidate import LoopCandidate
+from loopclosure.loop_config import LoopClosureConfig
+from loopclosure.loop_detector import LoopClosureDetector
+from loopclosure.place_choice import merge_views
 from loopclosure.place_database import PlaceMatch
 
 
@@ -273,7 +271,7 @@ def test_accepted_places_must_agree_on_where_the_query_is(second_place, accepted
 
 
 def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
-    from loopclosure.loop_detector import distinct_places
+    from loopclosure.place_choice import distinct_places
     from loopclosure.place_database import PlaceMatch
 
     def match(key: int) -> PlaceMatch:
@@ -287,7 +285,7 @@ def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
 def test_distinct_places_by_map_position_keep_a_neighbour_key_far_enough() -> None:
     """With map positions, keys 3 apart 1.5 m apart are two places; 0.5 m apart one;
     another frame is always another place."""
-    from loopclosure.loop_detector import distinct_places
+    from loopclosure.place_choice import distinct_places
     from loopclosure.place_database import PlaceMatch
 
     def match(key: int) -> PlaceMatch:
@@ -456,7 +454,7 @@ def test_a_check_that_fits_beyond_a_revisit_is_repeated_at_the_nearest_keyframe(
             return _verdict(False, "not a revisit (2.5 m apart)", [2.5, 0.0, 0.1])
         return _verdict(True, "accepted", [*translation, headings[0]])
 
-    monkeypatch.setattr(loop_detector, "verify", fake_verify)
+    monkeypatch.setattr(candidate_checks, "verify", fake_verify)
     (cand,) = det.verify_places(11, [_match(2, 0.9)], poses)
     # The query is at (1.6 + 2.5, 0, 0.1): keyframe 5 at (4.0, 0, 0.5) is the nearest;
     # its check searches about the heading and translation that position implies.
