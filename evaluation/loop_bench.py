@@ -36,9 +36,9 @@ Protocol
    * with the detector's wide view (`LoopClosureDetector`, ``loops.wide_keyframes``;
      a keyframe of a narrower sensor is also described from the map of its last
      keyframes, or queries with a keyframe's a few keys older: `wide_key`): its
-     database is mirrored the same way; a prefilter row's distance
-     to a keyframe is the smaller of the two views' (each normalised by its
-     database's scales), ``fused`` is the union of both views' queries
+     database is mirrored the same way; a prefilter row interleaves the two views'
+     orders (`interleaved_order`: each view's K best are among the first 2K, as
+     the detector's query takes each view's K best), ``fused`` is the union of both views' queries
      (`loopclosure.place_choice.merge_views`, as the detector's search), and the
      verifier rows read their distances from that union;
    * ``<name>-alone`` (optional, any stage matcher, e.g. ``flirt-alone``): that matcher
@@ -708,9 +708,9 @@ def _cascade_rows(
     """The prefilter, verifier, fused and final rows of one query with candidates.
 
     With the detector's wide view (`wide`, when the query has a wide description):
-    a prefilter row's distance to a keyframe is the smaller of its two views' (both
-    normalised by their database's scales), and ``fused`` is the union of the two
-    views' queries (`loopclosure.place_choice.merge_views`), as the detector asks."""
+    a prefilter row orders the keyframes by their two views' ranks interleaved
+    (`interleaved_order`), and ``fused`` is the union of the two views' queries
+    (`loopclosure.place_choice.merge_views`), as the detector asks."""
     cfg = db.config
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers
@@ -722,18 +722,19 @@ def _cascade_rows(
         wide_mask = np.isin(wide.keys, keys[sel])
     t = time.perf_counter()
     combined, raw = db.prefilter_distances(desc, sel)
+    views = {r: [d] for r, d in (*raw.items(), ("prefilter", combined))}
     if wide_desc is not None:
         w_sel = np.flatnonzero(wide_mask)
         w_combined, w_raw = wide.db.prefilter_distances(wide_desc, w_sel)
         at = np.searchsorted(keys[sel], wide.keys[w_sel])  # both in key order
-        combined = combined.copy()
-        np.minimum.at(combined, at, w_combined)
-        for name, d in w_raw.items():
-            raw[name] = raw[name].copy()
-            np.minimum.at(raw[name], at, d)
+        for r, d in (*w_raw.items(), ("prefilter", w_combined)):
+            scattered = np.full(len(sel), np.inf)
+            scattered[at] = d
+            views[r].append(scattered)
     t_pre = time.perf_counter() - t
-    for r, d in (*raw.items(), ("prefilter", combined)):
-        top = np.argsort(d, kind="stable")[:kmax]
+    for r, per_view in views.items():
+        order, d = interleaved_order(per_view)
+        top = order[:kmax]
         out.put(r, int(keys[sel[top[0]]]), -float(d[top[0]]))
         hit = np.zeros(kmax, bool)
         hit[: len(top)] = near[top]
@@ -780,6 +781,32 @@ def _cascade_rows(
     out.figures.append(np.array([float(getattr(v, f)) if v is not None else np.nan
                                  for f in CHECK_FIGURES]))
     out.accepted_places.append(len(accepted))
+
+
+def interleaved_order(per_view: Sequence[Array]) -> tuple[NDArray[np.intp], Array]:
+    """Database rows ordered across several views of one query.
+
+    ``per_view[v]`` holds view v's distance to every row (``inf``: the view does not
+    hold that row).  A row's place in the order is its best rank in any view (0 =
+    that view's nearest); rows of equal rank go by the smaller of those views'
+    distances, then by row.  So the first 2K rows of two views hold both views' K
+    best, and the first row is the one with the smallest distance in any view.  The
+    views' distances are normalised by different databases, so their values do not
+    compare beyond that tie-break: merging by the smaller distance alone lets the
+    view whose distances run lower crowd the other's best rows out.
+
+    Returns:
+        ``(order, distance)``: the row order, and each row's distance in the view
+        that ranks it best (the smaller on ties).
+    """
+    d = np.vstack([np.asarray(v, dtype=float) for v in per_view])
+    ranks = np.full(d.shape, np.inf)
+    for view, dist in enumerate(d):
+        finite = np.flatnonzero(np.isfinite(dist))
+        ranks[view, finite[np.argsort(dist[finite], kind="stable")]] = np.arange(len(finite))
+    best = ranks.min(axis=0)
+    distance = np.where(ranks == best, d, np.inf).min(axis=0)
+    return np.lexsort((np.arange(d.shape[1]), distance, best)), distance
 
 
 def _stage_results(

@@ -28,6 +28,24 @@ CHEAP = ["pairs", "prefilter", "flirt@10", "fused", "flirt-alone"]
 # ------------------------------------------------------------------------ the measures
 
 
+def test_views_interleave_by_rank_not_by_distance() -> None:
+    """The wide view's distances run lower: merged by the smaller distance, its second
+    row would push the own view's best row to third; interleaved by rank, each view's
+    best row comes first (the smaller distance first), then the rank-1 rows."""
+    own = np.array([0.1, 0.2, 0.3])
+    wide = np.array([0.09, 0.01, 0.02])
+    order, distance = lb.interleaved_order([own, wide])
+    assert order.tolist() == [1, 0, 2]
+    np.testing.assert_allclose(distance, [0.1, 0.01, 0.02])
+    # A row the second view does not hold, and one view alone: its own order.
+    order, distance = lb.interleaved_order([np.array([0.5, 0.4, 0.6]),
+                                            np.array([np.inf, 0.3, np.inf])])
+    assert order.tolist() == [1, 0, 2]
+    np.testing.assert_allclose(distance, [0.5, 0.3, 0.6])
+    order, _ = lb.interleaved_order([np.array([0.3, 0.1, 0.2])])
+    assert order.tolist() == [1, 2, 0]
+
+
 def test_pr_curve_hand_checked() -> None:
     """Scores 0.9 0.8 0.7 0.6, correct T T F T, 4 revisits: recall 1/4 2/4 2/4 3/4 at
     precision 1 1 2/3 3/4."""
