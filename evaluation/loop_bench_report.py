@@ -41,8 +41,9 @@ from typing import Any
 import numpy as np
 
 from data.atomic_write import output_dir, write_text_atomic
-from evaluation.loop_bench import CHECK_FIGURES, RECALL_KS, LoopBench, StageResult
+from evaluation.loop_bench import LoopBench, StageResult
 from evaluation.loop_bench_misses import miss_breakdown
+from evaluation.loop_bench_queries import CHECK_FIGURES, RECALL_KS
 from evaluation.loop_bench_truth import curve_summary, pr_curve, recall_at_precision
 from slam.json_io import write_json
 

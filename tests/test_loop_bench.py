@@ -16,6 +16,7 @@ import evaluation.loop_bench_truth as truth
 import loopclosure.keyframe_store as keyframe_store
 from data.errors import UserError
 from data.sim import MotionConfig, SimulatedRun, simulate_run
+from evaluation.loop_bench_queries import interleaved_order
 from loopclosure.place_database import PlaceDatabase
 from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
 from slam.cli.main import main
@@ -34,15 +35,15 @@ def test_views_interleave_by_rank_not_by_distance() -> None:
     best row comes first (the smaller distance first), then the rank-1 rows."""
     own = np.array([0.1, 0.2, 0.3])
     wide = np.array([0.09, 0.01, 0.02])
-    order, distance = lb.interleaved_order([own, wide])
+    order, distance = interleaved_order([own, wide])
     assert order.tolist() == [1, 0, 2]
     np.testing.assert_allclose(distance, [0.1, 0.01, 0.02])
     # A row the second view does not hold, and one view alone: its own order.
-    order, distance = lb.interleaved_order([np.array([0.5, 0.4, 0.6]),
+    order, distance = interleaved_order([np.array([0.5, 0.4, 0.6]),
                                             np.array([np.inf, 0.3, np.inf])])
     assert order.tolist() == [1, 0, 2]
     np.testing.assert_allclose(distance, [0.5, 0.3, 0.6])
-    order, _ = lb.interleaved_order([np.array([0.3, 0.1, 0.2])])
+    order, _ = interleaved_order([np.array([0.3, 0.1, 0.2])])
     assert order.tolist() == [1, 2, 0]
 
 
