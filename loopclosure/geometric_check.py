@@ -195,6 +195,12 @@ class GeometricCheckConfig:
             default: indoors it accepts corridor revisits, but outdoors the longer
             submaps let fits a few decimetres off, and at 10 keyframes look-alike
             places, through.
+        longer_path_m: the longer submaps by path instead of a count: each joins
+            the fewest keyframes behind it whose path (the map's keyframe poses)
+            reaches this length [m] (`loopclosure.longer_check.trailing_count`).  A
+            count of keyframes is a path of very different length from log to log
+            (keyframes a few decimetres apart indoors, metres outdoors).  0: by
+            `longer_keyframes`.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -229,6 +235,7 @@ class GeometricCheckConfig:
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
     longer_keyframes: int = 0
+    longer_path_m: float = 0.0
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:

@@ -58,6 +58,25 @@ def is_degenerate(result: LoopVerification) -> bool:
     return not result.accepted and result.reason.startswith((DEGENERATE, PARTIAL_DEGENERATE))
 
 
+def trailing_count(poses: ArrayLike | None, key: int, config: GeometricCheckConfig) -> int:
+    """How many keyframes behind `key` its longer submap joins (module docstring).
+
+    With ``longer_path_m`` set and `poses` reaching `key`, the fewest keyframes
+    ``key - n .. key`` whose path (the sum of the steps between consecutive poses of
+    `poses`, ``(n, 3)`` map frame [m, rad]) reaches ``longer_path_m`` [m], or all of
+    them back to keyframe 0 when the path is shorter; else ``longer_keyframes``.
+    """
+    path = config.longer_path_m
+    if path <= 0 or poses is None:
+        return config.longer_keyframes
+    xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
+    if len(xy) <= key:
+        return config.longer_keyframes
+    steps = np.hypot(*np.diff(xy[key::-1], axis=0).T)  # key-1 .. 0, walking back
+    reached = np.flatnonzero(np.cumsum(steps) >= path)
+    return int(reached[0]) + 1 if len(reached) else key
+
+
 def joined(*parts: ArrayLike) -> Array:
     """``(N, 2)`` points of several point sets of one frame, stacked [m]."""
     return np.vstack([np.asarray(p, dtype=float).reshape(-1, 2) for p in parts])
