@@ -47,9 +47,11 @@ from evaluation.loop_bench import Tolerances, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from loopclosure.fast_icp import voxel_downsample_fast  # noqa: E402
 from loopclosure.longer_check import (  # noqa: E402
+    departure,
     is_degenerate,
     joined,
-    recheck_longer,
+    judged,
+    longer_fit,
     trailing_count,
 )
 from slam.config import PipelineConfig  # noqa: E402
@@ -135,8 +137,11 @@ def main() -> None:
                     else:
                         q = joined(pts, reference_trailing(mapper, ref, k, nq))
                         t = joined(mapper.submap(j), reference_trailing(mapper, ref, j, nc))
-                    second = recheck_longer(first, q, t, max_distance=det.config.max_distance,
-                                            config=cfg)
+                    whole = longer_fit(first, q, t, max_distance=det.config.max_distance,
+                                       config=cfg)
+                    second = judged(first, whole, cfg)
+                    _, across, turn = departure(first, whole)
+                    werr = se2.between(truth, whole.relative)
                     err = se2.between(truth, second.relative)
                     em, ed = float(np.hypot(err[0], err[1])), abs(float(np.degrees(err[2])))
                     pq, dq, aq = drift(mapper, ref, k, nq)
@@ -147,6 +152,15 @@ def main() -> None:
                                      err_m=round(em, 3), err_deg=round(ed, 2),
                                      along=round(float((second.relative[:2] - truth[:2])
                                                        @ first.degenerate_axis), 3),
+                                     whole_err_m=round(float(np.hypot(werr[0], werr[1])), 3),
+                                     whole_err_deg=round(abs(float(np.degrees(werr[2]))), 2),
+                                     first_err_deg=round(abs(float(np.degrees(
+                                         se2.between(truth, first.relative)[2]))), 2),
+                                     across=round(across, 3), turn=round(turn, 2),
+                                     first_cov=";".join(f"{v:.3g}" for v in
+                                                        first.covariance.ravel()),
+                                     cov=";".join(f"{v:.3g}" for v in whole.covariance.ravel()),
+                                     axis=";".join(f"{v:.3f}" for v in first.degenerate_axis),
                                      x=round(float(second.relative[0]), 3),
                                      y=round(float(second.relative[1]), 3),
                                      path_q=round(pq, 1), path_c=round(pc, 1),

@@ -11,7 +11,15 @@ from data import se2
 from data.sim import simulate_run
 from loopclosure import loop_detector
 from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, verify
-from loopclosure.longer_check import is_degenerate, joined, recheck_longer, trailing_count
+from loopclosure.longer_check import (
+    departure,
+    is_degenerate,
+    joined,
+    judged,
+    longer_fit,
+    recheck_longer,
+    trailing_count,
+)
 from loopclosure.loop_detector import LoopClosureConfig, LoopClosureDetector
 from loopclosure.registration import RegistrationTarget
 from tests.test_geometric_check import _walls
@@ -181,3 +189,18 @@ def test_the_longer_submaps_reach_a_path_length_not_a_count_of_keyframes() -> No
     assert trailing_count(poses, 40, dataclasses.replace(by_path, longer_path_m=0.0)) == 30
     assert trailing_count(None, 40, by_path) == 30
     assert trailing_count(poses[:10], 40, by_path) == 30
+
+
+def test_the_verdict_is_the_longer_fit_judged_against_the_first() -> None:
+    first = _short_check(WORLD)
+    off = dataclasses.replace(first, relative=first.relative + np.array([1.2, 0.03, 0.0]))
+    query = _submap(WORLD, QUERY, -3, 10)
+    cand = _submap(WORLD, CANDIDATE, -3, 10)
+    whole = longer_fit(off, query, cand, max_distance=2.0, config=CFG)
+    along, across, turn = departure(off, whole)
+    # The longer fit takes back the 1.2 m slide along the corridor (x) and the 3 cm
+    # across it; the heading is the first fit's.
+    assert abs(abs(along) - 1.2) < 0.02 and abs(across - 0.03) < 0.02 and turn < 0.5
+    np.testing.assert_allclose(
+        judged(off, whole, CFG).relative,
+        recheck_longer(off, query, cand, max_distance=2.0, config=CFG).relative)
