@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from loopclosure.geometric_check import NOT_A_REVISIT, LoopVerification, verify
 from loopclosure.keyframe_store import KeyframeStore
-from loopclosure.longer_check import is_degenerate, joined, recheck_longer
+from loopclosure.longer_check import is_degenerate, joined, recheck_longer, trailing_count
 from loopclosure.loop_candidate import LoopCandidate, place_figures
 from loopclosure.place_database import PlaceMatch
 
@@ -205,12 +205,13 @@ class CandidateChecks(KeyframeStore):
             query_points, self._target(cand), headings=headings, translation=translation,
             max_distance=cfg.max_distance, config=cfg.check,
         )
-        n = cfg.check.longer_keyframes
-        if n > 0 and self._trailing_map is not None and is_degenerate(result):
-            result = recheck_longer(  # `loopclosure.longer_check`
-                result, joined(query_points, self._trailing_map(key, n)),
-                joined(self._submap_points(cand), self._trailing_map(cand, n)),
-                max_distance=cfg.max_distance, config=cfg.check)
+        if self._trailing_map is not None and is_degenerate(result):
+            nq, nc = (trailing_count(poses, k, cfg.check) for k in (key, cand))
+            if min(nq, nc) > 0:
+                result = recheck_longer(  # `loopclosure.longer_check`
+                    result, joined(query_points, self._trailing_map(key, nq)),
+                    joined(self._submap_points(cand), self._trailing_map(cand, nc)),
+                    max_distance=cfg.max_distance, config=cfg.check)
         if result.reason.startswith(NOT_A_REVISIT) and poses is not None:
             cand, result = self._nearer_place(key, cand, result, query_points, poses,
                                               allowed)

@@ -191,10 +191,17 @@ class GeometricCheckConfig:
         longer_keyframes: a prior-free check rejected for its degeneracy is checked
             again on longer submaps, each keyframe's joined with the map of this many
             keyframes of path behind it (`loopclosure.longer_check`; the loop
-            detector, given a ``trailing_map``).  0 (the default): never.  Off by
-            default: indoors it accepts corridor revisits, but outdoors the longer
-            submaps let fits a few decimetres off, and at 10 keyframes look-alike
-            places, through.
+            detector, given a ``trailing_map``).  0 (the default): never.
+        longer_path_m: the longer submaps by path instead of a count: each joins
+            the fewest keyframes behind it whose path (the map's keyframe poses)
+            reaches this length [m] (`loopclosure.longer_check.trailing_count`).  A
+            count of keyframes is a path of very different length from log to log
+            (keyframes a few decimetres apart indoors, metres apart outdoors).  0 (the
+            default): by `longer_keyframes`.  Both off by default: at 30 m the
+            longer check accepts many more corridor revisits, but outdoors also a fit
+            a few decimetres off whose first, short fit was already that far off
+            across the corridor (the longer one agrees with it), and a few metres of
+            path still fit a look-alike corridor elsewhere.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -229,6 +236,7 @@ class GeometricCheckConfig:
         default_factory=lambda: IcpConfig(max_correspondence_distance=1.0, max_iterations=30)
     )
     longer_keyframes: int = 0
+    longer_path_m: float = 0.0
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:

@@ -11,7 +11,15 @@ from data import se2
 from data.sim import simulate_run
 from loopclosure import candidate_checks
 from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, verify
-from loopclosure.longer_check import is_degenerate, joined, recheck_longer
+from loopclosure.longer_check import (
+    departure,
+    is_degenerate,
+    joined,
+    judged,
+    longer_fit,
+    recheck_longer,
+    trailing_count,
+)
 from loopclosure.loop_detector import LoopClosureConfig, LoopClosureDetector
 from loopclosure.registration import RegistrationTarget
 from tests.test_geometric_check import _walls
@@ -100,9 +108,15 @@ def test_only_a_degeneracy_rejection_is_degenerate() -> None:
     assert not is_degenerate(verdict(False, "inconsistent free space (0.80 < 0.92)"))
 
 
-@pytest.mark.parametrize("longer_keyframes", [30, 0])
+@pytest.mark.parametrize(("longer_keyframes", "longer_path_m", "counts"), [
+    (30, 0.0, [(11, 30), (2, 30)]),
+    (0, 0.0, []),
+    # Keyframes 0.5 m apart: 2 m of path is 4 keyframes behind the query, the whole
+    # 1 m behind keyframe 2.
+    (0, 2.0, [(11, 4), (2, 2)]),
+])
 def test_the_detector_rechecks_a_degenerate_verdict_on_longer_submaps(
-        longer_keyframes, monkeypatch) -> None:
+        longer_keyframes, longer_path_m, counts, monkeypatch) -> None:
     scans = simulate_run("box", seed=0).scans[:12]
     trailing: list[tuple[int, int]] = []
 
@@ -112,6 +126,7 @@ def test_the_detector_rechecks_a_degenerate_verdict_on_longer_submaps(
 
     config = LoopClosureConfig(exclude_recent=1, exclude_recent_s=0.0)
     config.check.longer_keyframes = longer_keyframes
+    config.check.longer_path_m = longer_path_m
     det = LoopClosureDetector(config, submap=lambda k: scans[k].points(),
                               trailing_map=trailing_map)
     for key, scan in enumerate(scans):
@@ -126,14 +141,15 @@ def test_the_detector_rechecks_a_degenerate_verdict_on_longer_submaps(
         return _verdict(True, "accepted", [0.4, 0.0, 0.1])
 
     monkeypatch.setattr(candidate_checks, "recheck_longer", fake_recheck)
-    (cand,) = det.verify_places(11, [_match(2, 0.9)], np.zeros((12, 3)))
-    if longer_keyframes == 0:
+    poses = np.c_[0.5 * np.arange(12.0), np.zeros((12, 2))]
+    (cand,) = det.verify_places(11, [_match(2, 0.9)], poses)
+    if not counts:
         assert cand.reason == first.reason and not seen and not trailing
         return
     assert cand.accepted and cand.match == 2
     np.testing.assert_allclose(cand.relative, [0.4, 0.0, 0.1])
-    # The query's submap and the 30 keyframes behind it; the candidate's likewise.
-    assert trailing == [(11, 30), (2, 30)]
+    # The query's submap and the keyframes behind it; the candidate's likewise.
+    assert trailing == counts
     ((result, query, candidate),) = seen
     assert result is first
     np.testing.assert_allclose(query, np.vstack([scans[11].points(), np.full((3, 2), 111.0)]))
@@ -157,3 +173,34 @@ def test_the_longer_fit_moves_the_first_one_along_its_axis_only() -> None:
     rejected = recheck_longer(far, query, cand, max_distance=2.0, config=CFG)
     assert not rejected.accepted
     assert "longer submaps fit elsewhere (0.80 m across" in rejected.reason
+
+
+def test_the_longer_submaps_reach_a_path_length_not_a_count_of_keyframes() -> None:
+    # Keyframes 0.3 m apart for 20 keyframes (indoors), then 2.5 m apart (outdoors).
+    steps = np.r_[np.full(20, 0.3), np.full(20, 2.5)]
+    xy = np.c_[np.r_[0.0, np.cumsum(steps)], np.zeros(len(steps) + 1)]
+    poses = np.c_[xy, np.zeros(len(xy))]
+    by_path = dataclasses.replace(CFG, longer_keyframes=30, longer_path_m=5.0)
+    assert trailing_count(poses, 19, by_path) == 17  # 17 x 0.3 m = 5.1 m
+    assert trailing_count(poses, 40, by_path) == 2  # 2 x 2.5 m
+    assert trailing_count(poses, 3, by_path) == 3  # 0.9 m of path in all: every one
+    assert trailing_count(poses, 0, by_path) == 0
+    # No path length (or no poses reaching the key): the count of keyframes.
+    assert trailing_count(poses, 40, dataclasses.replace(by_path, longer_path_m=0.0)) == 30
+    assert trailing_count(None, 40, by_path) == 30
+    assert trailing_count(poses[:10], 40, by_path) == 30
+
+
+def test_the_verdict_is_the_longer_fit_judged_against_the_first() -> None:
+    first = _short_check(WORLD)
+    off = dataclasses.replace(first, relative=first.relative + np.array([1.2, 0.03, 0.0]))
+    query = _submap(WORLD, QUERY, -3, 10)
+    cand = _submap(WORLD, CANDIDATE, -3, 10)
+    whole = longer_fit(off, query, cand, max_distance=2.0, config=CFG)
+    along, across, turn = departure(off, whole)
+    # The longer fit takes back the 1.2 m slide along the corridor (x) and the 3 cm
+    # across it; the heading is the first fit's.
+    assert abs(abs(along) - 1.2) < 0.02 and abs(across - 0.03) < 0.02 and turn < 0.5
+    np.testing.assert_allclose(
+        judged(off, whole, CFG).relative,
+        recheck_longer(off, query, cand, max_distance=2.0, config=CFG).relative)
