@@ -143,7 +143,7 @@ LM_BUDGET = 25  # LM iterations of a warm-started solve before dogleg (`StickySo
 POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the error
 BOUNDED_WAIT = 1  # loop-bearing blocks a deferred loop waits under ``defer="bounded"``
 # `incremental_tls`'s deferral of powerless tests
-DEFER_MODES = ("off", "candidate", "all", "bounded")
+DEFER_MODES = ("off", "candidate", "all", "bounded", "both")
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -347,7 +347,8 @@ def incremental_tls(
     stated with the stated gate, defers as ``"all"`` does (label ``"stated-deferred"``) and
     replaces the chosen run (`choose`, or the lowest stated cost) when it dominates it: a
     lower stated `tls_cost` with more loops admitted (under ``"all"`` any run may dominate
-    so).
+    so); ``"both"``: every rung is run without and with the bounded deferral (labels of the
+    latter end in ``"-bounded"``), and `choose` (or the lowest stated cost) picks among all.
 
     Why a bounded wait: the first loop back to a place after a long stretch of odometry is
     decided against a prefix that ties its two poses only through that stretch, so a false
@@ -360,7 +361,8 @@ def incremental_tls(
     the consensus admits a group of false loops that agree with one another as readily as
     the true loops of a return (half the loops false in groups of ten on MITb: 79 m), and
     on Intel with its odometry information x0.1 the bounded run ends in a worse TLS
-    objective (random, seed 0).
+    objective (random, seed 0); with ``"both"`` the calibrated choice still picks the
+    false group on MITb.
 
     `choose`: picks the winner among the refined runs instead of the lowest stated cost,
     called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
@@ -385,27 +387,33 @@ def incremental_tls(
     base, loop_index = stated
     unit = [base.at(k) for k in loop_index]  # the loops' factors, the same on every rung
     runs = []
+    # (defers, wait) of the passes run at every rung: "both" runs each rung without and
+    # with the bounded deferral, and the choice compares all of them.
+    variants = {"off": [(False, None)], "candidate": [(False, None)], "all": [(True, None)],
+                "bounded": [(True, BOUNDED_WAIT)],
+                "both": [(False, None), (True, BOUNDED_WAIT)]}[defer]
     for factor in ladder:
         decide = graph if factor == 1.0 else _odometry_scaled(graph, factor)
-        for gate in GATES if factor == 1.0 else GATES[:1]:
-            label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
-            if gate == "calibrated" and runs and runs[-1][1] is decide:
-                # The same as the stated pass on this graph up to the first block in which
-                # the calibrated gate admits less (`AdmissionPass.calibrated_step`).
-                stated_run = runs[-1][2]
-                step = stated_run.calibrated_step
-                run = stated_run.resumed(stated_run._step if step is None else step,
-                                         gate=gate)
-            else:
-                run = AdmissionPass(decide, values, probability=probability, block=block,
-                                    gate=gate, solver=solver, prefix_solver=prefix_solver,
-                                    unit=unit, record=tries > 0 or gate == "stated",
-                                    defer=defer in ("all", "bounded"),
-                                    wait=BOUNDED_WAIT if defer == "bounded" else None)
-            run.advance(until_fold=True)
-            if run.done:
-                run.release_prefix()
-            runs.append((label, decide, run))
+        for defers, wait in variants:
+            for gate in GATES if factor == 1.0 else GATES[:1]:
+                label = gate if factor == 1.0 else f"{gate}-odometry-x{factor:g}"
+                label += "-bounded" if wait is not None and defer == "both" else ""
+                if gate == "calibrated" and runs and runs[-1][1] is decide:
+                    # The same as the stated pass on this graph up to the first block in
+                    # which the calibrated gate admits less (`AdmissionPass.calibrated_step`).
+                    stated_run = runs[-1][2]
+                    step = stated_run.calibrated_step
+                    run = stated_run.resumed(stated_run._step if step is None else step,
+                                             gate=gate)
+                else:
+                    run = AdmissionPass(decide, values, probability=probability, block=block,
+                                        gate=gate, solver=solver, prefix_solver=prefix_solver,
+                                        unit=unit, record=tries > 0 or gate == "stated",
+                                        defer=defers, wait=wait)
+                run.advance(until_fold=True)
+                if run.done:
+                    run.release_prefix()
+                runs.append((label, decide, run))
     if defer == "candidate":
         run = AdmissionPass(graph, values, probability=probability, block=block,
                             solver=solver, prefix_solver=prefix_solver, unit=unit,
@@ -445,7 +453,7 @@ def incremental_tls(
                              f"{best.gate}-offered")
     for admission, graph_of, run in finished:
         # The deferred run dominates a choice that explains fewer loops at a higher cost.
-        if (run.defer and defer != "bounded" and admission.tls_cost < best.tls_cost
+        if (run.defer and defer in ("all", "candidate") and admission.tls_cost < best.tls_cost
                 and admission.weights.sum() > best.weights.sum()):
             best, decided, source = admission, graph_of, run
     if tries:

@@ -63,4 +63,16 @@ def test_a_lone_true_loop_is_decided_by_the_gate_after_its_wait() -> None:
 
 
 def test_bounded_is_a_deferral_mode() -> None:
-    assert "bounded" in DEFER_MODES
+    assert {"bounded", "both"} <= set(DEFER_MODES)
+
+
+def test_both_compares_the_passes_with_and_without_the_bounded_wait() -> None:
+    from slam.consistency import incremental_tls
+
+    graph, false = _lap(range(4, 36, 2), false_loop=True)
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    result = incremental_tls(graph, values, block=10, defer="both", tries=0)
+    true = np.ones(len(graph.loops), dtype=bool)
+    true[false] = False
+    assert result.weights[false] == 0.0
+    assert result.weights[true].all()
