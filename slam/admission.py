@@ -177,6 +177,7 @@ def admit_incrementally(
     prefix_solver: str = "auto",
     unit: list[gtsam.NonlinearFactor] | None = None,
     defer: bool = False,
+    wait: int | None = None,
 ) -> Admission:
     """One time-ordered TLS pass (`slam.consistency`'s module docstring, steps 1-3) from
     initial `values`.
@@ -200,10 +201,15 @@ def admit_incrementally(
         defer: loops whose innovation test has no power are deferred and decided by
             consensus (`slam.deferral`); loops still deferred at the end are rejected.
             False (the default) decides every loop in its own block.
+        wait: with `defer`, a deferred loop waits at most this many loop-bearing blocks
+            (blocks that bring loops) for a consensus; still deferred after the rounds of
+            the last of them, or at the last block of the pass, it is decided by the
+            plain gate against the prefix those rounds left.  None: it waits to the end
+            and is rejected there.
     """
     run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
                         max_rounds=max_rounds, solver=solver, barred=barred,
-                        prefix_solver=prefix_solver, unit=unit, defer=defer)
+                        prefix_solver=prefix_solver, unit=unit, defer=defer, wait=wait)
     run.advance()
     return run.result()
 
@@ -222,6 +228,7 @@ class _Snapshot:
     fixed: gtsam.NonlinearFactorGraph
     isam: IsamPrefix | None
     deferred: NDArray[np.int64]
+    since: NDArray[np.int64]
 
 
 class AdmissionPass:
@@ -249,7 +256,7 @@ class AdmissionPass:
         block: int = 50, gate: str = "stated", max_rounds: int = 50,
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
-        record: bool = False, defer: bool = False,
+        record: bool = False, defer: bool = False, wait: int | None = None,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
@@ -274,6 +281,9 @@ class AdmissionPass:
         self.weights = np.zeros(len(graph.loops))
         self.defer = defer
         self.deferred = np.zeros(0, dtype=np.int64)  # loops whose test had no power yet
+        self.wait = wait  # loop-bearing blocks a deferred loop waits (None: to the end)
+        # `blocks` when each loop was first deferred (-1: never)
+        self._since = np.full(len(graph.loops), -1, dtype=np.int64)
         self._fixed = gtsam.NonlinearFactorGraph()
         self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
         self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
@@ -317,7 +327,7 @@ class AdmissionPass:
         return _Snapshot(self._step, self.last, self.blocks, gtsam.Values(self.current),
                          self.weights.copy(), gtsam.NonlinearFactorGraph(self._fixed),
                          None if self._isam is None else self._isam.copy(),
-                         self.deferred.copy())
+                         self.deferred.copy(), self._since.copy())
 
     def block_of(self, loop: int) -> int:
         """Index of the block in which `loop` (index into `graph.loops`) is decided."""
@@ -342,6 +352,7 @@ class AdmissionPass:
             run.last, run.blocks, run._step = -1, 0, 0
             run.current, run.weights = gtsam.Values(), np.zeros(len(self.graph.loops))
             run.deferred = np.zeros(0, dtype=np.int64)
+            run._since = np.full(len(self.graph.loops), -1, dtype=np.int64)
             run._fixed = gtsam.NonlinearFactorGraph()
             run._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
             return run
@@ -349,6 +360,7 @@ class AdmissionPass:
         run.last, run.blocks, run._step = snap.last, snap.blocks, snap.step
         run.current, run.weights = gtsam.Values(snap.current), snap.weights.copy()
         run.deferred = np.setdiff1d(snap.deferred, run.barred).astype(np.int64)
+        run._since = snap.since.copy()
         run._fixed = gtsam.NonlinearFactorGraph(snap.fixed)
         run._isam = None if snap.isam is None else snap.isam.copy()
         return run
@@ -385,6 +397,7 @@ class AdmissionPass:
         prefix = keys[: end + 1]
         accepted = np.zeros(len(pending), dtype=bool)
         waiting = np.zeros(0, dtype=np.int64)  # positions in `pending` deferred (`slam.deferral`)
+        forced = np.zeros(len(pending), dtype=bool)  # waited `wait` blocks: the plain gate decides
         factors = fixed  # the accepted graph, whose solution is `current`
         for _ in range(self._max_rounds):
             errors = np.array([unit[k].error(current) for k in pending])
@@ -418,7 +431,7 @@ class AdmissionPass:
                 white = whitened_offsets(gains, alternative_offsets(
                     current, ends, alternative_places(prefix), graph.dim))
                 eye = np.eye(self._d)
-                strong = power(eye + gains.M, white, c) >= MIN_POWER
+                strong = (power(eye + gains.M, white, c) >= MIN_POWER) | forced[rest]
                 weak = np.flatnonzero(~strong & (admission_costs(gains) < c))
                 decide = np.flatnonzero(strong)
             costs: list[float] = []
@@ -437,6 +450,10 @@ class AdmissionPass:
                 if s0 is not None and max(costs) >= c * min(1.0, s0):
                     self.calibrated_step = self._step
             if not admitted:
+                expired = self._expired(pending[rest[weak]], final)
+                if expired.any():  # decided now by the plain gate, after any consensus
+                    forced[rest[weak[expired]]] = True
+                    continue
                 waiting = rest[weak] if not final else waiting
                 break
             accepted[rest[admitted]] = True
@@ -445,8 +462,17 @@ class AdmissionPass:
         self.current = current
         self.weights[pending] = accepted
         self.deferred = pending[waiting[~accepted[waiting]]]
+        self._since[self.deferred[self._since[self.deferred] < 0]] = self.blocks
         for q in np.flatnonzero(accepted):
             fixed.add(unit[pending[q]])
+
+    def _expired(self, loops: NDArray[np.int64], final: bool) -> NDArray[np.bool_]:
+        """Which deferred `loops` have waited their `wait` loop-bearing blocks (every one at
+        the `final` block); none when deferred loops wait to the end (`wait` None)."""
+        if self.wait is None:
+            return np.zeros(len(loops), dtype=bool)
+        since = self._since[loops]
+        return final | ((since >= 0) & (self.blocks - since >= self.wait))
 
     def _prefix_solve(
         self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,

@@ -31,9 +31,12 @@ own place (a measurement-free property of the gate: the same for a true and a fa
 loop).  A loop with ``power_k < MIN_POWER`` that the gate would admit is *deferred*:
 carried into the next blocks and re-tested against each new prefix.  `MIN_POWER` is
 the chi-square probability of the gate itself (0.99): the test must reject a wrong place
-as surely as it admits a right one.  Loops still deferred when the pass ends are
-rejected by it (the pass's result is then re-decided on the whole graph by the residual
-rule, `slam.consistency.refine_tls`, which re-admits those the final map agrees with).
+as surely as it admits a right one.  With a bounded wait (`slam.admission.AdmissionPass`'s
+``wait``, ``defer="bounded"`` of `slam.consistency.incremental_tls`) a loop still deferred
+after that many loop-bearing blocks is decided by the plain gate instead.  Otherwise loops
+still deferred when the pass ends are rejected by it (the pass's result is then
+re-decided on the whole graph by the residual rule, `slam.consistency.refine_tls`, which
+re-admits those the final map agrees with).
 
 Consensus.  Deferred loops are admitted together when they agree with one another
 with power: for a pair ``(p, q)``, admitting ``p`` (Woodbury update of ``H^-1``, the

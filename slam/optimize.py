@@ -192,7 +192,10 @@ def optimize(
     (groups of rejected loops admitted together) before the segment re-check; off by
     default: on Intel with loosened odometry it let false groups in.
     `defer`: the incremental admission's deferral of loops whose innovation test has no
-    power (`slam.consistency.incremental_tls`, `slam.deferral`); off by default.
+    power (`slam.consistency.incremental_tls`, `slam.deferral`): ``"off"`` (the default),
+    ``"bounded"`` (waits one loop-bearing block for the consensus of the loops that
+    arrive, then the plain gate decides), ``"both"`` (each rung without and with it, the
+    choice among all), ``"all"`` and ``"candidate"`` as there.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
