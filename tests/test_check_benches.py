@@ -23,3 +23,18 @@ def test_prior_free_check_collect_records_the_checks_with_no_prior(tmp_path: Pat
     pair = got["pairs"][0]
     assert pair["query_points"].shape[1] == 2 and pair["target_points"].shape[1] == 2
     assert pair["truth"].shape == (3,)
+
+
+def test_view_retrieval_interleaving_keeps_the_top_1_of_the_smaller_distance(
+        tmp_path: Path) -> None:
+    """Interleaving two views by rank changes only the places after the first: its
+    recall@1 equals the merge by the smaller distance, query by query."""
+    from slam.config import PipelineConfig
+
+    run = simulate_run("box", seed=3, motion=MotionConfig(laps=1.1))
+    log = write_run(run, tmp_path / "sim")["log"]
+    turn, hits, step = load_benchmark("view_retrieval").retrieval(str(log), None,
+                                                                  PipelineConfig())
+    assert len(turn) > 0 and all(len(h) == len(turn) for h in hits.values())
+    assert [h[1] for h in hits["interleaved"]] == [h[1] for h in hits["min"]]
+    assert 0 < step < 2.0
