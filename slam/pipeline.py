@@ -103,7 +103,9 @@ class MappingResult:
         keyframe_poses: id -> optimised pose.
         loops: every candidate tried.
         smoother: the back end (its graph holds every constraint).
-        timings: seconds per stage.
+        timings: seconds per stage (with the front end's worker,
+            ``loop_detection_in_worker`` is the part of ``loop_detection`` measured in
+            the worker: place descriptions and the matches it made while ahead).
         interrupted: the run was stopped before the end of its input.
         sessions: every session of the map, oldest first (one without ``--map``).
         saved_map: the run as a saved map (``session.npz``; of an interrupted run too:
@@ -295,6 +297,9 @@ class Mapper:
         database's matches of it when the worker made them (`from_worker`)."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
+        if from_worker:  # of loop_detection, the seconds the worker spent [s]
+            self.timings["loop_detection_in_worker"] = (
+                self.timings.get("loop_detection_in_worker", 0.0) + place_seconds)
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
         self._odometry_rows.append(estimate.pose)
         if isinstance(scan, PointCloud):
