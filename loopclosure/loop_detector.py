@@ -138,8 +138,7 @@ Example (a host whose submaps are the keyframes' own scans, which never change):
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Hashable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -149,7 +148,7 @@ from loopclosure.candidate_checks import CandidateChecks
 from loopclosure.keyframe_store import KeyframePlace, SubmapFn, SubmapVersionFn, TrailingMapFn
 from loopclosure.loop_candidate import LoopCandidate
 from loopclosure.loop_config import SEARCHES, LoopClosureConfig
-from loopclosure.place_choice import distinct_places, merge_views
+from loopclosure.place_choice import distinct_places, first_per_key, merge_views
 from loopclosure.place_database import PlaceMatch
 
 Array = NDArray[np.float64]
@@ -398,13 +397,11 @@ class LoopClosureDetector(CandidateChecks):
             return matches
         keep = None if allowed is None else set(np.asarray(allowed).ravel().tolist())
         base = len(self._own_views(key))
-        joined = list(matches) + [
-            dataclasses.replace(m, view=base + i)
-            for i, t in enumerate(trail) for m in answers[t]
+        joined = [(m, -1) for m in matches] + [
+            (m, base + i) for i, t in enumerate(trail) for m in answers[t]
             if m.view == 0 and (keep is None or int(m.key) in keep)]
-        joined.sort(key=lambda m: -m.score)  # stable: the query's own first on ties
-        seen: set[Hashable] = set()
-        return [m for m in joined if not (m.key in seen or seen.add(m.key))]
+        joined.sort(key=lambda f: -f[0].score)  # stable: the query's own first on ties
+        return [m if view < 0 else m.with_view(view) for m, view in first_per_key(joined)]
 
     def _local(
         self, key: int, poses: Array, eligible: NDArray[np.bool_], gate: float

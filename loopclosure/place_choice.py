@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Hashable, Sequence
 
 import numpy as np
@@ -17,11 +16,17 @@ def merge_views(per_view: Sequence[Sequence[PlaceMatch]]) -> list[PlaceMatch]:
     keyframe once, as its match with the highest fused score, marked with that view's
     index (`PlaceMatch.view`); by decreasing fused score (ties: the database's own
     order, the first view first)."""
-    found = [m if m.view == view else dataclasses.replace(m, view=view)
-             for view, matches in enumerate(per_view) for m in matches]
-    found.sort(key=lambda m: -m.score)
+    found = [(m, view) for view, matches in enumerate(per_view) for m in matches]
+    found.sort(key=lambda f: -f[0].score)
+    return [m if m.view == view else m.with_view(view) for m, view in first_per_key(found)]
+
+
+def first_per_key(found: Sequence[tuple[PlaceMatch, int]]) -> list[tuple[PlaceMatch, int]]:
+    """The first ``(match, view)`` of every stored key in `found`, in order (a match
+    is relabelled with its view only once it is kept: most of a merged list are
+    duplicates)."""
     seen: set[Hashable] = set()
-    return [m for m in found if not (m.key in seen or seen.add(m.key))]
+    return [f for f in found if not (f[0].key in seen or seen.add(f[0].key))]
 
 
 def distinct_places(
@@ -37,19 +42,25 @@ def distinct_places(
     on a log with one keyframe per metre, 5 keys span 5 m, and the keyframe next to
     a candidate that is 2.5 m from the query (not a revisit) may be 0.5 m from it.
     """
+    if limit <= 0 or not matches:
+        return []
+    keys = np.array([int(m.key) for m in matches], dtype=np.int64)
+    # Same place, for every two matches: one array operation instead of a Python
+    # call per pair (the same element-wise arithmetic, so the same verdicts).
     if positions is None:
-        def same(a: int, b: int) -> bool:
-            return abs(a - b) <= 5
+        same = np.abs(keys[:, None] - keys[None, :]) <= 5
     else:
-        xy = np.asarray(positions, dtype=float).reshape(-1, 2)
-
-        def same(a: int, b: int) -> bool:
-            return ((frames is None or frames[a] == frames[b])
-                    and bool(np.hypot(*(xy[a] - xy[b])) <= separation))
-    chosen: list[PlaceMatch] = []
-    for m in matches:
+        xy = np.asarray(positions, dtype=float).reshape(-1, 2)[keys]
+        same = np.hypot(xy[:, None, 0] - xy[None, :, 0],
+                        xy[:, None, 1] - xy[None, :, 1]) <= separation
+        if frames is not None:
+            f = np.asarray(frames)[keys]
+            same &= f[:, None] == f[None, :]
+    rows = same.tolist()
+    chosen: list[int] = []
+    for i, row in enumerate(rows):
         if len(chosen) == limit:
             break
-        if not any(same(int(m.key), int(c.key)) for c in chosen):
-            chosen.append(m)
-    return chosen
+        if not any(row[j] for j in chosen):
+            chosen.append(i)
+    return [matches[i] for i in chosen]

@@ -163,6 +163,19 @@ class PlaceMatch:
         """Distances of the stages that are not prefilter stages."""
         return {k: v for k, v in self.distances.items() if k not in PREFILTER_STAGES}
 
+    def with_view(self, view: int) -> PlaceMatch:
+        """This match with `view` (``dataclasses.replace(self, view=view)``, without
+        its per-call field introspection: the loop detector relabels thousands of
+        matches per keyframe)."""
+        return PlaceMatch(self.key, self.prefilter_distance, self.prefilter_rank,
+                          self.distances, self.score, self.headings, self.stamp, self.pose,
+                          view)
+
+    def with_rank(self, rank: int) -> PlaceMatch:
+        """This match with `prefilter_rank` `rank` (as `with_view`)."""
+        return PlaceMatch(self.key, self.prefilter_distance, rank, self.distances,
+                          self.score, self.headings, self.stamp, self.pose, self.view)
+
 
 @dataclass(slots=True, frozen=True)
 class CandidateSet:
@@ -679,7 +692,7 @@ class PlaceDatabase:
                 known[i] = self._match(i, float(short.prefilter[at[j]]), 0, dist[:, j],
                                        float(scores[j]), ())
         known = {i: known[i] for i in pick.tolist()}
-        pool = [known[i] if known[i].prefilter_rank == j else replace(known[i], prefilter_rank=j)
+        pool = [known[i] if known[i].prefilter_rank == j else known[i].with_rank(j)
                 for j, i in enumerate(pick.tolist())]
         matches = sorted(pool, key=lambda m: -m.score)  # stable: prefilter order
         self._last_stored = (key, self._scales_at, rows, short, known)

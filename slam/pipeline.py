@@ -103,7 +103,9 @@ class MappingResult:
         keyframe_poses: id -> optimised pose.
         loops: every candidate tried.
         smoother: the back end (its graph holds every constraint).
-        timings: seconds per stage.
+        timings: seconds per stage (with the front end's worker,
+            ``loop_detection_in_worker`` is the part of ``loop_detection`` measured in
+            the worker: place descriptions and the matches it made while ahead).
         interrupted: the run was stopped before the end of its input.
         sessions: every session of the map, oldest first (one without ``--map``).
         saved_map: the run as a saved map (``session.npz``; of an interrupted run too:
@@ -174,6 +176,7 @@ class Mapper:
         # in the map frame (see `_propagate_drift`).
         self._drift = np.zeros((3, 3))
         self._submaps: dict[int, tuple[int, Array]] = {}
+        self._incomplete: set[int] = set()  # keys of `_submaps` below version key + n
         self._floor = np.diag(
             np.array([cfg.backend.odometry_floor[0], cfg.backend.odometry_floor[1],
                       np.radians(cfg.backend.odometry_floor[2])]) ** 2
@@ -294,6 +297,9 @@ class Mapper:
         database's matches of it when the worker made them (`from_worker`)."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
+        if from_worker:  # of loop_detection, the seconds the worker spent [s]
+            self.timings["loop_detection_in_worker"] = (
+                self.timings.get("loop_detection_in_worker", 0.0) + place_seconds)
         self.status[estimate.status] = self.status.get(estimate.status, 0) + 1
         self._odometry_rows.append(estimate.pose)
         if isinstance(scan, PointCloud):
@@ -514,10 +520,17 @@ class Mapper:
             return cached[1]
         pts = self._local_points(key, max(lo, key - n), hi)
         self._submaps[key] = (hi, pts)
-        # Submaps far behind the newest keyframe are complete and rarely needed again.
+        if hi < key + n:
+            self._incomplete.add(key)
+        else:
+            self._incomplete.discard(key)
+        # Incomplete submaps (of keys near a session's end when cached) far behind
+        # the asked one are dropped: they would be rebuilt anyway.  Only the
+        # incomplete ones are scanned, not every cached submap.
         stale = key - 4 * n - self.config.loops.exclude_recent
-        for old in [k for k in self._submaps if k < stale and self._submaps[k][0] < k + n]:
+        for old in [k for k in self._incomplete if k < stale]:
             del self._submaps[old]
+            self._incomplete.discard(old)
         return pts
 
     def trailing_map(self, key: int, n: int) -> Array:
@@ -564,6 +577,7 @@ class Mapper:
         # The submaps and their registration targets are caches (rebuilt on demand):
         # not resident under the final optimisation's transients.
         self._submaps.clear()
+        self._incomplete.clear()
         self.detector.release_caches()
         graph = self.smoother.graph
         known = len(self._estimate)  # a run stopped by Ctrl-C may hold a newer pose
