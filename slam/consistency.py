@@ -359,7 +359,7 @@ def incremental_tls(
     true loops that have no consensus to wait for on a graph of few, far-apart loops, and
     ``"candidate"`` lets false loops that lower the stated objective in.  Not the default:
     the consensus admits a group of false loops that agree with one another as readily as
-    the true loops of a return (half the loops false in groups of ten on MITb: 79 m), and
+    the true loops of a return (false loops in groups, `benchmarks/robust_bounded.md`), and
     on Intel with its odometry information x0.1 the bounded run ends in a worse TLS
     objective (random, seed 0); with ``"both"`` the calibrated choice still picks the
     false group on MITb.
