@@ -25,14 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from data.g2o import read_g2o
-from evaluation.robustness import clean_optimum, inject_false_loops
+from evaluation.robustness import corrupted_graph
 from slam.consistency import incremental_tls, tls_cost
 from slam.offer_back import choose_and_offer_back
 from slam.optimize import initial_guess
-from slam.pose_graph import PoseGraph, whitened_residual
+from slam.pose_graph import whitened_residual
 from slam.swap import swap_search
-from slam.variance_components import with_information_scaled
 
 
 def main() -> None:
@@ -44,15 +42,9 @@ def main() -> None:
     parser.add_argument("--ratio", type=float, default=50.0)
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
-    graph = PoseGraph.from_g2o(read_g2o(Path(args.data) / args.graph))
-    if args.scale != 1.0:
-        graph = with_information_scaled(graph, args.scale)
-    reference = clean_optimum(graph)
-    corrupted, false_idx = inject_false_loops(graph, args.ratio / 100,
-                                              np.random.default_rng(args.seed), args.policy,
-                                              reference=reference)
-    false = np.zeros(len(corrupted.loops), dtype=bool)
-    false[false_idx] = True
+    graph, reference, corrupted, false = corrupted_graph(
+        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
+        args.seed)
     print(f"{len(graph.keys)} poses, {(~false).sum()} true loops, {false.sum()} false; "
           f"clean objective {tls_cost(corrupted, corrupted.gtsam_values(reference)):.1f}")
 

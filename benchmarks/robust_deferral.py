@@ -27,13 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from data.g2o import read_g2o
-from evaluation.outlier_policies import inject_false_loops
-from evaluation.robustness import aligned_position_error, clean_optimum, consistent_with_clean
+from evaluation.robustness import aligned_position_error, consistent_with_clean, corrupted_graph
 from slam.consistency import tls_cost
 from slam.optimize import default_outlier_residual, optimize
-from slam.pose_graph import PoseGraph, whitened_residual
-from slam.variance_components import with_information_scaled
+from slam.pose_graph import whitened_residual
 
 
 def main() -> None:
@@ -47,22 +44,15 @@ def main() -> None:
     parser.add_argument("--defer", default="off,all")
     parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
-    graph = PoseGraph.from_g2o(read_g2o(Path(args.data) / args.graph))
-    if args.scale != 1.0:
-        graph = with_information_scaled(graph, args.scale)
     cached = args.cache / f"{args.graph}-x{args.scale:g}.pkl" if args.cache else None
-    if cached is not None and cached.exists():
-        reference = pickle.loads(cached.read_bytes())
-    else:
-        reference = clean_optimum(graph)
-        if cached is not None:
-            cached.parent.mkdir(parents=True, exist_ok=True)
-            cached.write_bytes(pickle.dumps(reference))
-    corrupted, false_idx = inject_false_loops(graph, args.ratio / 100,
-                                              np.random.default_rng(args.seed), args.policy,
-                                              reference=reference)
-    is_false = np.zeros(len(corrupted.loops), dtype=bool)
-    is_false[false_idx] = True
+    known = (pickle.loads(cached.read_bytes()) if cached is not None and cached.exists()
+             else None)
+    graph, reference, corrupted, is_false = corrupted_graph(
+        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
+        args.seed, reference=known)
+    if cached is not None and known is None:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        cached.write_bytes(pickle.dumps(reference))
     clean_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
     threshold = default_outlier_residual(graph.dim)
     for mode in args.defer.split(","):

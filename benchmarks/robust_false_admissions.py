@@ -32,12 +32,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.admission as admission
-from data.g2o import read_g2o
-from evaluation.robustness import clean_optimum, inject_false_loops
+from evaluation.robustness import corrupted_graph
 from slam.consistency import BOUNDED_WAIT, _odometry_scaled, polish, tls_threshold
 from slam.optimize import initial_guess
-from slam.pose_graph import PoseGraph, whitened_residual
-from slam.variance_components import with_information_scaled
+from slam.pose_graph import whitened_residual
 
 
 def main() -> None:
@@ -52,15 +50,9 @@ def main() -> None:
     parser.add_argument("--defer", choices=("off", "bounded", "all"), default="off")
     parser.add_argument("--show", type=int, default=8)
     args = parser.parse_args()
-    graph = PoseGraph.from_g2o(read_g2o(Path(args.data) / args.graph))
-    if args.scale != 1.0:
-        graph = with_information_scaled(graph, args.scale)
-    reference = clean_optimum(graph)
-    corrupted, false_idx = inject_false_loops(graph, args.ratio / 100,
-                                              np.random.default_rng(args.seed), args.policy,
-                                              reference=reference)
-    false = np.zeros(len(corrupted.loops), dtype=bool)
-    false[false_idx] = True
+    graph, reference, corrupted, false = corrupted_graph(
+        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
+        args.seed)
     values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
     decide = corrupted if args.rung == 1.0 else _odometry_scaled(corrupted, args.rung)
     run = admission.AdmissionPass(decide, values, prefix_solver="batch",

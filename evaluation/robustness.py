@@ -84,8 +84,8 @@ Array = NDArray[np.float64]
 ROBUSTNESS_KERNELS = ("none", "huber", "cauchy", "dcs", "gemanmcclure", "gnc", "gnc-stated",
                       "gnc-unsegmented")
 GNC_START = "incremental"  # `optimize`'s gnc_start for the ``gnc`` kernel
-__all__ = ["RobustnessResult", "aligned_position_error", "clean_optimum", "inject_false_loops",
-           "run_robustness"]
+__all__ = ["RobustnessResult", "aligned_position_error", "clean_optimum", "corrupted_graph",
+           "inject_false_loops", "run_robustness"]
 
 
 @dataclass(slots=True)
@@ -166,6 +166,33 @@ def clean_optimum(graph: PoseGraph) -> dict[int, Array]:
     if tls_cost(graph, robust) < tls_cost(graph, values):
         values = robust
     return poses_from_values(values, graph.dim)
+
+
+def corrupted_graph(
+    path: str, odometry_scale: float, ratio: float, policy: str, seed: int, *,
+    group_size: int = 10, reference: dict[int, Array] | None = None,
+) -> tuple[PoseGraph, dict[int, Array], PoseGraph, NDArray[np.bool_]]:
+    """One cell's inputs, for a script that studies a single cell outside
+    `run_robustness`: ``(graph, reference, corrupted, false)``.
+
+    `graph` is the g2o file at `path` with its odometry information scaled by
+    `odometry_scale`; `reference` its clean optimum (computed unless given);
+    `corrupted` the graph with a fraction `ratio` of false loops of `policy` drawn
+    with `seed` (`inject_false_loops`); `false` marks them among its loops.
+    """
+    from data.g2o import read_g2o
+
+    graph = PoseGraph.from_g2o(read_g2o(path))
+    if odometry_scale != 1.0:
+        graph = with_information_scaled(graph, odometry_scale)
+    if reference is None:
+        reference = clean_optimum(graph)
+    corrupted, false_idx = inject_false_loops(graph, ratio, np.random.default_rng(seed),
+                                              policy, group_size=group_size,
+                                              reference=reference)
+    false = np.zeros(len(corrupted.loops), dtype=bool)
+    false[false_idx] = True
+    return graph, reference, corrupted, false
 
 
 @dataclass(frozen=True, slots=True)

@@ -95,3 +95,22 @@ def test_cluster_cells_equal_the_serial_sweep(tmp_path, capsys) -> None:
     there = json.loads(capsys.readouterr().out)["results"]
     drop = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
     assert drop(there) == drop(here)
+
+
+def test_a_single_cell_reads_scales_and_corrupts_the_graph(tmp_path) -> None:
+    """`corrupted_graph`: 30% of the ring's 40 loops false among 40 / 0.7 loops, marked;
+    the odometry information scaled; a given reference is used as given."""
+    from data.g2o import write_g2o
+    from evaluation.robustness import clean_optimum, corrupted_graph
+
+    ring = _ring()
+    path = tmp_path / "ring.g2o"
+    write_g2o(path, ring.to_g2o())
+    graph, reference, corrupted, false = corrupted_graph(str(path), 0.1, 0.3, "random", 1)
+    assert len(false) == len(corrupted.loops) and false.sum() == len(corrupted.loops) - 40
+    assert 0.25 <= false.mean() <= 0.35
+    np.testing.assert_allclose(graph.odometry[0].information, 0.1 * ring.odometry[0].information)
+    clean = clean_optimum(graph)
+    assert max(np.abs(reference[k] - clean[k]).max() for k in clean) < 1e-9
+    given = {k: v + 1.0 for k, v in reference.items()}
+    assert corrupted_graph(str(path), 0.1, 0.3, "random", 1, reference=given)[1] is given
