@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
+from evaluation.loop_bench_misses import revisit_queries  # noqa: E402
 from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan  # noqa: E402
 from loopclosure.virtual_scan import virtual_scan  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
@@ -86,22 +87,13 @@ def main() -> None:
     det, db, wide = mapper.detector, mapper.detector.database, mapper.detector.wide_database
     keys = np.array(db.keys, dtype=np.intp)  # rows in key order
     wide_keys = np.array(wide.keys, dtype=np.intp) if wide is not None else keys[:0]
-    covered = np.isfinite(ref).all(axis=1)
     xy = np.array([result.keyframe_poses[kf.id] for kf in result.keyframes], float)[:, :2]
     names = (["own"] + [f"trail {r:g} m" for r in radii] + [f"last {n}" for n in lasts]
              + [f"moved {args.offset:g} m"])
     hits = {name: {1: [], 10: []} for name in names}
     nearest: list[float] = []
     clock = [0.0, 0]
-    for k in range(len(ref)):
-        if k not in db or not covered[k]:
-            continue
-        rows = np.flatnonzero(keys < k)
-        rows = rows[det.eligible(k)[keys[rows]] & covered[keys[rows]]]
-        true = np.hypot(*(ref[keys[rows], :2] - ref[k, :2]).T)
-        near = true <= 2.0
-        if not near.any():
-            continue
+    for k, rows, true, near in revisit_queries(det, ref):
         own = db.prefilter_distances(db.descriptors(k), rows)[0].copy()
         asked = det.wide_key(k)
         if asked is not None and asked in wide:

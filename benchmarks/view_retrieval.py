@@ -33,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
+from evaluation.loop_bench_misses import nearest_place, revisit_queries  # noqa: E402
 from evaluation.loop_bench_queries import interleaved_order  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 from slam.config_io import apply_overrides  # noqa: E402
@@ -56,21 +57,10 @@ def retrieval(log: str, relations: str | None, config: PipelineConfig
     det, db, wide = mapper.detector, mapper.detector.database, mapper.detector.wide_database
     keys = np.array(db.keys, dtype=np.intp)  # rows in key order
     wide_keys = np.array(wide.keys, dtype=np.intp) if wide is not None else keys[:0]
-    covered = np.isfinite(ref).all(axis=1)
     turns: list[float] = []
     hits: dict[str, list[dict[int, bool]]] = {v: [] for v in VIEWS}
-    for k in range(len(ref)):
-        if k not in db or not covered[k]:
-            continue
-        rows = np.flatnonzero(keys < k)
-        rows = rows[det.eligible(k)[keys[rows]] & covered[keys[rows]]]
-        true = np.hypot(*(ref[keys[rows], :2] - ref[k, :2]).T)
-        near = true <= 2.0
-        if not near.any():
-            continue
-        nearest = int(np.argmin(np.where(near, true, np.inf)))
-        turns.append(abs(float(np.degrees(np.angle(np.exp(
-            1j * (ref[keys[rows[nearest]], 2] - ref[k, 2])))))))
+    for k, rows, _, near in revisit_queries(det, ref):
+        turns.append(nearest_place(ref, k, keys[rows[near]])[2])
         own = db.prefilter_distances(db.descriptors(k), rows)[0]
         other = np.full(len(rows), np.inf)
         asked = det.wide_key(k)
@@ -86,6 +76,7 @@ def retrieval(log: str, relations: str | None, config: PipelineConfig
         }
         for view, order in orders.items():
             hits[view].append(_hits(order, near))
+    covered = np.isfinite(ref).all(axis=1)
     step = np.hypot(*np.diff(ref[covered, :2], axis=0).T)
     return np.array(turns), hits, float(np.median(step)) if len(step) else float("nan")
 

@@ -26,7 +26,8 @@ the sensor saw.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -59,6 +60,32 @@ def nearest_place(
     dth = abs(float(se2.wrap_angle(ref[cand[i], 2] - ref[query, 2])))
     return int(cand[i]), float(d[i]), float(np.degrees(dth))
 
+
+
+def revisit_queries(
+    detector: Any, reference: ArrayLike, radius: float = 2.0
+) -> Iterator[tuple[int, NDArray[np.intp], Array, NDArray[np.bool_]]]:
+    """The queries with a revisit, for scripts that study the place database offline.
+
+    For every keyframe `k` the loop detector described (`detector.database`) and
+    `reference` (``(K, 3)`` poses, NaN rows: none) covers: ``rows``, the database's
+    rows (its keys in order) of the eligible older keyframes with a reference pose;
+    ``true``, their reference distances to `k` [m]; ``near``, ``true <= radius``.
+    Yields ``(k, rows, true, near)`` when some row is near.
+    """
+    ref = np.asarray(reference, float)
+    db = detector.database
+    keys = np.array(db.keys, dtype=np.intp)
+    covered = np.isfinite(ref).all(axis=1)
+    for k in range(len(ref)):
+        if k not in db or not covered[k]:
+            continue
+        rows = np.flatnonzero(keys < k)
+        rows = rows[detector.eligible(k)[keys[rows]] & covered[keys[rows]]]
+        true = np.hypot(*(ref[keys[rows], :2] - ref[k, :2]).T)
+        near = true <= radius
+        if near.any():
+            yield k, rows, true, near
 
 def submap_overlap(
     query_points: ArrayLike, place_points: ArrayLike, query_pose: ArrayLike,
