@@ -12,12 +12,15 @@ from slam.pose_graph import PoseGraph
 LAP = 240  # poses per lap of the circle
 
 
-def _return_after_a_long_loose_lap() -> tuple[PoseGraph, int]:
+def loose_lap(
+    true_loops: range, false_loop: bool, bias: float = 0.0
+) -> tuple[PoseGraph, int | None]:
     """One and a half laps of a circle of radius 8 m, odometry exact but stated loosely
-    (0.1 m, 0.1 rad per step); the first return to the start is closed by 16 true loops
-    ``(k, LAP + k)`` and, three poses before the first of them, one false loop that says
-    pose ``LAP + 1`` is where pose ``LAP // 2`` is (the far side of the circle).  Returns
-    the graph and the false loop's index."""
+    (0.1 m, 0.1 rad per step); the return to the start is closed by the true loops
+    ``(k, LAP + k)`` for k in `true_loops` and, with `false_loop`, one false loop a block
+    before them that says pose ``LAP - 2`` is where pose 40 is.  `bias` [rad] is added to
+    every odometry turn (the chain drifts, so the return is not obeyed at its start).
+    Returns the graph and the false loop's index (None without it)."""
     n = LAP + LAP // 2
     step = 2 * np.pi / LAP
     radius = 8.0
@@ -27,14 +30,20 @@ def _return_after_a_long_loose_lap() -> tuple[PoseGraph, int]:
     for k in range(n):
         graph.add_pose(k, truth[k])
     graph.fixed.add(0)
-    odo = np.array([radius * np.sin(step), radius * (1 - np.cos(step)), step])
-    graph_info = np.diag([100.0, 100.0, 100.0])
+    odo = np.array([radius * np.sin(step), radius * (1 - np.cos(step)), step + bias])
     for k in range(1, n):
-        graph.add_odometry(k - 1, k, odo, graph_info)
+        graph.add_odometry(k - 1, k, odo, np.diag([100.0, 100.0, 100.0]))
     loop_info = np.diag([400.0, 400.0, 2500.0])
-    false = graph.add_loop(40, LAP - 2, np.zeros(3), loop_info)
-    for k in range(4, 36, 2):
+    false = graph.add_loop(40, LAP - 2, np.zeros(3), loop_info) if false_loop else None
+    for k in true_loops:
         graph.add_loop(k, LAP + k, np.zeros(3), loop_info)
+    return graph, false
+
+
+def _return_after_a_long_loose_lap() -> tuple[PoseGraph, int]:
+    """`loose_lap` closed by 16 true loops, the false one three poses before the first."""
+    graph, false = loose_lap(range(4, 36, 2), True)
+    assert false is not None
     return graph, false
 
 
