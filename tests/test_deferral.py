@@ -41,7 +41,7 @@ def loose_lap(
 
 
 def _return_after_a_long_loose_lap() -> tuple[PoseGraph, int]:
-    """`loose_lap` closed by 16 true loops, the false one three poses before the first."""
+    """`loose_lap` closed by 16 true loops and the false loop (40, LAP - 2) before them."""
     graph, false = loose_lap(range(4, 36, 2), True)
     assert false is not None
     return graph, false
