@@ -101,14 +101,15 @@ class GridTarget:
             and `anchor_band` (for a straight wall: the mean of those neighbours).
     """
 
-    __slots__ = ("_target", "anchor", "anchor_band", "anchor_radius", "anchors", "cell",
+    __slots__ = ("_pca", "_target", "anchor", "anchor_band", "anchor_radius", "anchors", "cell",
                  "config",
                  "input_points", "kind", "normals", "origin", "points", "shape", "start")
 
     def __init__(self, points: ArrayLike, config: IcpConfig | None = None,
                  cell: float = 0.25, *, anchor: str = "point", anchor_radius: float = 0.2,
                  anchor_band: float = np.inf,
-                 target: RegistrationTarget | None = None) -> None:
+                 target: RegistrationTarget | None = None,
+                 previous: GridTarget | None = None) -> None:
         if not (np.isfinite(cell) and cell > 0):
             raise UserError(f"grid cell must be a positive number of metres, got {cell}")
         if anchor not in ANCHORS:
@@ -131,6 +132,7 @@ class GridTarget:
             pts = np.zeros((1, 2))
         self.origin, self.shape, self.start, order = _cells(pts, self.cell)
         self.points = np.ascontiguousarray(pts[order], dtype=float)
+        self._pca: _Pca | None = None
         means = self.points
         if len(self.input_points) == 0:
             normals, usable, clutter = np.zeros((1, 2)), np.zeros(1, bool), np.zeros(1, bool)
@@ -138,7 +140,7 @@ class GridTarget:
             normals, usable, clutter = target.normals, target.usable, target.clutter
             normals, usable, clutter = normals[order], usable[order], clutter[order]
         else:
-            normals, usable, clutter, means = _grid_normals(self, self.config)
+            normals, usable, clutter, means = _grid_normals(self, self.config, previous)
         anchors = self.points  # the same array unless lines pass through the mean
         if anchor == "mean":
             anchors = self.points.copy()
@@ -168,12 +170,57 @@ class GridTarget:
         return int(np.count_nonzero(self.kind))
 
 
-def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array, Array]:
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Pca:
+    """Per-point output of `_normals_kernel` for a grid's points (sorted by cell), kept
+    so that the next grid of a changing map (`GridTarget` with ``previous``) can
+    copy the points whose neighbourhood did not change: normals ``(M, 2)``,
+    ``lambda_min / lambda_max`` ``(M,)``, neighbour counts ``(M,)`` and line anchors
+    ``(M, 2)`` [m], whether two neighbours tied in distance ``(M,)``, and the
+    parameters they were computed with."""
+
+    normals: Array
+    ratio: Array
+    count: NDArray[np.int64]
+    means: Array
+    tie: NDArray[np.bool_]
+    key: tuple[object, ...]
+
+
+def _grid_normals(grid: GridTarget, cfg: IcpConfig, previous: GridTarget | None
+                  ) -> tuple[Array, Array, Array, Array]:
+    """Normals, line-like and clutter masks and line anchors of the grid's points.
+
+    With `previous` (a grid of the same parameters, built from points), a point whose
+    normal neighbourhood is unchanged takes its figures from there: every point within
+    `normal_radius` of it (itself included) is in both maps at bit-identical
+    coordinates, so `_normals_kernel` would find the same neighbours, in the same
+    order of distance, and repeat the same arithmetic (`_reuse_kernel`).  Only the
+    other points are computed."""
     nx, ny = grid.shape
-    normals, ratio, count, means = _normals_kernel(
-        grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
-        grid.start, min(cfg.normal_neighbors, len(grid.points)), cfg.normal_radius,
-        grid.anchor_radius, grid.anchor_band)
+    n = len(grid.points)
+    k = min(cfg.normal_neighbors, n)
+    key = (cfg, grid.cell, k, grid.anchor_radius, grid.anchor_band)
+    normals = np.zeros((n, 2))
+    means = grid.points.copy()
+    ratio = np.full(n, np.inf)
+    count = np.zeros(n, dtype=np.int64)
+    tie = np.zeros(n, dtype=np.bool_)
+    old = previous._pca if previous is not None else None
+    if old is not None and old.key == key and previous is not None:
+        pnx, pny = previous.shape
+        which = _reuse_kernel(
+            grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
+            grid.start, previous.points, float(previous.origin[0]),
+            float(previous.origin[1]), pnx, pny, previous.start, cfg.normal_radius,
+            old.normals, old.ratio, old.count, old.means, old.tie, normals, ratio, count,
+            means)
+    else:
+        which = np.arange(n, dtype=np.int64)
+    _normals_kernel(grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell,
+                    nx, ny, grid.start, k, cfg.normal_radius, grid.anchor_radius,
+                    grid.anchor_band, which, normals, ratio, count, means, tie)
+    grid._pca = _Pca(normals, ratio, count, means, tie, key)
     enough = count >= cfg.min_normal_neighbors
     if len(grid.points) < cfg.min_normal_neighbors:
         enough[:] = False
@@ -182,24 +229,27 @@ def _grid_normals(grid: GridTarget, cfg: IcpConfig) -> tuple[Array, Array, Array
 
 
 @numba.njit(cache=True)
-def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, band):
-    """PCA normal, ``lambda_min / lambda_max`` and neighbour count of every point: its `k`
+def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, band, which,
+                    normals, ratio, count, means, tie):
+    """PCA normal, ``lambda_min / lambda_max`` and neighbour count of the points `which`
+    (indices into `pts`, written into `normals`, `ratio`, `count` and `means` in place;
+    the others untouched): its `k`
     nearest points (itself included) closer than `radius` (`loopclosure.registration`'s
     `estimate_normals`, the same equations), and the line anchor: the point moved along
     its normal by the mean normal offset ``n . (q - p)`` of those neighbours ``q``
     closer than `anchor_radius` whose offset is at most `band` (the other face of a
-    thin wall or a nearby object does not pull the line)."""
-    n = pts.shape[0]
+    thin wall or a nearby object does not pull the line).  Untouched entries of a
+    point without neighbours: normal 0, ratio inf, count 0, anchor the point.
+
+    `tie` is set where two of the neighbours kept (or the last kept and one dropped)
+    are exactly equidistant: which of them is kept, or the order of the sums, then
+    depends on the order the cells are visited in, not on the coordinates alone."""
     a2 = anchor_radius * anchor_radius
-    normals = np.zeros((n, 2))
-    means = pts.copy()
-    ratio = np.full(n, np.inf)
-    count = np.zeros(n, dtype=np.int64)
     rings = int(np.ceil(radius / cell))
     r2 = radius * radius
     bd = np.empty(k)
     bi = np.empty(k, dtype=np.int64)
-    for p in range(n):
+    for p in which:
         px, py = pts[p, 0], pts[p, 1]
         ci = int(np.floor((px - ox) / cell))
         cj = int(np.floor((py - oy) / cell))
@@ -219,11 +269,15 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, 
                     elif d2 < bd[k - 1]:
                         pos = k - 1
                     else:
+                        if d2 == bd[k - 1]:
+                            tie[p] = True
                         continue
                     while pos > 0 and bd[pos - 1] > d2:
                         bd[pos] = bd[pos - 1]
                         bi[pos] = bi[pos - 1]
                         pos -= 1
+                    if pos > 0 and bd[pos - 1] == d2:
+                        tie[p] = True
                     bd[pos] = d2
                     bi[pos] = q
         count[p] = m
@@ -268,7 +322,92 @@ def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, 
             means[p, 0] = px + n0 * off / na
             means[p, 1] = py + n1 * off / na
         ratio[p] = max(lmin, 0.0) / lmax if lmax > 0 else 1.0
-    return normals, ratio, count, means
+
+
+@numba.njit(cache=True)
+def _cell_of(px, py, ox, oy, cell, nx, ny):
+    """Flat index of the grid cell holding ``(px, py)`` (-1 outside the grid)."""
+    ci = int(np.floor((px - ox) / cell))
+    cj = int(np.floor((py - oy) / cell))
+    if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+        return -1
+    return ci * ny + cj
+
+
+@numba.njit(cache=True)
+def _mark_near(px, py, pts, ox, oy, cell, nx, ny, start, reach, dirty):
+    """Mark `dirty` every grid point closer than `reach` to ``(px, py)``."""
+    rings = int(np.ceil(reach / cell))
+    ci = int(np.floor((px - ox) / cell))
+    cj = int(np.floor((py - oy) / cell))
+    r2 = reach * reach
+    for i in range(max(ci - rings, 0), min(ci + rings, nx - 1) + 1):
+        for j in range(max(cj - rings, 0), min(cj + rings, ny - 1) + 1):
+            c = i * ny + j
+            for q in range(start[c], start[c + 1]):
+                dx = pts[q, 0] - px
+                dy = pts[q, 1] - py
+                if dx * dx + dy * dy < r2:
+                    dirty[q] = True
+
+
+@numba.njit(cache=True)
+def _reuse_kernel(pts, ox, oy, cell, nx, ny, start, old, pox, poy, pnx, pny, pstart, radius,
+                  old_normals, old_ratio, old_count, old_means, old_tie, normals, ratio, count,
+                  means):
+    """Copy the normal figures of the unchanged points of a previous grid (same cell
+    side): returns the indices of the points of `pts` that need `_normals_kernel`.
+
+    A point of `pts` is matched to a point of `old` at bit-identical coordinates
+    (looked up in its cell of the previous grid).  The changed points are the
+    unmatched ones of either map; a point is clean when it is matched and no changed
+    point lies closer than `radius` (a hair more: rounding only makes more points
+    dirty) -- its neighbourhood within `radius` is then the same set of coordinates
+    in both maps.  Clean points get the previous figures, except where two
+    neighbours tied in distance (`_normals_kernel`): their order of visit may differ
+    in the new grid, so they are computed again."""
+    n = pts.shape[0]
+    match = np.full(n, -1, dtype=np.int64)
+    used = np.zeros(old.shape[0], dtype=np.bool_)
+    for p in range(n):
+        c = _cell_of(pts[p, 0], pts[p, 1], pox, poy, cell, pnx, pny)
+        if c < 0:
+            continue
+        for q in range(pstart[c], pstart[c + 1]):
+            if old[q, 0] == pts[p, 0] and old[q, 1] == pts[p, 1]:
+                match[p] = q
+                used[q] = True
+                break
+    reach = radius * (1.0 + 1e-9) + 1e-12
+    dirty = np.zeros(n, dtype=np.bool_)
+    for p in range(n):
+        if match[p] < 0:
+            dirty[p] = True
+            _mark_near(pts[p, 0], pts[p, 1], pts, ox, oy, cell, nx, ny, start, reach, dirty)
+    for q in range(old.shape[0]):
+        if not used[q]:
+            _mark_near(old[q, 0], old[q, 1], pts, ox, oy, cell, nx, ny, start, reach, dirty)
+    todo = 0
+    for p in range(n):
+        if not dirty[p] and old_tie[match[p]]:
+            dirty[p] = True
+        if dirty[p]:
+            todo += 1
+            continue
+        q = match[p]
+        normals[p, 0] = old_normals[q, 0]
+        normals[p, 1] = old_normals[q, 1]
+        ratio[p] = old_ratio[q]
+        count[p] = old_count[q]
+        means[p, 0] = old_means[q, 0]
+        means[p, 1] = old_means[q, 1]
+    which = np.empty(todo, dtype=np.int64)
+    t = 0
+    for p in range(n):
+        if dirty[p]:
+            which[t] = p
+            t += 1
+    return which
 
 
 def _cells(pts: Array, cell: float) -> tuple[Array, tuple[int, int], Array, Array]:
@@ -303,9 +442,11 @@ def estimate_normals_fast(points: ArrayLike, config: IcpConfig
     origin, (nx, ny), start, order = _cells(pts, cell)
     sorted_pts = np.ascontiguousarray(pts[order])
     k = min(config.normal_neighbors, n)
-    normals_s, ratio_s, count_s, _ = _normals_kernel(
-        sorted_pts, float(origin[0]), float(origin[1]), cell, nx, ny, start, k,
-        config.normal_radius, 0.0, np.inf)
+    normals_s, ratio_s = np.zeros((n, 2)), np.full(n, np.inf)
+    count_s = np.zeros(n, dtype=np.int64)
+    _normals_kernel(sorted_pts, float(origin[0]), float(origin[1]), cell, nx, ny, start, k,
+                    config.normal_radius, 0.0, np.inf, np.arange(n, dtype=np.int64),
+                    normals_s, ratio_s, count_s, sorted_pts.copy(), np.zeros(n, dtype=np.bool_))
     normals = np.empty_like(normals_s)
     normals[order] = normals_s
     ratio = np.empty(n)

@@ -503,7 +503,8 @@ class Icp2dOdometry:
         if cfg.compiled:
             self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
                                          anchor_radius=cfg.line_anchor_radius,
-                                         anchor_band=cfg.line_anchor_band)
+                                         anchor_band=cfg.line_anchor_band,
+                                         previous=self._grid)
         else:
             target = RegistrationTarget(pts[near], cfg.icp)
             self._grid = (fast.GridTarget.from_target(target) if target.tree is not None
