@@ -26,14 +26,9 @@ of ``p``'s cell and keeps the nearest point with ``|p - q| <= d`` (inclusive, as
 `cKDTree.query` with ``distance_upper_bound``), exact for any gate.  Ties between
 equidistant points may resolve differently from the KD-tree.
 
-Map normals (`GridTarget` from points): the same local PCA as
-`loopclosure.registration.estimate_normals` (the `normal_neighbors` nearest points
-closer than `normal_radius`, itself included; normal ``(-sin phi, cos phi)`` with
-``phi = atan2(2 b, a - c) / 2`` of the neighbours' covariance ``[[a, b], [b, c]]``;
-line-like when ``lambda_min <= max_normal_ratio * lambda_max`` and at least
-`min_normal_neighbors` neighbours, clutter when enough neighbours but not
-line-like), with the k nearest found in the grid; `estimate_normals_fast` gives the
-same for a `RegistrationTarget` (its injected normal estimator).  `overlap_screen`
+Map points, normals and kinds: `loopclosure.grid_target` (`GridTarget`, re-exported
+here, with `estimate_normals_fast`); a lazy grid's points get their normal the first
+time `_match` or the overlap screen meets them.  `overlap_screen`
 scores guesses before ICP (the overlap score and the overlap bound of the
 pose-gated check, one pass).  `voxel_downsample_fast` is
 `loopclosure.registration.voxel_downsample` (centroid per cell, order of first
@@ -50,9 +45,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
+from loopclosure.grid_target import (
+    ANCHORS,
+    KIND_CLUTTER,
+    KIND_LINE,
+    KIND_NONE,
+    KIND_UNKNOWN,
+    GridTarget,
+    _normals_kernel,  # noqa: F401  (the warm-up's list of kernels names it here)
+    estimate_normals_fast,
+    resolve_point,
+)
 from loopclosure.registration import (
     KERNEL_CONSTANTS,
-    LINE_ANCHORS,
     IcpConfig,
     IcpResult,
     RegistrationTarget,
@@ -62,397 +67,8 @@ from loopclosure.registration import (
 
 Array = NDArray[np.float64]
 
-#: Point kinds of `GridTarget.kind`: no correspondence, point to line, point to point.
-KIND_NONE, KIND_LINE, KIND_CLUTTER = 0, 1, 2
-#: Where the line of a line-like map point passes: through the point itself (a voxel
-#: centroid), or through the mean of the neighbours that gave its normal, which
-#: averages their noise (``k`` points: the line's offset noise shrinks by ``sqrt(k)``).
-ANCHORS: tuple[str, ...] = LINE_ANCHORS
 _KERNELS = {"none": 0, "cauchy": 1, "huber": 2, "tukey": 3}
 _MAD = 1.4826
-
-
-class GridTarget:
-    """Map points, normals and kinds in a cell grid for `register_fast`.
-
-    Built from points (normals by `estimate_normals_fast`) or from a prepared
-    `RegistrationTarget` (`from_target`: its normals, the numpy reference's).
-
-    Attributes:
-        config: the `IcpConfig` of the normals (and the default of `register_fast`).
-        input_points: ``(M, 2)`` the points in the given order [m] (target frame).
-        cell: side of the grid cells [m].
-        origin: ``(2,)`` lower-left corner of cell ``(0, 0)`` [m] (target frame).
-        shape: ``(nx, ny)`` cells.
-        start: ``(nx * ny + 1,)`` offsets: the points of cell ``(i, j)`` are rows
-            ``start[i * ny + j] : start[i * ny + j + 1]`` of `points`.
-        points, normals: ``(M, 2)`` sorted by cell [m].
-        kind: ``(M,)`` `KIND_NONE`, `KIND_LINE` or `KIND_CLUTTER` (clutter counts
-            only with `IcpConfig.point_to_point_clutter`).
-        anchor: ``"point"`` or ``"mean"`` (`ANCHORS`).
-        anchor_radius: with ``"mean"``, only the normal neighbours closer than this
-            to the point enter the mean [m] (a short stretch of wall: little bias
-            where the wall curves or the map is sparse).
-        anchor_band: with ``"mean"``, only neighbours whose offset along the normal
-            is at most this enter it [m] (inf: all).
-        anchors: ``(M, 2)`` the point each line-like point's line passes through:
-            the point itself, or with ``"mean"`` the point moved along its normal by
-            the mean normal offset of its normal neighbours within `anchor_radius`
-            and `anchor_band` (for a straight wall: the mean of those neighbours).
-    """
-
-    __slots__ = ("_pca", "_target", "anchor", "anchor_band", "anchor_radius", "anchors", "cell",
-                 "config",
-                 "input_points", "kind", "normals", "origin", "points", "shape", "start")
-
-    def __init__(self, points: ArrayLike, config: IcpConfig | None = None,
-                 cell: float = 0.25, *, anchor: str = "point", anchor_radius: float = 0.2,
-                 anchor_band: float = np.inf,
-                 target: RegistrationTarget | None = None,
-                 previous: GridTarget | None = None) -> None:
-        if not (np.isfinite(cell) and cell > 0):
-            raise UserError(f"grid cell must be a positive number of metres, got {cell}")
-        if anchor not in ANCHORS:
-            raise UserError(f"unknown line anchor {anchor!r}: choose one of {', '.join(ANCHORS)}")
-        if anchor != "point" and target is not None:
-            raise UserError("a grid made from a RegistrationTarget anchors lines at its points")
-        if not anchor_radius > 0:
-            raise UserError(f"line anchor radius must be positive, got {anchor_radius}")
-        if not anchor_band > 0:
-            raise UserError(f"line anchor band must be positive, got {anchor_band}")
-        self.anchor = anchor
-        self.anchor_radius = float(anchor_radius)
-        self.anchor_band = float(anchor_band)
-        self.config = config or (target.config if target is not None else IcpConfig())
-        self.cell = float(cell)
-        self._target = target
-        pts = np.ascontiguousarray(as_points(points, "target points"))
-        self.input_points = pts
-        if len(pts) == 0:
-            pts = np.zeros((1, 2))
-        self.origin, self.shape, self.start, order = _cells(pts, self.cell)
-        self.points = np.ascontiguousarray(pts[order], dtype=float)
-        self._pca: _Pca | None = None
-        means = self.points
-        if len(self.input_points) == 0:
-            normals, usable, clutter = np.zeros((1, 2)), np.zeros(1, bool), np.zeros(1, bool)
-        elif target is not None:
-            normals, usable, clutter = target.normals, target.usable, target.clutter
-            normals, usable, clutter = normals[order], usable[order], clutter[order]
-        else:
-            normals, usable, clutter, means = _grid_normals(self, self.config, previous)
-        anchors = self.points  # the same array unless lines pass through the mean
-        if anchor == "mean":
-            anchors = self.points.copy()
-            anchors[usable] = means[usable]
-        self.anchors = np.ascontiguousarray(anchors)
-        kind = np.zeros(len(self.points), dtype=np.int8)
-        if self.config.point_to_point_clutter:
-            kind[clutter] = KIND_CLUTTER
-        kind[usable] = KIND_LINE
-        self.normals = np.ascontiguousarray(normals, dtype=float)
-        self.kind = kind
-
-    @classmethod
-    def from_target(cls, target: RegistrationTarget, cell: float = 0.25) -> GridTarget:
-        """The grid of a prepared `RegistrationTarget`, with its normals."""
-        return cls(target.points, target.config, cell, target=target)
-
-    @property
-    def target(self) -> RegistrationTarget:
-        """The numpy `RegistrationTarget` of the same points (built on first use)."""
-        if self._target is None:
-            self._target = RegistrationTarget(self.input_points, self.config)
-        return self._target
-
-    def __len__(self) -> int:
-        """Number of points ICP can match."""
-        return int(np.count_nonzero(self.kind))
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class _Pca:
-    """Per-point output of `_normals_kernel` for a grid's points (sorted by cell), kept
-    so that the next grid of a changing map (`GridTarget` with ``previous``) can
-    copy the points whose neighbourhood did not change: normals ``(M, 2)``,
-    ``lambda_min / lambda_max`` ``(M,)``, neighbour counts ``(M,)`` and line anchors
-    ``(M, 2)`` [m], whether two neighbours tied in distance ``(M,)``, and the
-    parameters they were computed with."""
-
-    normals: Array
-    ratio: Array
-    count: NDArray[np.int64]
-    means: Array
-    tie: NDArray[np.bool_]
-    key: tuple[object, ...]
-
-
-def _grid_normals(grid: GridTarget, cfg: IcpConfig, previous: GridTarget | None
-                  ) -> tuple[Array, Array, Array, Array]:
-    """Normals, line-like and clutter masks and line anchors of the grid's points.
-
-    With `previous` (a grid of the same parameters, built from points), a point whose
-    normal neighbourhood is unchanged takes its figures from there: every point within
-    `normal_radius` of it (itself included) is in both maps at bit-identical
-    coordinates, so `_normals_kernel` would find the same neighbours, in the same
-    order of distance, and repeat the same arithmetic (`_reuse_kernel`).  Only the
-    other points are computed."""
-    nx, ny = grid.shape
-    n = len(grid.points)
-    k = min(cfg.normal_neighbors, n)
-    key = (cfg, grid.cell, k, grid.anchor_radius, grid.anchor_band)
-    normals = np.zeros((n, 2))
-    means = grid.points.copy()
-    ratio = np.full(n, np.inf)
-    count = np.zeros(n, dtype=np.int64)
-    tie = np.zeros(n, dtype=np.bool_)
-    old = previous._pca if previous is not None else None
-    if old is not None and old.key == key and previous is not None:
-        pnx, pny = previous.shape
-        which = _reuse_kernel(
-            grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell, nx, ny,
-            grid.start, previous.points, float(previous.origin[0]),
-            float(previous.origin[1]), pnx, pny, previous.start, cfg.normal_radius,
-            old.normals, old.ratio, old.count, old.means, old.tie, normals, ratio, count,
-            means)
-    else:
-        which = np.arange(n, dtype=np.int64)
-    _normals_kernel(grid.points, float(grid.origin[0]), float(grid.origin[1]), grid.cell,
-                    nx, ny, grid.start, k, cfg.normal_radius, grid.anchor_radius,
-                    grid.anchor_band, which, normals, ratio, count, means, tie)
-    grid._pca = _Pca(normals, ratio, count, means, tie, key)
-    enough = count >= cfg.min_normal_neighbors
-    if len(grid.points) < cfg.min_normal_neighbors:
-        enough[:] = False
-    line = enough & (ratio <= cfg.max_normal_ratio)
-    return normals, line, enough & ~line, means
-
-
-@numba.njit(cache=True)
-def _normals_kernel(pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, band, which,
-                    normals, ratio, count, means, tie):
-    """PCA normal, ``lambda_min / lambda_max`` and neighbour count of the points `which`
-    (indices into `pts`, written into `normals`, `ratio`, `count` and `means` in place;
-    the others untouched): its `k`
-    nearest points (itself included) closer than `radius` (`loopclosure.registration`'s
-    `estimate_normals`, the same equations), and the line anchor: the point moved along
-    its normal by the mean normal offset ``n . (q - p)`` of those neighbours ``q``
-    closer than `anchor_radius` whose offset is at most `band` (the other face of a
-    thin wall or a nearby object does not pull the line).  Untouched entries of a
-    point without neighbours: normal 0, ratio inf, count 0, anchor the point.
-
-    `tie` is set where two of the neighbours kept (or the last kept and one dropped)
-    are exactly equidistant: which of them is kept, or the order of the sums, then
-    depends on the order the cells are visited in, not on the coordinates alone."""
-    a2 = anchor_radius * anchor_radius
-    rings = int(np.ceil(radius / cell))
-    r2 = radius * radius
-    bd = np.empty(k)
-    bi = np.empty(k, dtype=np.int64)
-    for p in which:
-        px, py = pts[p, 0], pts[p, 1]
-        ci = int(np.floor((px - ox) / cell))
-        cj = int(np.floor((py - oy) / cell))
-        m = 0
-        for i in range(max(ci - rings, 0), min(ci + rings, nx - 1) + 1):
-            for j in range(max(cj - rings, 0), min(cj + rings, ny - 1) + 1):
-                c = i * ny + j
-                for q in range(start[c], start[c + 1]):
-                    dx = pts[q, 0] - px
-                    dy = pts[q, 1] - py
-                    d2 = dx * dx + dy * dy
-                    if d2 >= r2:
-                        continue
-                    if m < k:
-                        pos = m
-                        m += 1
-                    elif d2 < bd[k - 1]:
-                        pos = k - 1
-                    else:
-                        if d2 == bd[k - 1]:
-                            tie[p] = True
-                        continue
-                    while pos > 0 and bd[pos - 1] > d2:
-                        bd[pos] = bd[pos - 1]
-                        bi[pos] = bi[pos - 1]
-                        pos -= 1
-                    if pos > 0 and bd[pos - 1] == d2:
-                        tie[p] = True
-                    bd[pos] = d2
-                    bi[pos] = q
-        count[p] = m
-        if m == 0:
-            continue
-        mx = 0.0
-        my = 0.0
-        for t in range(m):
-            mx += pts[bi[t], 0]
-            my += pts[bi[t], 1]
-        mx /= m
-        my /= m
-        a = 0.0
-        b = 0.0
-        cc = 0.0
-        for t in range(m):
-            ex = pts[bi[t], 0] - mx
-            ey = pts[bi[t], 1] - my
-            a += ex * ex
-            b += ex * ey
-            cc += ey * ey
-        a /= m
-        b /= m
-        cc /= m
-        half = 0.5 * (a - cc)
-        root = np.sqrt(half * half + b * b)
-        lmax = 0.5 * (a + cc) + root
-        lmin = 0.5 * (a + cc) - root
-        phi = 0.5 * np.arctan2(2.0 * b, a - cc)
-        n0, n1 = -np.sin(phi), np.cos(phi)
-        normals[p, 0] = n0
-        normals[p, 1] = n1
-        off = 0.0
-        na = 0
-        for t in range(m):
-            if bd[t] < a2:
-                o = n0 * (pts[bi[t], 0] - px) + n1 * (pts[bi[t], 1] - py)
-                if abs(o) <= band:
-                    off += o
-                    na += 1
-        if na > 0:
-            means[p, 0] = px + n0 * off / na
-            means[p, 1] = py + n1 * off / na
-        ratio[p] = max(lmin, 0.0) / lmax if lmax > 0 else 1.0
-
-
-@numba.njit(cache=True)
-def _cell_of(px, py, ox, oy, cell, nx, ny):
-    """Flat index of the grid cell holding ``(px, py)`` (-1 outside the grid)."""
-    ci = int(np.floor((px - ox) / cell))
-    cj = int(np.floor((py - oy) / cell))
-    if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
-        return -1
-    return ci * ny + cj
-
-
-@numba.njit(cache=True)
-def _mark_near(px, py, pts, ox, oy, cell, nx, ny, start, reach, dirty):
-    """Mark `dirty` every grid point closer than `reach` to ``(px, py)``."""
-    rings = int(np.ceil(reach / cell))
-    ci = int(np.floor((px - ox) / cell))
-    cj = int(np.floor((py - oy) / cell))
-    r2 = reach * reach
-    for i in range(max(ci - rings, 0), min(ci + rings, nx - 1) + 1):
-        for j in range(max(cj - rings, 0), min(cj + rings, ny - 1) + 1):
-            c = i * ny + j
-            for q in range(start[c], start[c + 1]):
-                dx = pts[q, 0] - px
-                dy = pts[q, 1] - py
-                if dx * dx + dy * dy < r2:
-                    dirty[q] = True
-
-
-@numba.njit(cache=True)
-def _reuse_kernel(pts, ox, oy, cell, nx, ny, start, old, pox, poy, pnx, pny, pstart, radius,
-                  old_normals, old_ratio, old_count, old_means, old_tie, normals, ratio, count,
-                  means):
-    """Copy the normal figures of the unchanged points of a previous grid (same cell
-    side): returns the indices of the points of `pts` that need `_normals_kernel`.
-
-    A point of `pts` is matched to a point of `old` at bit-identical coordinates
-    (looked up in its cell of the previous grid).  The changed points are the
-    unmatched ones of either map; a point is clean when it is matched and no changed
-    point lies closer than `radius` (a hair more: rounding only makes more points
-    dirty) -- its neighbourhood within `radius` is then the same set of coordinates
-    in both maps.  Clean points get the previous figures, except where two
-    neighbours tied in distance (`_normals_kernel`): their order of visit may differ
-    in the new grid, so they are computed again."""
-    n = pts.shape[0]
-    match = np.full(n, -1, dtype=np.int64)
-    used = np.zeros(old.shape[0], dtype=np.bool_)
-    for p in range(n):
-        c = _cell_of(pts[p, 0], pts[p, 1], pox, poy, cell, pnx, pny)
-        if c < 0:
-            continue
-        for q in range(pstart[c], pstart[c + 1]):
-            if old[q, 0] == pts[p, 0] and old[q, 1] == pts[p, 1]:
-                match[p] = q
-                used[q] = True
-                break
-    reach = radius * (1.0 + 1e-9) + 1e-12
-    dirty = np.zeros(n, dtype=np.bool_)
-    for p in range(n):
-        if match[p] < 0:
-            dirty[p] = True
-            _mark_near(pts[p, 0], pts[p, 1], pts, ox, oy, cell, nx, ny, start, reach, dirty)
-    for q in range(old.shape[0]):
-        if not used[q]:
-            _mark_near(old[q, 0], old[q, 1], pts, ox, oy, cell, nx, ny, start, reach, dirty)
-    todo = 0
-    for p in range(n):
-        if not dirty[p] and old_tie[match[p]]:
-            dirty[p] = True
-        if dirty[p]:
-            todo += 1
-            continue
-        q = match[p]
-        normals[p, 0] = old_normals[q, 0]
-        normals[p, 1] = old_normals[q, 1]
-        ratio[p] = old_ratio[q]
-        count[p] = old_count[q]
-        means[p, 0] = old_means[q, 0]
-        means[p, 1] = old_means[q, 1]
-    which = np.empty(todo, dtype=np.int64)
-    t = 0
-    for p in range(n):
-        if dirty[p]:
-            which[t] = p
-            t += 1
-    return which
-
-
-def _cells(pts: Array, cell: float) -> tuple[Array, tuple[int, int], Array, Array]:
-    """CSR cell layout of `pts` (`GridTarget`): origin, shape ``(nx, ny)``, start
-    offsets and the stable order that sorts the points by cell."""
-    lo = pts.min(axis=0) - cell
-    cells = np.floor((pts - lo) / cell).astype(np.int64)
-    nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
-    flat = cells[:, 0] * ny + cells[:, 1]
-    order = np.argsort(flat, kind="stable")
-    counts = np.bincount(flat, minlength=nx * ny)
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return lo.astype(float), (nx, ny), start, order
-
-
-def estimate_normals_fast(points: ArrayLike, config: IcpConfig
-                          ) -> tuple[Array, NDArray[np.bool_], Array]:
-    """`loopclosure.registration.estimate_normals`, compiled (a
-    `loopclosure.registration.NormalsFn`): unit normals ``(M, 2)``, the line-like
-    mask ``(M,)`` and ``lambda_min / lambda_max`` (inf with fewer than
-    `min_normal_neighbors` neighbours) of `points` ``(M, 2)`` [m], in their order.
-
-    The same local PCA (`_normals_kernel`: the `normal_neighbors` nearest points
-    closer than `normal_radius`, itself included; the module docstring's
-    equations), the neighbours found ring by ring in cells of side `normal_radius`
-    instead of by a KD-tree.  Points sorted into cells, results put back in order."""
-    pts = np.ascontiguousarray(as_points(points, "target points"))
-    n = len(pts)
-    if n < config.min_normal_neighbors:
-        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.full(n, np.inf)
-    cell = float(config.normal_radius)
-    origin, (nx, ny), start, order = _cells(pts, cell)
-    sorted_pts = np.ascontiguousarray(pts[order])
-    k = min(config.normal_neighbors, n)
-    normals_s, ratio_s = np.zeros((n, 2)), np.full(n, np.inf)
-    count_s = np.zeros(n, dtype=np.int64)
-    _normals_kernel(sorted_pts, float(origin[0]), float(origin[1]), cell, nx, ny, start, k,
-                    config.normal_radius, 0.0, np.inf, np.arange(n, dtype=np.int64),
-                    normals_s, ratio_s, count_s, sorted_pts.copy(), np.zeros(n, dtype=np.bool_))
-    normals = np.empty_like(normals_s)
-    normals[order] = normals_s
-    ratio = np.empty(n)
-    ratio[order] = np.where(count_s >= config.min_normal_neighbors, ratio_s, np.inf)
-    line_like = ratio <= config.max_normal_ratio
-    return normals, line_like, ratio
 
 
 def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
@@ -548,9 +164,11 @@ def _upper_median_abs(values, n):
 
 
 @numba.njit(cache=True)
-def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist):
+def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist, params,
+           normals, anchors):
     """Rows of the correspondences at pose `x`: point-to-line rows first, then the x rows
-    and the y rows of the point-to-point matches.  Returns (rows, lines, points)."""
+    and the y rows of the point-to-point matches.  Returns (rows, lines, points).  A
+    nearest point of unknown kind (a lazy grid) is resolved first (`resolve_point`)."""
     n = src.shape[0]
     c, s = np.cos(x[2]), np.sin(x[2])
     lines = 0
@@ -564,6 +182,8 @@ def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist)
         j, d = _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts)
         if j < 0:
             continue
+        if kind[j] < 0:
+            resolve_point(j, pts, ox, oy, cell, nx, ny, start, params, normals, anchors, kind)
         if kind[j] == 1:
             sel[lines] = i
             jdx[lines] = j
@@ -678,8 +298,8 @@ def _wrap(a):
 
 
 @numba.njit(cache=True)
-def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam, x_prior,
-         has_prior,
+def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, params, lam,
+         x_prior, has_prior,
          max_iterations, gate0, min_gate, gate_sigmas, kernel, kconst, min_scale, clutter_weight,
          t_tol, r_tol, min_corr, joins, join_t, join_r):
     """Gauss-Newton ICP; returns (x, iterations, converged, ok, gate, rows, lines, points,
@@ -703,7 +323,7 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam,
     for it in range(1, max_iterations + 1):
         iterations = it
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
-                                     sel, jdx, dist)
+                                     sel, jdx, dist, params, normals, anchors)
         if points < min_corr:
             return x0.copy(), iterations, False, False, gate, rows, lines, points, sel, jdx, -1
         _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm)
@@ -739,7 +359,7 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, lam,
                 return x, iterations, False, True, gate, rows, lines, points, sel, jdx, m
     if not converged:
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
-                                     sel, jdx, dist)
+                                     sel, jdx, dist, params, normals, anchors)
     return x, iterations, converged, True, gate, rows, lines, points, sel, jdx, -1
 
 
@@ -819,15 +439,15 @@ def _register_grid(
         x_prior = np.asarray(prior, dtype=float).reshape(3).copy()
         prior_cov = np.asarray(prior_covariance, dtype=float).reshape(3, 3)
         lam = np.linalg.inv(prior_cov)
-    if len(target) == 0 or len(src) < cfg.min_correspondences:
+    if len(src) < cfg.min_correspondences or not target.matchable():
         return _failed(x0, 0, 0, prior_cov)
     kernel, kconst = _KERNELS[cfg.kernel], KERNEL_CONSTANTS[cfg.kernel]
     nx, ny = target.shape
     grid = (float(target.origin[0]), float(target.origin[1]), target.cell, nx, ny,
             target.start, target.points)
     x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx, joined = _icp(
-        src, x0, *grid, target.anchors, target.normals, target.kind, lam, x_prior,
-        prior is not None,
+        src, x0, *grid, target.anchors, target.normals, target.kind, target.params, lam,
+        x_prior, prior is not None,
         cfg.max_iterations, cfg.max_correspondence_distance, cfg.min_correspondence_distance,
         cfg.gate_sigmas, kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight,
         cfg.translation_tolerance, cfg.rotation_tolerance, cfg.min_correspondences,
@@ -910,7 +530,7 @@ def overlap_bound(source: ArrayLike, grid: GridTarget, guesses: ArrayLike,
 
 @numba.njit(cache=True)
 def _screen_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start, pts, kind,
-                   scores, bounds):
+                   params, normals, anchors, scores, bounds):
     n = src.shape[0]
     radius = max(gate, reach)
     for g in range(guesses.shape[0]):
@@ -925,6 +545,9 @@ def _screen_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start, pts, 
                 continue
             if d <= reach:
                 hits += 1
+            if d < gate and kind[j] < 0:
+                resolve_point(j, pts, ox, oy, cell, nx, ny, start, params, normals, anchors,
+                              kind)
             if d < gate and kind[j] != KIND_NONE:
                 u = d / gate
                 score += 1.0 - u * u
@@ -953,7 +576,7 @@ def overlap_screen(source: ArrayLike, grid: GridTarget, guesses: ArrayLike, gate
     nx, ny = grid.shape
     _screen_kernel(src, g, float(gate), float(reach), float(grid.origin[0]),
                    float(grid.origin[1]), grid.cell, nx, ny, grid.start, grid.points,
-                   grid.kind, scores, bounds)
+                   grid.kind, grid.params, grid.normals, grid.anchors, scores, bounds)
     return scores, bounds
 
 
@@ -995,6 +618,6 @@ def register_target(source: ArrayLike, target: RegistrationTarget | None,
 
 
 __all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE",
-           "KIND_NONE", "TARGET_GRID_CELL", "GridTarget", "estimate_normals_fast",
+           "KIND_NONE", "KIND_UNKNOWN", "TARGET_GRID_CELL", "GridTarget", "estimate_normals_fast",
            "overlap_bound", "overlap_screen", "register_fast", "register_target",
            "voxel_downsample_fast"]

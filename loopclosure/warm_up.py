@@ -62,6 +62,8 @@ def warm_up() -> None:
     # Front end and geometric check: voxel grid, grid normals, ICP and its figures.
     target = fast_icp.GridTarget(fast_icp.voxel_downsample_fast(points[0], 0.05))
     fast_icp.register_fast(points[1], target, (0.2, 0.1, 0.0))
+    lazy = fast_icp.GridTarget(fast_icp.voxel_downsample_fast(points[0], 0.05), lazy=True)
+    fast_icp.register_fast(points[1], lazy, (0.2, 0.1, 0.0))
     # The loop detector's targets (compiled normals) and the pose-gated check: both
     # screens in one pass, then multi-start ICP with joined runs on the candidate's grid.
     check = RegistrationTarget(points[0], normals=fast_icp.estimate_normals_fast)

@@ -503,13 +503,12 @@ class Icp2dOdometry:
         if cfg.compiled:
             self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
                                          anchor_radius=cfg.line_anchor_radius,
-                                         anchor_band=cfg.line_anchor_band,
-                                         previous=self._grid)
+                                         anchor_band=cfg.line_anchor_band, lazy=True)
         else:
             target = RegistrationTarget(pts[near], cfg.icp)
             self._grid = (fast.GridTarget.from_target(target) if target.tree is not None
                           else None)
-        if self._grid is not None and len(self._grid) == 0:
+        if self._grid is not None and not self._grid.matchable():
             self._grid = None
         self.map_rebuilds += 1
 
