@@ -9,8 +9,12 @@ clutter (vegetation, furniture) matched point to point (the maths of
 keyframes, in the odometry frame, merged and voxel-downsampled to `map_voxel`,
 cropped to `map_radius` around the newest keyframe.  A scan becomes a map keyframe
 when the pose has moved `keyframe_distance` or turned `keyframe_rotation` since the
-last one; only then is the map (normals and cell grid, `fast_icp.GridTarget`)
-rebuilt, so most scans cost one ICP and nothing else.
+last one; only then is the map's cell grid (`fast_icp.GridTarget`) rebuilt.  Its
+normals are lazy (`loopclosure.grid_target`): a map point's normal is computed
+the first time ICP or the search meets it as a nearest neighbour, the same figures
+as computing all of them, for the part of the map the scans touch.  Where scans
+lie farther apart than `keyframe_distance` (logs with a scan per metre), nearly every
+scan is a keyframe and this is what keeps the rebuild cheap.
 
 Prediction (initial guess and prior of ICP)
 -------------------------------------------
