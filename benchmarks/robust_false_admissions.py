@@ -4,7 +4,7 @@ Run from the repository root::
 
     python benchmarks/robust_false_admissions.py input_M3500a_g2o.g2o [--data DIR]
         [--scale 1] [--policy random] [--ratio 50] [--seed 0] [--rung 10]
-        [--defer off|bounded|all] [--show 8]
+        [--defer off|bounded|all] [--undo] [--show 8] [--cache DIR]
 
 One `slam.admission.AdmissionPass` (stated gate, batch prefix solves) on the corrupted
 graph with its odometry information multiplied by `--rung` (one rung of
@@ -17,12 +17,15 @@ it (the accepted prefix's error with it less the error re-solved without it, gts
 units; the TLS rule keeps a loop whose cost is below ``c``), its own factor error at the
 prefix solution, and the largest move [m] of every 25th pose between the two solutions
 (how far it bent the map).  Then the pass's totals: false loops admitted, true loops
-rejected.
+rejected.  `--undo`: the pass tests its undo hypotheses
+(`slam.admission.AdmissionPass._undo`); `--cache`: a folder keeping the clean optimum
+between runs, as in `benchmarks/robust_undo.py`.
 """
 
 from __future__ import annotations
 
 import argparse
+import pickle
 import sys
 from pathlib import Path
 
@@ -49,15 +52,24 @@ def main() -> None:
     parser.add_argument("--rung", type=float, default=10.0)
     parser.add_argument("--defer", choices=("off", "bounded", "all"), default="off")
     parser.add_argument("--show", type=int, default=8)
+    parser.add_argument("--undo", action="store_true")
+    parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
+    cached = args.cache / f"{args.graph}-x{args.scale:g}.pkl" if args.cache else None
+    known = (pickle.loads(cached.read_bytes()) if cached is not None and cached.exists()
+             else None)
     graph, reference, corrupted, false = corrupted_graph(
         str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
-        args.seed)
+        args.seed, reference=known)
+    if cached is not None and known is None:
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        cached.write_bytes(pickle.dumps(reference))
     values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
     decide = corrupted if args.rung == 1.0 else _odometry_scaled(corrupted, args.rung)
     run = admission.AdmissionPass(decide, values, prefix_solver="batch",
                                   defer=args.defer != "off",
-                                  wait=BOUNDED_WAIT if args.defer == "bounded" else None)
+                                  wait=BOUNDED_WAIT if args.defer == "bounded" else None,
+                                  undo=args.undo)
     position = {id(f): k for k, f in enumerate(run.unit)}
     candidates: list[int] = []
     rows: list[np.ndarray] = []  # the candidates' whitened residuals, to find subsets' rows
@@ -111,7 +123,7 @@ def main() -> None:
     w = run.weights
     print(f"pass at odometry x{args.rung:g}, defer {args.defer}: "
           f"{int((w[false] > 0.5).sum())} false admitted, "
-          f"{int((w[~false] < 0.5).sum())} true rejected")
+          f"{int((w[~false] < 0.5).sum())} true rejected, {run.undone} undone")
 
 
 if __name__ == "__main__":

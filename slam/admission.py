@@ -57,6 +57,9 @@ GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
+UNDO_BLOCKS = 1  # an undo hypothesis re-decides loops admitted this many loop-bearing blocks back
+UNDO_SUPPORT = 2  # rejected loops near an admitted one's two ends that open a hypothesis
+UNDO_TRIES = 2  # undo hypotheses tested per block
 
 
 @dataclass(slots=True)
@@ -178,6 +181,7 @@ def admit_incrementally(
     unit: list[gtsam.NonlinearFactor] | None = None,
     defer: bool = False,
     wait: int | None = None,
+    undo: bool = False,
 ) -> Admission:
     """One time-ordered TLS pass (`slam.consistency`'s module docstring, steps 1-3) from
     initial `values`.
@@ -206,10 +210,14 @@ def admit_incrementally(
             the last of them, or at the last block of the pass, it is decided by the
             plain gate against the prefix those rounds left.  None: it waits to the end
             and is rejected there.
+        undo: after each block, test whether loops admitted in the last blocks are what
+            made this block's loops fail, and undo them when the TLS objective of the
+            decided loops says so (`AdmissionPass.undo`).
     """
     run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
                         max_rounds=max_rounds, solver=solver, barred=barred,
-                        prefix_solver=prefix_solver, unit=unit, defer=defer, wait=wait)
+                        prefix_solver=prefix_solver, unit=unit, defer=defer, wait=wait,
+                        undo=undo)
     run.advance()
     return run.result()
 
@@ -229,6 +237,8 @@ class _Snapshot:
     isam: IsamPrefix | None
     deferred: NDArray[np.int64]
     since: NDArray[np.int64]
+    base: gtsam.NonlinearFactorGraph
+    admitted_at: NDArray[np.int64]
 
 
 class AdmissionPass:
@@ -257,12 +267,15 @@ class AdmissionPass:
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
         record: bool = False, defer: bool = False, wait: int | None = None,
+        undo: bool = False,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
                             f"{', '.join(PREFIX_SOLVERS)}")
         if gate not in GATES:
             raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
+        if undo and defer:
+            raise UserError("the undo hypotheses and the deferral do not combine")
         self.prefix_solver = "isam2" if prefix_solver == "auto" else prefix_solver
         self._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
         self._solve = solver or StickySolver()
@@ -285,6 +298,14 @@ class AdmissionPass:
         # `blocks` when each loop was first deferred (-1: never)
         self._since = np.full(len(graph.loops), -1, dtype=np.int64)
         self._fixed = gtsam.NonlinearFactorGraph()
+        self._base = gtsam.NonlinearFactorGraph()  # `_fixed` without its loops
+        self.undo = undo
+        self._block = block
+        self.loop_start = np.array([min(self.position[lp.i], self.position[lp.j])
+                                    for lp in graph.loops], dtype=int)
+        # `blocks` when each loop was admitted (-1: not admitted)
+        self._admitted_at = np.full(len(graph.loops), -1, dtype=np.int64)
+        self.undone = 0  # undo hypotheses kept
         self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
         self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
         self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
@@ -327,7 +348,8 @@ class AdmissionPass:
         return _Snapshot(self._step, self.last, self.blocks, gtsam.Values(self.current),
                          self.weights.copy(), gtsam.NonlinearFactorGraph(self._fixed),
                          None if self._isam is None else self._isam.copy(),
-                         self.deferred.copy(), self._since.copy())
+                         self.deferred.copy(), self._since.copy(),
+                         gtsam.NonlinearFactorGraph(self._base), self._admitted_at.copy())
 
     def block_of(self, loop: int) -> int:
         """Index of the block in which `loop` (index into `graph.loops`) is decided."""
@@ -354,6 +376,9 @@ class AdmissionPass:
             run.deferred = np.zeros(0, dtype=np.int64)
             run._since = np.full(len(self.graph.loops), -1, dtype=np.int64)
             run._fixed = gtsam.NonlinearFactorGraph()
+            run._base = gtsam.NonlinearFactorGraph()
+            run._admitted_at = np.full(len(self.graph.loops), -1, dtype=np.int64)
+            run.undone = 0
             run._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
             return run
         snap = earlier[-1]
@@ -362,6 +387,8 @@ class AdmissionPass:
         run.deferred = np.setdiff1d(snap.deferred, run.barred).astype(np.int64)
         run._since = snap.since.copy()
         run._fixed = gtsam.NonlinearFactorGraph(snap.fixed)
+        run._base = gtsam.NonlinearFactorGraph(snap.base)
+        run._admitted_at = snap.admitted_at.copy()
         run._isam = None if snap.isam is None else snap.isam.copy()
         return run
 
@@ -377,12 +404,14 @@ class AdmissionPass:
             current.insert(k, pose)
             if k in self._anchors:
                 fixed.add(graph.prior_factor(k))
+                self._base.add(fixed.at(fixed.size() - 1))
                 if isam is not None:
                     isam.add(graph.prior_factor(k))
             if isam is not None:
                 isam.insert(k, pose)
         for n in np.flatnonzero((self.odometry_end > last) & (self.odometry_end <= end)):
             fixed.add(graph.between_factor(graph.odometry[n]))
+            self._base.add(fixed.at(fixed.size() - 1))
             if isam is not None:
                 isam.add(fixed.at(fixed.size() - 1))
         arrived = np.setdiff1d(
@@ -465,6 +494,125 @@ class AdmissionPass:
         self._since[self.deferred[self._since[self.deferred] < 0]] = self.blocks
         for q in np.flatnonzero(accepted):
             fixed.add(unit[pending[q]])
+        self._admitted_at[pending[accepted]] = self.blocks
+        if self.undo:
+            self._undo(arrived, prefix)
+
+    def _undo(self, arrived: NDArray[np.int64], prefix: list[int]) -> None:
+        """Undo hypotheses after a block: were loops admitted in the last `UNDO_BLOCKS`
+        loop-bearing blocks what made this block's loops fail?
+
+        A hypothesis opens for an admitted recent loop ``a`` when at least `UNDO_SUPPORT`
+        loops of this block that were rejected lie near it (both ends within one block of
+        ``a``'s: the same return to the same place) and outnumber the recent admitted loops
+        near it (its *cluster*, ``a`` included).  The hypothesis removes the cluster and
+        this block's admissions from the accepted prefix, re-solves it, decides the
+        rejected neighbours first (as if they had arrived first), then this block's other
+        loops and the cluster, by the same rules as the block (`_plain_rounds`).  It
+        replaces the block's outcome when its TLS objective over every loop decided so far
+        is lower (`_decided_cost`: each loop at its inlier cost or the truncation ``c``,
+        the same candidate set for both).  At most `UNDO_TRIES` hypotheses a block, those
+        with most rejected neighbours beyond their cluster first.
+        """
+        w = self.weights
+        rejected = arrived[w[arrived] < 0.5]
+        if len(rejected) < UNDO_SUPPORT:
+            return
+        recent = np.flatnonzero((w > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
+        lo, hi, reach = self.loop_start, self.loop_end, self._block
+
+        def near(k: int, others: NDArray[np.int64]) -> NDArray[np.int64]:
+            return others[(np.abs(lo[others] - lo[k]) <= reach)
+                          & (np.abs(hi[others] - hi[k]) <= reach)]
+
+        hypotheses: dict[tuple[int, ...], tuple[int, NDArray[np.int64]]] = {}
+        for a in recent:
+            support, cluster = near(int(a), rejected), near(int(a), recent)
+            if len(support) >= UNDO_SUPPORT and len(support) > len(cluster):
+                hypotheses.setdefault(tuple(cluster), (len(support) - len(cluster), support))
+        ranked = sorted(hypotheses.items(), key=lambda h: -h[1][0])[:UNDO_TRIES]
+        for cluster_key, (_, support) in ranked:
+            cluster = np.array(cluster_key, dtype=np.int64)
+            if (self.weights[cluster] < 0.5).any():  # an earlier hypothesis changed it
+                continue
+            before = self._decided_cost(self.current)
+            keep = np.flatnonzero(self.weights > 0.5)
+            keep = np.setdiff1d(keep, np.union1d(cluster, arrived))
+            try:
+                values = self._solve(_with(self._base, self.unit, keep), self.current)
+                first, values = self._plain_rounds(support, keep, values, prefix)
+                keep = np.union1d(keep, first)
+                rest = np.setdiff1d(np.union1d(arrived, cluster), first)
+                then, values = self._plain_rounds(rest, keep, values, prefix)
+            except RuntimeError:  # singular information or a failed solve: no hypothesis
+                continue
+            weights = self.weights.copy()
+            weights[np.union1d(arrived, cluster)] = 0.0
+            weights[np.union1d(first, then).astype(np.int64)] = 1.0
+            if not self._decided_cost(values) < before * (1.0 - 1e-9):
+                continue
+            newly = np.flatnonzero((weights > 0.5) & (self.weights < 0.5))
+            self._admitted_at[weights < 0.5] = -1
+            self._admitted_at[newly] = self.blocks
+            self.weights = weights
+            self._fixed = _with(self._base, self.unit, np.flatnonzero(weights > 0.5))
+            self.current = values
+            self.undone += 1
+            if self.gate == "stated" and self.calibrated_step is None:
+                # a calibrated pass resumed after this block would not have tested it
+                self.calibrated_step = self._step
+            if self._isam is not None:
+                self._isam = IsamPrefix()
+                for n in range(self._fixed.size()):
+                    self._isam.add(self._fixed.at(n))
+                for k in prefix:
+                    self._isam.insert(k, to_gtsam_pose(_pose_of(values, k, self.graph.dim),
+                                                       self.graph.dim))
+                self.current, self._isam = isam_or_batch(self._isam, self._solve,
+                                                         self._fixed, values)
+                if self._isam is None:
+                    self.folded = True
+
+    def _plain_rounds(
+        self, pending: NDArray[np.int64], accepted: NDArray[np.int64], current: gtsam.Values,
+        prefix: list[int],
+    ) -> tuple[NDArray[np.int64], gtsam.Values]:
+        """The block's rounds (residual rule, then the greedy innovation gate; batch
+        solves, no deferral) deciding `pending` against the prefix of the loops
+        `accepted`, solved at `current`; the loops of `pending` admitted and the solution."""
+        unit, c = self.unit, self._c
+        taken = np.zeros(len(pending), dtype=bool)
+        factors = _with(self._base, unit, accepted)
+        for _ in range(self._max_rounds):
+            errors = np.array([unit[k].error(current) for k in pending])
+            newly = ~taken & (errors <= c)
+            if not newly.any():
+                rest = np.flatnonzero(~taken)
+                if len(rest) == 0:
+                    break
+                limit = c
+                if self.gate == "calibrated":
+                    s0 = _variance_factor(factors, current, len(prefix), self._d)
+                    limit = c * min(1.0, s0) if s0 is not None else c
+                test = InnovationTest(factors, current, prefix, self._d)
+                gains = test.gains([unit[pending[q]] for q in rest])
+                chosen, _ = greedy_admission(gains, limit)
+                if not chosen:
+                    break
+                newly = np.zeros(len(pending), dtype=bool)
+                newly[rest[chosen]] = True
+            taken |= newly
+            factors = _with(self._base, unit, np.union1d(accepted, pending[taken]))
+            current = self._solve(factors, current)
+        return pending[taken], current
+
+    def _decided_cost(self, values: gtsam.Values) -> float:
+        """TLS objective at `values` of the part decided so far: anchors and odometry of
+        the poses added, and every loop ending among them that is not barred, each at
+        ``min(e_k, c)`` whether the solution admitted it or not."""
+        decided = np.setdiff1d(np.flatnonzero(self.loop_end <= self.last), self.barred)
+        errors = np.array([self.unit[k].error(values) for k in decided])
+        return float(self._base.error(values) + np.minimum(errors, self._c).sum())
 
     def _expired(self, loops: NDArray[np.int64], final: bool) -> NDArray[np.bool_]:
         """Which deferred `loops` have waited their `wait` loop-bearing blocks (every one at

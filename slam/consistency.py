@@ -221,6 +221,7 @@ def bar_search(
     source: AdmissionPass | None = None,
     defer: bool = False,
     wait: int | None = None,
+    undo: bool = False,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -262,7 +263,7 @@ def bar_search(
             run = AdmissionPass(decide, values, probability=probability, block=block,
                                 gate=gate, solver=solve, barred=trial,
                                 prefix_solver=prefix_solver, unit=unit, defer=defer,
-                                wait=wait)
+                                wait=wait, undo=undo)
         if not _finish_unless_behind(run, best, factors, probability):
             break
         refined, weights = refine_tls(graph, run.current, run.weights,
@@ -314,6 +315,7 @@ def incremental_tls(
     prefix_solver: str = "auto",
     choose: Callable[..., int | tuple[int, Array | None]] | None = None,
     defer: str = "off",
+    undo: bool = False,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -370,6 +372,10 @@ def incremental_tls(
     (`slam.recheck.calibrated_choice`); or ``(index, weights)``, weights (or None) that
     replace the chosen run's loop decisions (`slam.offer_back.choose_and_offer_back`),
     the stated graph re-solved with them.
+
+    `undo`: every pass tests, after each block, whether loops it admitted in the last
+    blocks made the block's loops fail, and undoes them when the decided loops' TLS
+    objective drops (`slam.admission.AdmissionPass._undo`); off by default.
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -409,7 +415,7 @@ def incremental_tls(
                     run = AdmissionPass(decide, values, probability=probability, block=block,
                                         gate=gate, solver=solver, prefix_solver=prefix_solver,
                                         unit=unit, record=tries > 0 or gate == "stated",
-                                        defer=defers, wait=wait)
+                                        defer=defers, wait=wait, undo=undo)
                 run.advance(until_fold=True)
                 if run.done:
                     run.release_prefix()
@@ -461,7 +467,7 @@ def incremental_tls(
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
                           factors=stated, gate=_gate_of(best), source=source,
                           defer=source is not None and source.defer,
-                          wait=None if source is None else source.wait)
+                          wait=None if source is None else source.wait, undo=undo)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

@@ -161,6 +161,7 @@ def optimize(
     fast_path: bool = True,
     swap: bool = False,
     defer: str = "off",
+    undo: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -196,6 +197,9 @@ def optimize(
     ``"bounded"`` (waits one loop-bearing block for the consensus of the loops that
     arrive, then the plain gate decides), ``"both"`` (each rung without and with it, the
     choice among all), ``"all"`` and ``"candidate"`` as there.
+    `undo`: the incremental admission's passes undo earlier admissions that a later
+    block's loops contradict when the TLS objective says so
+    (`slam.consistency.incremental_tls`); off by default.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -223,7 +227,7 @@ def optimize(
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
-                defer=defer,
+                defer=defer, undo=undo,
             )
             if swap and len(graph.loops):
                 swapped = swap_search(graph, admission, values, probability=gnc_probability,
