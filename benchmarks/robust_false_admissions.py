@@ -123,7 +123,8 @@ def main() -> None:
     w = run.weights
     print(f"pass at odometry x{args.rung:g}, defer {args.defer}: "
           f"{int((w[false] > 0.5).sum())} false admitted, "
-          f"{int((w[~false] < 0.5).sum())} true rejected, {run.undone} undone")
+          f"{int((w[~false] < 0.5).sum())} true rejected, "
+          f"{run.undone} of {run.tried} undo hypotheses kept")
 
 
 if __name__ == "__main__":

@@ -57,7 +57,7 @@ GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
-UNDO_BLOCKS = 1  # an undo hypothesis re-decides loops admitted this many loop-bearing blocks back
+UNDO_BLOCKS = 2  # an undo hypothesis re-decides loops admitted this many loop-bearing blocks back
 UNDO_SUPPORT = 2  # rejected loops near an admitted one's two ends that open a hypothesis
 UNDO_TRIES = 2  # undo hypotheses tested per block
 
@@ -306,6 +306,7 @@ class AdmissionPass:
         # `blocks` when each loop was admitted (-1: not admitted)
         self._admitted_at = np.full(len(graph.loops), -1, dtype=np.int64)
         self.undone = 0  # undo hypotheses kept
+        self.tried = 0  # undo hypotheses tested
         self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
         self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
         self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
@@ -378,7 +379,7 @@ class AdmissionPass:
             run._fixed = gtsam.NonlinearFactorGraph()
             run._base = gtsam.NonlinearFactorGraph()
             run._admitted_at = np.full(len(self.graph.loops), -1, dtype=np.int64)
-            run.undone = 0
+            run.undone = run.tried = 0
             run._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
             return run
         snap = earlier[-1]
@@ -503,23 +504,23 @@ class AdmissionPass:
         loop-bearing blocks what made this block's loops fail?
 
         A hypothesis opens for an admitted recent loop ``a`` when at least `UNDO_SUPPORT`
-        loops of this block that were rejected lie near it (both ends within one block of
-        ``a``'s: the same return to the same place) and outnumber the recent admitted loops
-        near it (its *cluster*, ``a`` included).  The hypothesis removes the cluster and
-        this block's admissions from the accepted prefix, re-solves it, decides the
-        rejected neighbours first (as if they had arrived first), then this block's other
-        loops and the cluster, by the same rules as the block (`_plain_rounds`).  It
+        loops of this block that were rejected lie near it (both ends within `UNDO_BLOCKS`
+        blocks of ``a``'s: the same return to the same place) and outnumber the recent
+        admitted loops near it (its *cluster*, ``a`` included). The hypothesis removes the
+        cluster and this block's admissions from the accepted prefix, re-solves it, decides
+        the rejected neighbours first (as if they had arrived first), then this block's
+        other loops and the cluster, by the same rules as the block (`_plain_rounds`). It
         replaces the block's outcome when its TLS objective over every loop decided so far
-        is lower (`_decided_cost`: each loop at its inlier cost or the truncation ``c``,
-        the same candidate set for both).  At most `UNDO_TRIES` hypotheses a block, those
-        with most rejected neighbours beyond their cluster first.
+        is lower (`_decided_cost`: each loop at its inlier cost or the truncation ``c``, the
+        same candidate set for both). At most `UNDO_TRIES` hypotheses a block, those with
+        most rejected neighbours beyond their cluster first.
         """
         w = self.weights
         rejected = arrived[w[arrived] < 0.5]
         if len(rejected) < UNDO_SUPPORT:
             return
         recent = np.flatnonzero((w > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
-        lo, hi, reach = self.loop_start, self.loop_end, self._block
+        lo, hi, reach = self.loop_start, self.loop_end, UNDO_BLOCKS * self._block
 
         def near(k: int, others: NDArray[np.int64]) -> NDArray[np.int64]:
             return others[(np.abs(lo[others] - lo[k]) <= reach)
@@ -536,6 +537,7 @@ class AdmissionPass:
             if (self.weights[cluster] < 0.5).any():  # an earlier hypothesis changed it
                 continue
             before = self._decided_cost(self.current)
+            self.tried += 1
             keep = np.flatnonzero(self.weights > 0.5)
             keep = np.setdiff1d(keep, np.union1d(cluster, arrived))
             try:
