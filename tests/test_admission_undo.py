@@ -62,3 +62,14 @@ def test_the_undo_and_the_deferral_do_not_combine() -> None:
     values = graph.gtsam_values(initial_guess(graph, "odometry"))
     with pytest.raises(UserError):
         AdmissionPass(graph, values, undo=True, defer=True)
+
+
+def test_the_decided_cost_is_the_tls_objective_once_every_pose_is_added() -> None:
+    """`_decided_cost` (anchors, odometry and every loop at min(e, c)) against `tls_cost`
+    on the whole graph, at a solution where the false loop is far above ``c``."""
+    from slam.admission import tls_cost
+
+    graph, false = _false_return_a_block_early()
+    run = _pass(graph, undo=True)
+    assert run.unit[false].error(run.current) > run._c
+    assert run._decided_cost(run.current) == pytest.approx(tls_cost(graph, run.current))
