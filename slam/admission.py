@@ -505,15 +505,16 @@ class AdmissionPass:
 
         A hypothesis opens for an admitted recent loop ``a`` when at least `UNDO_SUPPORT`
         loops of this block that were rejected lie near it (both ends within `UNDO_BLOCKS`
-        blocks of ``a``'s: the same return to the same place) and outnumber the recent
-        admitted loops near it (its *cluster*, ``a`` included). The hypothesis removes the
-        cluster and this block's admissions from the accepted prefix, re-solves it, decides
-        the rejected neighbours first (as if they had arrived first), then this block's
-        other loops and the cluster, by the same rules as the block (`_plain_rounds`). It
-        replaces the block's outcome when its TLS objective over every loop decided so far
-        is lower (`_decided_cost`: each loop at its inlier cost or the truncation ``c``, the
-        same candidate set for both). At most `UNDO_TRIES` hypotheses a block, those with
-        most rejected neighbours beyond their cluster first.
+        blocks of ``a``'s: the same return to the same place; its *support*) and outnumber
+        the recent admitted loops near it (its *cluster*, ``a`` included). The hypothesis
+        removes every loop admitted in the last `UNDO_BLOCKS` loop-bearing blocks (``a`` and
+        whatever else bent the prefix since) and this block's admissions from the accepted
+        prefix, re-solves it, decides the support first (as if it had arrived first), then
+        this block's other loops and the removed ones, by the same rules as the block
+        (`_plain_rounds`). It replaces the block's outcome when its TLS objective over every
+        loop decided so far is lower (`_decided_cost`: each loop at its inlier cost or the
+        truncation ``c``, the same candidate set for both). At most `UNDO_TRIES` hypotheses
+        a block, those whose support most outnumbers its cluster first.
         """
         w = self.weights
         rejected = arrived[w[arrived] < 0.5]
@@ -526,30 +527,34 @@ class AdmissionPass:
             return others[(np.abs(lo[others] - lo[k]) <= reach)
                           & (np.abs(hi[others] - hi[k]) <= reach)]
 
-        hypotheses: dict[tuple[int, ...], tuple[int, NDArray[np.int64]]] = {}
+        hypotheses: dict[tuple[int, ...], int] = {}
         for a in recent:
             support, cluster = near(int(a), rejected), near(int(a), recent)
             if len(support) >= UNDO_SUPPORT and len(support) > len(cluster):
-                hypotheses.setdefault(tuple(cluster), (len(support) - len(cluster), support))
-        ranked = sorted(hypotheses.items(), key=lambda h: -h[1][0])[:UNDO_TRIES]
-        for cluster_key, (_, support) in ranked:
-            cluster = np.array(cluster_key, dtype=np.int64)
-            if (self.weights[cluster] < 0.5).any():  # an earlier hypothesis changed it
+                hypotheses.setdefault(tuple(support), len(support) - len(cluster))
+        ranked = sorted(hypotheses.items(), key=lambda h: -h[1])[:UNDO_TRIES]
+        for support_key, _ in ranked:
+            support = np.array(support_key, dtype=np.int64)
+            if (self.weights[support] > 0.5).any():  # an earlier hypothesis admitted it
                 continue
+            # Every recent admission is re-decided: the one the support contradicts and
+            # any other that bent the prefix since.
+            undone = np.flatnonzero(
+                (self.weights > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
             before = self._decided_cost(self.current)
             self.tried += 1
             keep = np.flatnonzero(self.weights > 0.5)
-            keep = np.setdiff1d(keep, np.union1d(cluster, arrived))
+            keep = np.setdiff1d(keep, np.union1d(undone, arrived))
             try:
                 values = self._solve(_with(self._base, self.unit, keep), self.current)
                 first, values = self._plain_rounds(support, keep, values, prefix)
                 keep = np.union1d(keep, first)
-                rest = np.setdiff1d(np.union1d(arrived, cluster), first)
+                rest = np.setdiff1d(np.union1d(arrived, undone), first)
                 then, values = self._plain_rounds(rest, keep, values, prefix)
             except RuntimeError:  # singular information or a failed solve: no hypothesis
                 continue
             weights = self.weights.copy()
-            weights[np.union1d(arrived, cluster)] = 0.0
+            weights[np.union1d(arrived, undone)] = 0.0
             weights[np.union1d(first, then).astype(np.int64)] = 1.0
             if not self._decided_cost(values) < before * (1.0 - 1e-9):
                 continue
