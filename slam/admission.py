@@ -575,10 +575,10 @@ class AdmissionPass:
                 for k in prefix:
                     self._isam.insert(k, to_gtsam_pose(_pose_of(values, k, self.graph.dim),
                                                        self.graph.dim))
+                # A rebuilt iSAM2 that does not converge hands over to batch solves; the
+                # pass is not marked folded (its admitted loops are the hypothesis's).
                 self.current, self._isam = isam_or_batch(self._isam, self._solve,
                                                          self._fixed, values)
-                if self._isam is None:
-                    self.folded = True
 
     def _plain_rounds(
         self, pending: NDArray[np.int64], accepted: NDArray[np.int64], current: gtsam.Values,
