@@ -541,7 +541,12 @@ class AdmissionPass:
             # any other that bent the prefix since.
             undone = np.flatnonzero(
                 (self.weights > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
-            before = self._decided_cost(self.current)
+            # The block's outcome solved by the same batch solver as the hypothesis (an
+            # iSAM2 estimate stops at another tolerance), so the costs compare decisions.
+            try:
+                before = self._decided_cost(self._solve(self._fixed, self.current))
+            except RuntimeError:
+                return
             self.tried += 1
             keep = np.flatnonzero(self.weights > 0.5)
             keep = np.setdiff1d(keep, np.union1d(undone, arrived))
