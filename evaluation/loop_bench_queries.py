@@ -120,7 +120,7 @@ def query_all(
     db = PlaceDatabase(cfg, matchers=source.matchers)
     wide_source = detector.wide_database
     wide = None if wide_source is None else _View(
-        PlaceDatabase(cfg, matchers=source.matchers), np.zeros(0, np.intp))
+        PlaceDatabase(wide_source.config, matchers=source.matchers), np.zeros(0, np.intp))
     alone = {r: r[: -len(ALONE)] for r in rows if r.endswith(ALONE)}
     stacks = {
         r: source.matchers[m].stack([source.descriptors(k)[m] for k in source.keys])

@@ -79,7 +79,7 @@ class KeyframeStore:
         self._trailing_map = trailing_map
         # The wide view (`loopclosure.loop_detector`, 1.): its database, place centroids.
         self.wide_database: PlaceDatabase | None = (
-            PlaceDatabase(self.config.database, matchers=self.database.matchers)
+            PlaceDatabase(self.config.wide_database, matchers=self.database.matchers)
             if trailing_map is not None and self.config.wide_keyframes > 0 else None)
         self._wide_centroids: dict[int, Array] = {}
         self._wide_keys: list[int] = []  # key -> the key whose wide view it queries with

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from data.errors import UserError
 from loopclosure.geometric_check import GeometricCheckConfig
-from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_config import WIDE_LOGISTIC, PlaceDatabaseConfig
 from loopclosure.polygon import PolygonConfig
 
 SEARCHES = ("both", "appearance", "pose")
 """Values of `LoopClosureConfig.search`."""
+VIEW_CALIBRATIONS = ("shared", "per-view")
+"""Values of `LoopClosureConfig.view_calibration`."""
 
 
 @dataclass(slots=True)
@@ -86,6 +88,11 @@ class LoopClosureConfig:
             ``trailing_map``; 0: none).
         wide_every: a keyframe gets a wide view when the latest one of its session is
             this many keyframes old (1: every keyframe); the others query with it.
+        view_calibration: how the wide view's fused scores are made: ``shared`` (the
+            database's logistic, as the own view's) or ``per-view`` (the logistic
+            fitted on wide views, `loopclosure.place_config.WIDE_LOGISTIC`, so that a
+            query's two views are merged by comparable probabilities; needs the
+            default stages and logistic fusion).
         target_cache: registration targets (KD-tree + normals) kept in memory.
         database: the place database (prefilter, verifiers, fusion).
         check: the geometric check.
@@ -119,6 +126,7 @@ class LoopClosureConfig:
     full_circle_deg: float = 359.0
     wide_keyframes: int = 30
     wide_every: int = 3
+    view_calibration: str = "shared"
     target_cache: int = 256
     database: PlaceDatabaseConfig = field(default_factory=PlaceDatabaseConfig)
     check: GeometricCheckConfig = field(default_factory=GeometricCheckConfig)
@@ -140,6 +148,17 @@ class LoopClosureConfig:
             raise UserError(f"loops.wide_keyframes must be >= 0, got {self.wide_keyframes}")
         if self.wide_every < 1:
             raise UserError(f"loops.wide_every must be >= 1, got {self.wide_every}")
+        if self.view_calibration not in VIEW_CALIBRATIONS:
+            raise UserError(f"loops.view_calibration must be one of "
+                            f"{', '.join(VIEW_CALIBRATIONS)}, got {self.view_calibration!r}")
+        if self.view_calibration == "per-view" and (
+                self.database.resolved_fusion != "logistic"
+                or sorted(self.database.stages) != sorted(WIDE_LOGISTIC.names)):
+            raise UserError(
+                "loops.view_calibration per-view needs logistic fusion of the stages "
+                f"{', '.join(WIDE_LOGISTIC.names)} (the wide view's model is fitted for "
+                f"those); the database has {self.database.resolved_fusion} fusion of "
+                f"{', '.join(self.database.stages)}")
         if self.circle_fallback < 0:
             raise UserError(f"loops.circle_fallback must be >= 0, got {self.circle_fallback}")
         if not self.trail_radius >= 0 or self.trail_keyframes < 0:
@@ -148,3 +167,11 @@ class LoopClosureConfig:
         if not self.prior_max_sigma > 0:
             raise UserError(
                 f"loops.prior_max_sigma must be > 0 m, got {self.prior_max_sigma}")
+
+    @property
+    def wide_database(self) -> PlaceDatabaseConfig:
+        """The configuration of the wide view's database: `database`, with the wide
+        view's logistic model when `view_calibration` is ``per-view``."""
+        if self.view_calibration == "per-view":
+            return replace(self.database, logistic=WIDE_LOGISTIC)
+        return self.database

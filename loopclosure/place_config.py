@@ -38,6 +38,22 @@ DEFAULT_LOGISTIC = LogisticFusion(
     intercept=-2.48,
 )
 
+# The logistic model of the same stages for the loop detector's wide view (a keyframe
+# described from the map of its last keyframes, in a database of its own): fitted the
+# same way as `DEFAULT_LOGISTIC` (`benchmarks/view_calibration.py`: `fit_logistic`,
+# ridge 1, the 10 prefilter candidates of every query, same place = within 2 m) on the
+# wide views of the same three real logs (freiburg-101, seattle, orebro; the simulated
+# Box world's laser covers the full circle and has no wide view), Intel and the other
+# corrected logs held out.  A wide view's FLIRT distance of a true place is larger
+# against its database's scale than an own view's, so the own view's model scores a
+# wide view's true places low and a merge by score keeps the own view's answer; with a
+# model per view the scores of both views are probabilities of the same event.
+WIDE_LOGISTIC = LogisticFusion(
+    names=("pairs", "flirt"),
+    coefficients=(-3.22, -1.29),
+    intercept=-4.22,
+)
+
 # The logistic model of the paper's stages (FFT and ring prefilter, FLIRT and MRM
 # verifiers), fitted by `loopclosure.cascade.calibrate_logistic` on the simulated Box
 # set (seed 0, 231 scans, leave-one-out candidate pairs, K = 50); the default of the
@@ -186,5 +202,6 @@ __all__ = [
     "FUSION_MODES",
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
+    "WIDE_LOGISTIC",
     "PlaceDatabaseConfig",
 ]

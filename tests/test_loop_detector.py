@@ -513,3 +513,39 @@ def test_trail_joins_the_answers_of_keyframes_near_the_query(keyframes) -> None:
     for key in range(6):
         off.add_keyframe(key, float(key), keyframes[key])
     assert off.with_trail(5, own, poses, answers) is own
+
+
+def test_per_view_calibration_scores_the_wide_view_by_its_own_model(narrow_keyframes) -> None:
+    from loopclosure.place_config import DEFAULT_LOGISTIC, WIDE_LOGISTIC, PlaceDatabaseConfig
+
+    shared = LoopClosureConfig(exclude_recent=5, wide_keyframes=12, wide_every=3)
+    per_view = dataclasses.replace(shared, view_calibration="per-view")
+    assert shared.wide_database is shared.database
+    assert per_view.wide_database.logistic == WIDE_LOGISTIC
+    assert per_view.database.logistic == DEFAULT_LOGISTIC
+    dets = [LoopClosureDetector(c, submap=lambda k: narrow_keyframes[k].points(),
+                                trailing_map=_trailing(narrow_keyframes, []))
+            for c in (shared, per_view)]
+    for det in dets:
+        for key, scan in enumerate(narrow_keyframes):
+            det.add_keyframe(key, scan.stamp, scan)
+    key = len(narrow_keyframes) - 1
+    allowed = np.flatnonzero(dets[0].eligible(key))
+    wide_allowed = allowed[np.isin(allowed, dets[0].wide_database.keys)]
+    a, b = (d.wide_database.query_stored(d.wide_key(key), allowed=wide_allowed) for d in dets)
+    # The same candidates and distances; the score is the wide model's probability.
+    assert [m.key for m in a] == sorted([m.key for m in b], key=[m.key for m in a].index)
+    scales = dets[1].wide_database.scales
+    for m in b:
+        d = [[m.distances[s] for s in WIDE_LOGISTIC.names]]
+        expected = WIDE_LOGISTIC.score(d, [scales[s] for s in WIDE_LOGISTIC.names])[0]
+        assert m.score == pytest.approx(expected)
+    # The own view is untouched.
+    own = [d.database.query(d.database.descriptors(key), allowed=allowed, headings=False)
+           for d in dets]
+    assert [(m.key, m.score) for m in own[0]] == [(m.key, m.score) for m in own[1]]
+    with pytest.raises(UserError, match="view_calibration"):
+        LoopClosureConfig(view_calibration="best")
+    with pytest.raises(UserError, match="per-view"):
+        LoopClosureConfig(view_calibration="per-view",
+                          database=PlaceDatabaseConfig(fusion="rank"))
