@@ -24,7 +24,9 @@ view alone (the own where there is none), the two merged by the database's score
 the detector merges them (``shared``: both scored by the database's logistic), merged
 with the wide view scored by the fitted wide model (``per-view``, as
 ``loops.view_calibration=per-view``), and with both views scored by their fitted
-models (``both refitted``); the ``(held out)`` rows fit on every other log given.
+models (``both refitted``), or the view whose best place stands out more from its
+best other place (``distinct``: the larger difference of their score logits, no
+fit); the ``(held out)`` rows fit on every other log given.
 Printed: recall@1 over the revisits, recall at 100% precision and average precision
 over the score threshold (`evaluation.loop_bench_truth`).  ``--cache DIR`` keeps each log's pairs
 (``DIR/NAME.npz``) and reads them instead of mapping again.
@@ -55,16 +57,17 @@ VIEWS = ("own", "wide")
 
 def _rows(matches: list, stages: tuple[str, ...], scales: dict[str, float], ref: np.ndarray,
           k: int, query: int, top_k: int) -> np.ndarray:
-    """``(n, S + 4)`` rows of one view's answer: features, score, same place, rank, query."""
+    """``(n, S + 5)`` rows of one view's answer: features, score, same place, rank, query,
+    stored key."""
     if not matches:
-        return np.zeros((0, len(stages) + 4))
+        return np.zeros((0, len(stages) + 5))
     d = np.array([[m.distances[s] for s in stages] for m in matches], float)
     f = log_features(d, [scales[s] for s in stages])
     keys = np.array([int(m.key) for m in matches], np.intp)
     same = np.hypot(*(ref[keys, :2] - ref[k, :2]).T) <= RADIUS
     rank = np.array([m.prefilter_rank for m in matches], float)
     score = np.array([m.score for m in matches], float)
-    out = np.column_stack([f, score, same, rank, np.full(len(keys), query)])
+    out = np.column_stack([f, score, same, rank, np.full(len(keys), query), keys])
     return out[rank < top_k] if top_k else out
 
 
@@ -106,7 +109,7 @@ def collect(log: str, relations: str | None, config: PipelineConfig) -> dict[str
         if wide is not None and asked is not None and asked in wide:
             w = wide.query_stored(asked, allowed=np.isin(wide_keys, keys[mask]))
             rows["wide"].append(_rows(w, stages, wide.scales, ref, k, q, 0))
-    width = len(stages) + 4
+    width = len(stages) + 5
     out = {v: np.vstack(r) if r else np.zeros((0, width)) for v, r in rows.items()}
     out["revisit"] = np.array(revisit, bool)
     return out
@@ -115,28 +118,38 @@ def collect(log: str, relations: str | None, config: PipelineConfig) -> dict[str
 def training(data: dict[str, np.ndarray], view: str, top_k: int) -> tuple[np.ndarray, np.ndarray]:
     """Features and labels of `view`'s candidates among the prefilter's `top_k`."""
     r = data[view]
-    keep = r[:, -2] < top_k
-    return r[keep, :-4], r[keep, -3].astype(bool)
+    keep = r[:, -3] < top_k
+    return r[keep, :-5], r[keep, -4].astype(bool)
 
 
 def top1(data: dict[str, np.ndarray], choice: str, models: dict[str, LogisticFusion],
          stages: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """``(score, correct)`` of every query's top-1 under `choice` (module docstring):
-    ``own``, ``wide`` or ``merged`` (the higher of the two views' best), every view's
+    ``own``, ``wide``, ``merged`` (the higher of the two views' best) or ``distinct``
+    (the view whose best stands out more from its best other place, a stored key more
+    than 5 keys from the best: the larger logit difference), every view's
     candidates scored by its model of `models` (features in the order of `stages`)."""
     n = len(data["revisit"])
     best = {v: (np.full(n, -np.inf), np.zeros(n, bool)) for v in VIEWS}
+    margin = {v: np.full(n, -np.inf) for v in VIEWS}
     for v in VIEWS:
         r = data[v]
         if not len(r):
             continue
         m = models[v]
         score = m.probability(r[:, [stages.index(s) for s in m.names]])
-        q = r[:, -1].astype(np.intp)
+        q = r[:, -2].astype(np.intp)
         order = np.lexsort((-score, q))  # by query, best score first
         first = order[np.r_[True, q[order][1:] != q[order][:-1]]]
         best[v][0][q[first]] = score[first]
-        best[v][1][q[first]] = r[first, -3].astype(bool)
+        best[v][1][q[first]] = r[first, -4].astype(bool)
+        top_key = np.full(n, -10**9)
+        top_key[q[first]] = r[first, -1]
+        logit = np.log(np.clip(score, 1e-12, 1.0) / np.clip(1.0 - score, 1e-12, 1.0))
+        other = np.full(n, np.log(1e-12))  # no other place: the floor of the logit
+        far = np.abs(r[:, -1] - top_key[q]) > 5
+        np.maximum.at(other, q[far], logit[far])
+        margin[v][q[first]] = logit[first] - other[q[first]]
     own, wide = best["own"], best["wide"]
     if choice == "own":
         return own
@@ -144,6 +157,8 @@ def top1(data: dict[str, np.ndarray], choice: str, models: dict[str, LogisticFus
     if choice == "wide":
         return np.where(has_wide, wide[0], own[0]), np.where(has_wide, wide[1], own[1])
     take = wide[0] > own[0]  # ties: the own view, as `merge_views`
+    if choice == "distinct":
+        take = margin["wide"] > margin["own"]
     return np.where(take, wide[0], own[0]), np.where(take, wide[1], own[1])
 
 
@@ -202,7 +217,8 @@ def main() -> None:
                 ("shared", top1(d, "merged", shared, cfg.stages)),
                 ("per-view", top1(d, "merged", {"own": cfg.logistic, "wide": models["wide"]},
                                   cfg.stages)),
-                ("both refitted", top1(d, "merged", models, cfg.stages))]
+                ("both refitted", top1(d, "merged", models, cfg.stages)),
+                ("distinct", top1(d, "distinct", shared, cfg.stages))]
         if held is not None:
             rows += [("per-view (held out)", top1(
                 d, "merged", {"own": cfg.logistic, "wide": held["wide"]}, cfg.stages)),
