@@ -26,7 +26,9 @@ with the wide view scored by the fitted wide model (``per-view``, as
 ``loops.view_calibration=per-view``), and with both views scored by their fitted
 models (``both refitted``), or the view whose best place stands out more from its
 best other place (``distinct``: the larger difference of their score logits, no
-fit); the ``(held out)`` rows fit on every other log given.
+fit); the ``(held out)`` rows fit on every other log given, ``path (held out)`` with
+a third feature of the wide model: the log path length [m] of the keyframes its map
+holds (by the reference poses).
 Printed: recall@1 over the revisits, recall at 100% precision and average precision
 over the score threshold (`evaluation.loop_bench_truth`).  ``--cache DIR`` keeps each log's pairs
 (``DIR/NAME.npz``) and reads them instead of mapping again.
@@ -87,6 +89,10 @@ def collect(log: str, relations: str | None, config: PipelineConfig) -> dict[str
     keys, wide_keys = np.zeros(0, np.intp), np.zeros(0, np.intp)
     rows: dict[str, list[np.ndarray]] = {v: [] for v in VIEWS}
     revisit: list[bool] = []
+    path: list[float] = []  # log path length [m] of each query's wide view
+    steps = np.nan_to_num(np.r_[0.0, np.hypot(*np.diff(ref[:, :2], axis=0).T)])
+    along = np.cumsum(steps)  # path from keyframe 0 by the reference [m]
+    n_wide = config.loops.wide_keyframes
     for k in range(len(ref)):
         if k in src:
             db.add_descriptors(k, src.descriptors(k))
@@ -103,6 +109,9 @@ def collect(log: str, relations: str | None, config: PipelineConfig) -> dict[str
             continue
         q = len(revisit)
         revisit.append(bool((np.hypot(*(ref[keys[mask], :2] - ref[k, :2]).T) <= RADIUS).any()))
+        wk = det.wide_key(k)
+        wk = k if wk is None else wk
+        path.append(float(np.log(max(along[wk] - along[max(wk - n_wide, 0)], 0.5))))
         own = db.query(src.descriptors(k), allowed=mask, headings=False)
         rows["own"].append(_rows(own, stages, db.scales, ref, k, q, 0))
         asked = det.wide_key(k)
@@ -112,14 +121,25 @@ def collect(log: str, relations: str | None, config: PipelineConfig) -> dict[str
     width = len(stages) + 5
     out = {v: np.vstack(r) if r else np.zeros((0, width)) for v, r in rows.items()}
     out["revisit"] = np.array(revisit, bool)
+    out["path"] = np.array(path, float)
     return out
 
 
-def training(data: dict[str, np.ndarray], view: str, top_k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Features and labels of `view`'s candidates among the prefilter's `top_k`."""
+def features(data: dict[str, np.ndarray], view: str, names: tuple[str, ...],
+             stages: tuple[str, ...]) -> np.ndarray:
+    """``(n, len(names))`` features of `view`'s rows: a stage's log distance, or
+    ``path``, the log path length of the query's wide view."""
+    r = data[view]
+    return np.column_stack([data["path"][r[:, -2].astype(np.intp)] if n == "path"
+                            else r[:, stages.index(n)] for n in names])
+
+
+def training(data: dict[str, np.ndarray], view: str, top_k: int, names: tuple[str, ...],
+             stages: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Features `names` and labels of `view`'s candidates among the prefilter's `top_k`."""
     r = data[view]
     keep = r[:, -3] < top_k
-    return r[keep, :-5], r[keep, -4].astype(bool)
+    return features(data, view, names, stages)[keep], r[keep, -4].astype(bool)
 
 
 def top1(data: dict[str, np.ndarray], choice: str, models: dict[str, LogisticFusion],
@@ -136,8 +156,7 @@ def top1(data: dict[str, np.ndarray], choice: str, models: dict[str, LogisticFus
         r = data[v]
         if not len(r):
             continue
-        m = models[v]
-        score = m.probability(r[:, [stages.index(s) for s in m.names]])
+        score = models[v].probability(features(data, v, models[v].names, stages))
         q = r[:, -2].astype(np.intp)
         order = np.lexsort((-score, q))  # by query, best score first
         first = order[np.r_[True, q[order][1:] != q[order][:-1]]]
@@ -169,12 +188,14 @@ def figures(score: np.ndarray, correct: np.ndarray, revisit: np.ndarray) -> str:
             f"AP {average_precision(curve):.3f}")
 
 
-def fit(logs: list[dict[str, np.ndarray]], top_k: int, names: tuple[str, ...]
-        ) -> dict[str, LogisticFusion]:
-    """One model per view fitted on the pooled candidates of `logs`."""
+def fit(logs: list[dict[str, np.ndarray]], top_k: int, stages: tuple[str, ...],
+        path: bool = False) -> dict[str, LogisticFusion]:
+    """One model per view fitted on the pooled candidates of `logs` (features: the
+    stages, and with `path` the wide view's log path length too)."""
     out = {}
     for v in VIEWS:
-        f, y = zip(*(training(d, v, top_k) for d in logs), strict=True)
+        names = (*stages, "path") if path and v == "wide" else stages
+        f, y = zip(*(training(d, v, top_k, names, stages) for d in logs), strict=True)
         out[v] = fit_logistic(np.vstack(f), np.concatenate(y), names=names, ridge=1.0)
     return out
 
@@ -220,9 +241,14 @@ def main() -> None:
                 ("both refitted", top1(d, "merged", models, cfg.stages)),
                 ("distinct", top1(d, "distinct", shared, cfg.stages))]
         if held is not None:
+            others = [data[n] for n in data if n != name]
+            with_path = fit(others, cfg.top_k, cfg.stages, path=True)["wide"]
             rows += [("per-view (held out)", top1(
                 d, "merged", {"own": cfg.logistic, "wide": held["wide"]}, cfg.stages)),
-                ("both refitted (held out)", top1(d, "merged", held, cfg.stages))]
+                ("both refitted (held out)", top1(d, "merged", held, cfg.stages)),
+                ("path (held out)", top1(
+                    d, "merged", {"own": cfg.logistic, "wide": with_path}, cfg.stages))]
+            print(f"  path model without it: {with_path}")
         for label, (score, correct) in rows:
             print(f"  {label:25s} {figures(score, correct, rev)}")
 
