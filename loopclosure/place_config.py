@@ -47,7 +47,10 @@ DEFAULT_LOGISTIC = LogisticFusion(
 # corrected logs held out.  A wide view's FLIRT distance of a true place is larger
 # against its database's scale than an own view's, so the own view's model scores a
 # wide view's true places low and a merge by score keeps the own view's answer; with a
-# model per view the scores of both views are probabilities of the same event.
+# model per view the scores of both views are probabilities of the same event.  Used
+# with `LoopClosureConfig.view_calibration` "per-view", not the default: which view
+# carries a revisit differs between logs more than this model can tell
+# (benchmarks/view_calibration.md).
 WIDE_LOGISTIC = LogisticFusion(
     names=("pairs", "flirt"),
     coefficients=(-3.22, -1.29),
