@@ -19,7 +19,7 @@ prefix solution, and the largest move [m] of every 25th pose between the two sol
 (how far it bent the map).  Then the pass's totals: false loops admitted, true loops
 rejected.  `--undo`: the pass tests its undo hypotheses
 (`slam.admission.AdmissionPass._undo`); `--cache`: a folder keeping the clean optimum
-between runs, as in `benchmarks/robust_undo.py`.
+between runs, as in `benchmarks/robust_modes.py`.
 """
 
 from __future__ import annotations

@@ -1,18 +1,21 @@
-"""Diagnosis: the time-ordered admission with and without deferring loops whose innovation
-test has no power (`slam.deferral`), on one corrupted pose graph.
+"""Diagnosis: the time-ordered admission under each of its optional modes, on one
+corrupted pose graph: deferring loops whose innovation test has no power
+(`slam.deferral`, ``--defer``) and undoing earlier admissions that a later block's loops
+contradict (`slam.admission.AdmissionPass._undo`, ``--undo``).
 
 Run from the repository root::
 
-    python benchmarks/robust_deferral.py input_M3500a_g2o.g2o [--data DIR] [--scale 1]
+    python benchmarks/robust_modes.py input_M3500a_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--defer off,all,candidate]
-        [--cache DIR]
+        [--undo off,on] [--cache DIR]
 
-For each `--defer` mode of `slam.optimize.optimize` (``gnc``, incremental, from the
-odometry chain) prints one line: ATE against the outlier-free optimum [m], false loops
-obeyed (of them, consistent with the outlier-free graph), true loops rejected, seconds
-and the TLS objective's gap to the clean optimum, as `benchmarks/robustness.py` judges a
-cell.  `--cache`: a folder where the clean optimum of each graph and scaling is kept
-between runs (minutes on M3500a).
+For each pair of a `--defer` mode and an `--undo` setting of `slam.optimize.optimize`
+(``gnc``, incremental, from the odometry chain) prints one line: ATE against the
+outlier-free optimum [m], false loops obeyed (of them, consistent with the outlier-free
+graph), true loops rejected, seconds (wall, and CPU of this process) and the TLS
+objective's gap to the clean optimum, as `benchmarks/robustness.py` judges a cell.
+`--cache`: a folder where the clean optimum of each graph and scaling is kept between
+runs (minutes on M3500a).
 """
 
 from __future__ import annotations
@@ -41,7 +44,8 @@ def main() -> None:
     parser.add_argument("--policy", default="random")
     parser.add_argument("--ratio", type=float, default=50.0)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--defer", default="off,all")
+    parser.add_argument("--defer", default="off")
+    parser.add_argument("--undo", default="off")
     parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
     cached = args.cache / f"{args.graph}-x{args.scale:g}.pkl" if args.cache else None
@@ -55,11 +59,12 @@ def main() -> None:
         cached.write_bytes(pickle.dumps(reference))
     clean_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
     threshold = default_outlier_residual(graph.dim)
-    for mode in args.defer.split(","):
-        start = time.perf_counter()
+    modes = [(defer, undo) for defer in args.defer.split(",") for undo in args.undo.split(",")]
+    for defer, undo in modes:
+        start, cpu = time.perf_counter(), time.process_time()
         result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
-                          defer=mode)
-        seconds = time.perf_counter() - start
+                          defer=defer, undo=undo == "on")
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         residuals = np.array([whitened_residual(c, result.poses, graph.dim)
                               for c in corrupted.loops])
         obeyed = residuals <= threshold
@@ -68,11 +73,11 @@ def main() -> None:
                                            [corrupted.loops[k] for k in false_obeyed])
         gap = tls_cost(corrupted, corrupted.gtsam_values(result.poses)) - clean_cost
         print(f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed} "
-              f"defer={mode}: ATE {aligned_position_error(result.poses, reference, graph.dim):.3g}"
+              f"defer={defer} undo={undo}: "
+              f"ATE {aligned_position_error(result.poses, reference, graph.dim):.3g}"
               f" m, {len(false_obeyed)} false obeyed ({consistent} consistent), "
-              f"{int((~obeyed & ~is_false).sum())} true rejected, {seconds:.1f} s, "
-              f"gap {gap:+.1f}", flush=True)
-
+              f"{int((~obeyed & ~is_false).sum())} true rejected, {seconds:.1f} s "
+              f"({cpu:.1f} s CPU), gap {gap:+.1f}", flush=True)
 
 if __name__ == "__main__":
     main()
