@@ -442,10 +442,7 @@ class AdmissionPass:
             if len(rest) == 0:
                 break
             # Step 2, at the solution of the accepted graph.
-            limit = c
-            if self.gate == "calibrated":
-                s0 = _variance_factor(factors, current, len(prefix), self._d)
-                limit = c * min(1.0, s0) if s0 is not None else c
+            limit = self._gate_limit(factors, current, len(prefix), c)
             try:
                 test = InnovationTest(factors, current, prefix, self._d)
             except RuntimeError:  # singular information: no innovation test possible
@@ -602,10 +599,7 @@ class AdmissionPass:
                 rest = np.flatnonzero(~taken)
                 if len(rest) == 0:
                     break
-                limit = c
-                if self.gate == "calibrated":
-                    s0 = _variance_factor(factors, current, len(prefix), self._d)
-                    limit = c * min(1.0, s0) if s0 is not None else c
+                limit = self._gate_limit(factors, current, len(prefix), c)
                 test = InnovationTest(factors, current, prefix, self._d)
                 gains = test.gains([unit[pending[q]] for q in rest])
                 chosen, _ = greedy_admission(gains, limit)
@@ -625,6 +619,15 @@ class AdmissionPass:
         decided = np.setdiff1d(np.flatnonzero(self.loop_end <= self.last), self.barred)
         errors = np.array([self.unit[k].error(values) for k in decided])
         return float(self._base.error(values) + np.minimum(errors, self._c).sum())
+
+    def _gate_limit(self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+                    n_poses: int, c: float) -> float:
+        """The innovation gate's threshold: ``c`` (stated), or ``c * min(1, s)`` with
+        the prefix's odometry variance factor ``s`` (``calibrated``)."""
+        if self.gate != "calibrated":
+            return c
+        s0 = _variance_factor(factors, current, n_poses, self._d)
+        return c * min(1.0, s0) if s0 is not None else c
 
     def _expired(self, loops: NDArray[np.int64], final: bool) -> NDArray[np.bool_]:
         """Which deferred `loops` have waited their `wait` loop-bearing blocks (every one at
