@@ -30,7 +30,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.run_speed import ROOT, checkout
+
 LOGS = ("carmen/intel.clf.bz2,carmen-corrected/freiburg-campus-corrected.log.gz,"
         "carmen-corrected/freiburg-101-corrected.log.gz")
 
@@ -63,15 +66,6 @@ def run_once(code: Path, log: Path, limit: int) -> dict:
                          env=dict(os.environ, PYTHONPATH=str(code)),
                          cwd=code, check=True, capture_output=True, text=True).stdout
     return json.loads(out.strip().splitlines()[-1])
-
-
-def checkout(rev: str, folder: Path) -> Path:
-    """The code of revision `rev` (``git archive``) in `folder`."""
-    folder.mkdir()
-    archive = subprocess.run(["git", "archive", rev], cwd=ROOT, check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
-    return folder
 
 
 def main() -> None:
