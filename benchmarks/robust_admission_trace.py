@@ -16,7 +16,6 @@ drop.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -25,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evaluation.robustness import corrupted_graph
+from benchmarks.robust_cell import cell_parser, read_cell
 from slam.consistency import incremental_tls, tls_cost
 from slam.offer_back import choose_and_offer_back
 from slam.optimize import initial_guess
@@ -34,17 +33,9 @@ from slam.swap import swap_search
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("graph")
-    parser.add_argument("--data", default="../shared/data/g2o")
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--policy", default="random")
-    parser.add_argument("--ratio", type=float, default=50.0)
-    parser.add_argument("--seed", type=int, default=1)
+    parser = cell_parser(__doc__.split("\n")[0], seed=1, cache=False)
     args = parser.parse_args()
-    graph, reference, corrupted, false = corrupted_graph(
-        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
-        args.seed)
+    graph, reference, corrupted, false = read_cell(args)
     print(f"{len(graph.keys)} poses, {(~false).sum()} true loops, {false.sum()} false; "
           f"clean objective {tls_cost(corrupted, corrupted.gtsam_values(reference)):.1f}")
 

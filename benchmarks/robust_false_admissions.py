@@ -24,8 +24,6 @@ between runs, as in `benchmarks/robust_modes.py`.
 
 from __future__ import annotations
 
-import argparse
-import pickle
 import sys
 from pathlib import Path
 
@@ -35,35 +33,20 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.admission as admission
-from evaluation.robustness import corrupted_graph
+from benchmarks.robust_cell import cell_parser, read_cell
 from slam.consistency import BOUNDED_WAIT, _odometry_scaled, polish, tls_threshold
 from slam.optimize import initial_guess
 from slam.pose_graph import whitened_residual
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("graph")
-    parser.add_argument("--data", default="../shared/data/g2o")
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--policy", default="random")
-    parser.add_argument("--ratio", type=float, default=50.0)
-    parser.add_argument("--seed", type=int, default=0)
+    parser = cell_parser(__doc__.split("\n")[0])
     parser.add_argument("--rung", type=float, default=10.0)
     parser.add_argument("--defer", choices=("off", "bounded", "all"), default="off")
     parser.add_argument("--show", type=int, default=8)
     parser.add_argument("--undo", action="store_true")
-    parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
-    cached = args.cache / f"{args.graph}-x{args.scale:g}.pkl" if args.cache else None
-    known = (pickle.loads(cached.read_bytes()) if cached is not None and cached.exists()
-             else None)
-    graph, reference, corrupted, false = corrupted_graph(
-        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
-        args.seed, reference=known)
-    if cached is not None and known is None:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        cached.write_bytes(pickle.dumps(reference))
+    graph, reference, corrupted, false = read_cell(args)
     values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
     decide = corrupted if args.rung == 1.0 else _odometry_scaled(corrupted, args.rung)
     run = admission.AdmissionPass(decide, values, prefix_solver="batch",

@@ -20,8 +20,6 @@ runs (minutes on M3500a).
 
 from __future__ import annotations
 
-import argparse
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -30,33 +28,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from evaluation.robustness import aligned_position_error, consistent_with_clean, corrupted_graph
+from benchmarks.robust_cell import cell_parser, read_cell
+from evaluation.robustness import aligned_position_error, consistent_with_clean
 from slam.consistency import tls_cost
 from slam.optimize import default_outlier_residual, optimize
 from slam.pose_graph import whitened_residual
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("graph")
-    parser.add_argument("--data", default="../shared/data/g2o")
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--policy", default="random")
-    parser.add_argument("--ratio", type=float, default=50.0)
-    parser.add_argument("--seed", type=int, default=0)
+    parser = cell_parser(__doc__.split("\n")[0])
     parser.add_argument("--defer", default="off")
     parser.add_argument("--undo", default="off")
-    parser.add_argument("--cache", type=Path, default=None)
     args = parser.parse_args()
-    cached = args.cache / f"{args.graph}-x{args.scale:g}.pkl" if args.cache else None
-    known = (pickle.loads(cached.read_bytes()) if cached is not None and cached.exists()
-             else None)
-    graph, reference, corrupted, is_false = corrupted_graph(
-        str(Path(args.data) / args.graph), args.scale, args.ratio / 100, args.policy,
-        args.seed, reference=known)
-    if cached is not None and known is None:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        cached.write_bytes(pickle.dumps(reference))
+    graph, reference, corrupted, is_false = read_cell(args)
     clean_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
     threshold = default_outlier_residual(graph.dim)
     modes = [(defer, undo) for defer in args.defer.split(",") for undo in args.undo.split(",")]
