@@ -21,7 +21,6 @@ whether the two codes' estimates are bit-identical.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -32,7 +31,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.run_speed import ROOT, checkout
+from benchmarks.run_speed import ROOT, checkout, revision_parser
 
 LOGS = ("carmen/intel.clf.bz2,carmen-corrected/freiburg-campus-corrected.log.gz,"
         "carmen-corrected/freiburg-101-corrected.log.gz")
@@ -69,12 +68,7 @@ def run_once(code: Path, log: Path, limit: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", required=True, help="a revision (git archive)")
-    parser.add_argument("--now", help="a revision to measure instead of the working tree")
-    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    parser.add_argument("--logs", default=LOGS, help="comma-separated, under --data")
-    parser.add_argument("--repeat", type=int, default=2, help="timed runs per code")
+    parser = revision_parser(__doc__.split("\n")[0], LOGS)
     parser.add_argument("--limit", type=int, default=0, help="first N scans (0: all)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

@@ -70,13 +70,20 @@ def identical(a: Path, b: Path) -> str:
                      for n in names)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def revision_parser(description: str, logs: str) -> argparse.ArgumentParser:
+    """An argument parser for old-against-new timings: ``--baseline``, ``--now``,
+    ``--data``, ``--logs`` (default `logs`) and ``--repeat``."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--baseline", required=True, help="a revision (git archive)")
     parser.add_argument("--now", help="a revision to measure instead of the working tree")
     parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    parser.add_argument("--logs", default=LOGS, help="comma-separated, under --data")
+    parser.add_argument("--logs", default=logs, help="comma-separated, under --data")
     parser.add_argument("--repeat", type=int, default=2, help="timed runs per code")
+    return parser
+
+
+def main() -> None:
+    parser = revision_parser(__doc__.split("\n")[0], LOGS)
     parser.add_argument("--worker", action="store_true",
                         help="keep the front end's forked worker")
     args = parser.parse_args()
