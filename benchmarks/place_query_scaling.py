@@ -3,7 +3,8 @@
 Run from the repository root::
 
     python benchmarks/place_query_scaling.py [--data DIR] [--scans N]
-        [--sizes 1000,2500,5000,10000] [--queries Q] [--baseline REV [--repeat R]]
+        [--sizes 1000,2500,5000,10000] [--queries Q] [--viewpoints V [--query-viewpoints]]
+        [--baseline REV [--repeat R]]
 
 Every 5th of the Intel log's scans (``carmen/intel.clf.bz2``), up to N of them, is
 made a place (`loopclosure.polygon.polygon_from_scan`) and described once with the
@@ -18,6 +19,12 @@ place (once per keyframe, whatever the size).  The geometric check of the
 candidates that follows a query checks at most `loops.global_places` places whatever
 the database's size, so it is not part of this figure (`bench loops` reports the
 whole query, check included).
+
+With ``--viewpoints V`` every entry also carries V offset viewpoints
+(`loopclosure.place_views`: the prefilter vectors of V other described places stand
+in for them; the cost is the same), and with ``--query-viewpoints`` every query
+carries V of its own and the database compares them too
+(`PlaceDatabaseConfig.query_viewpoints`).
 
 With ``--baseline REV`` the same measurement runs R times (default 3) in fresh
 processes with the code of revision REV (``git archive``) and with the working tree,
@@ -40,9 +47,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
-            verbose: bool = True) -> dict[int, float]:
+            verbose: bool = True, viewpoints: int = 0,
+            query_viewpoints: bool = False) -> dict[int, float]:
     """CPU ms per query for every database size (module docstring), with the code
     on ``sys.path``."""
+    import numpy as np
+
     from data.carmen import CarmenLog
     from loopclosure.place_config import PlaceDatabaseConfig
     from loopclosure.place_database import PlaceDatabase
@@ -67,11 +77,23 @@ def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
     if verbose:
         print(f"{len(described)} places, {len(asked)} queries; stages "
               f"{', '.join(probe.config.stages)}; describing a place: {describe_ms:.2f} ms CPU")
+    n = len(described)
+
+    def with_views(desc: dict, at: int) -> dict:
+        if viewpoints == 0:
+            return desc
+        from loopclosure.place_views import VIEWPOINTS
+
+        stand_in = [described[(at + 1 + i) % n]["pairs"] for i in range(viewpoints)]
+        return {**desc, VIEWPOINTS: {"pairs": np.stack([np.asarray(v) for v in stand_in])}}
+
+    if query_viewpoints:
+        asked = [with_views(q, i) for i, q in enumerate(asked)]
     out: dict[int, float] = {}
     for m in sizes:
-        db = PlaceDatabase(PlaceDatabaseConfig())
+        db = PlaceDatabase(PlaceDatabaseConfig(query_viewpoints=query_viewpoints))
         for key in range(m):
-            db.add_descriptors(key, described[key % len(described)], stamp=float(key))
+            db.add_descriptors(key, with_views(described[key % n], key), stamp=float(key))
         db.query(asked[0], headings=False)  # warm-up: scales, stacks, compiled kernels
         start = time.process_time()
         for q in asked:
@@ -114,6 +136,8 @@ def main() -> None:
     parser.add_argument("--scans", type=int, default=2000, help="places described")
     parser.add_argument("--sizes", default="1000,2500,5000,10000")
     parser.add_argument("--queries", type=int, default=100)
+    parser.add_argument("--viewpoints", type=int, default=0)
+    parser.add_argument("--query-viewpoints", action="store_true")
     parser.add_argument("--baseline", help="a revision to compare with (git archive)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -127,7 +151,8 @@ def main() -> None:
     if args.baseline:
         against_baseline(args, sizes)
         return
-    measure(args.data, args.scans, sizes, args.queries)
+    measure(args.data, args.scans, sizes, args.queries, viewpoints=args.viewpoints,
+            query_viewpoints=args.query_viewpoints)
 
 
 if __name__ == "__main__":

@@ -26,8 +26,10 @@ from loopclosure.key_table import KeyTable
 from loopclosure.loop_config import LoopClosureConfig
 from loopclosure.place_choice import merge_views
 from loopclosure.place_database import Descriptors, PlaceDatabase, PlaceMatch
+from loopclosure.place_views import VIEWPOINTS
 from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
 from loopclosure.registration import RegistrationTarget
+from loopclosure.viewpoints import viewpoint_vectors
 from loopclosure.virtual_scan import virtual_scan
 
 Array = NDArray[np.float64]
@@ -149,6 +151,7 @@ class KeyframeStore:
         """The description `add_keyframe(key, ...)` stores, made without storing it:
         it reads only keys before `key` and the `submap` / `trailing_map` callbacks."""
         cfg = self.config
+        pts = None
         if place_scan is None:
             if np.degrees(scan.fov) >= cfg.full_circle_deg or self._submap is None:
                 place_scan = scan
@@ -162,6 +165,11 @@ class KeyframeStore:
             return place
         place.centroid = polygon.centroid()
         place.descriptors = self.database.describe(polygon)
+        if pts is not None and cfg.viewpoints.enabled:
+            views = viewpoint_vectors(pts, place_scan, cfg.viewpoints, self.database,
+                                      cfg.polygon, cfg.virtual_beams, cfg.virtual_range)
+            if views is not None:
+                place.descriptors[VIEWPOINTS] = views
         if self.wide_database is not None and np.degrees(scan.fov) < cfg.full_circle_deg:
             self._describe_wide(key, stamp, session, place)
         return place

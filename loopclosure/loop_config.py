@@ -8,6 +8,7 @@ from data.errors import UserError
 from loopclosure.geometric_check import GeometricCheckConfig
 from loopclosure.place_config import WIDE_LOGISTIC, PlaceDatabaseConfig
 from loopclosure.polygon import PolygonConfig
+from loopclosure.viewpoints import ViewpointConfig
 
 SEARCHES = ("both", "appearance", "pose")
 """Values of `LoopClosureConfig.search`."""
@@ -93,6 +94,9 @@ class LoopClosureConfig:
             fitted on wide views, `loopclosure.place_config.WIDE_LOGISTIC`, so that a
             query's two views are merged by comparable probabilities; needs the
             default stages and logistic fusion).
+        viewpoints: offset viewpoints a keyframe described from a virtual scan of its
+            submap is also described from, for the prefilter (`loopclosure.viewpoints`;
+            no radii: none).
         target_cache: registration targets (KD-tree + normals) kept in memory.
         database: the place database (prefilter, verifiers, fusion).
         check: the geometric check.
@@ -128,6 +132,7 @@ class LoopClosureConfig:
     wide_every: int = 3
     view_calibration: str = "shared"
     target_cache: int = 256
+    viewpoints: ViewpointConfig = field(default_factory=ViewpointConfig)
     database: PlaceDatabaseConfig = field(default_factory=PlaceDatabaseConfig)
     check: GeometricCheckConfig = field(default_factory=GeometricCheckConfig)
     polygon: PolygonConfig = field(default_factory=PolygonConfig)

@@ -103,6 +103,9 @@ class PlaceDatabaseConfig:
             the database estimate (empty: estimated).
         scale_pairs: random stored pairs per verifier scale estimate.
         seed: seed of the pair sampling.
+        query_viewpoints: a query carrying offset viewpoints of its own (descriptor
+            ``viewpoints``, `loopclosure.place_views`) is compared from each of them
+            too, the smallest distance kept (False: its own description only).
     """
 
     prefilter: tuple[str, ...] = ("pairs",)
@@ -126,6 +129,7 @@ class PlaceDatabaseConfig:
     fixed_scales: tuple[float, ...] = ()
     scale_pairs: int = 64
     seed: int = 0
+    query_viewpoints: bool = False
 
     def __post_init__(self) -> None:
         if not self.prefilter:

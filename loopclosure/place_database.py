@@ -99,6 +99,7 @@ from loopclosure.matchers.pair_histogram import PairHistogramConfig, surface_sam
 from loopclosure.matchers.vector_search import VectorStore, smallest_k
 from loopclosure.place_config import PREFILTER_STAGES, PlaceDatabaseConfig
 from loopclosure.place_rows import FloatRows, KeyIndex
+from loopclosure.place_views import VIEWPOINTS, ViewpointRows, viewpoint_sets, with_viewpoints
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -279,6 +280,7 @@ class PlaceDatabase:
         self._grid_on = cfg.grid_headings > 0 and not cfg.scale_invariant
         self._weights = np.asarray(cfg.prefilter_weights or [1.0] * len(cfg.prefilter), float)
         self._stores: dict[str, VectorStore] = {}
+        self._views = ViewpointRows(cfg.prefilter)  # offset viewpoints (`place_views`)
         self._descriptors: list[Descriptors] = []  # per row: what `descriptors` returns
         self._ranges: FloatRows | None = None  # range functions of the heading hypotheses
         # Per row, its polar grid dilated (`grid_rerank.dilate_polar`, bit-packed; zeros
@@ -375,6 +377,9 @@ class PlaceDatabase:
                 self._stores[s] = VectorStore(len(vec))
             self._stores[s].append(vec)
         kept = {s: descriptors[s] for s in self.config.stages}
+        self._views.append(descriptors.get(VIEWPOINTS))
+        if descriptors.get(VIEWPOINTS) is not None:
+            kept[VIEWPOINTS] = descriptors[VIEWPOINTS]
         if self._heading_matcher is not None:
             fft = descriptors.get("fft", descriptors.get(HEADING))
             if "fft" not in kept:
@@ -476,11 +481,30 @@ class PlaceDatabase:
         """
         q = self._query_descriptors(query)
         self._refresh_scales()
-        raw = {
-            s: self._stores[s].exact_distances(_vector(s, q[s]), rows)
-            for s in self.config.prefilter
-        }
-        return self._combine(raw), raw
+        return self._exact_prefilter(q, np.arange(len(self)) if rows is None else rows)
+
+    def _exact_prefilter(self, q: Descriptors, rows: NDArray[np.intp]
+                         ) -> tuple[Array, dict[str, Array]]:
+        """Exact p and raw stage distances of `rows`, each row's smallest over its own
+        description and its offset viewpoints, and over the query's own viewpoints
+        with ``query_viewpoints`` (`loopclosure.place_views`)."""
+        best: tuple[Array, dict[str, Array]] | None = None
+        for vectors in self._query_vectors(q):
+            raw = {s: self._stores[s].exact_distances(v, rows) for s, v in vectors.items()}
+            cur = (self._combine(raw), raw)
+            if len(self._views):
+                cur = with_viewpoints(cur, self._views.exact(vectors, rows, self._combine))
+            best = cur if best is None else with_viewpoints(best, cur)
+        assert best is not None
+        return best
+
+    def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
+        """The query's prefilter vectors: its own, then (``query_viewpoints``) those of
+        each of its offset viewpoints."""
+        own = {s: _vector(s, q[s]) for s in self.config.prefilter}
+        if not self.config.query_viewpoints:
+            return [own]
+        return [own, *viewpoint_sets(q.get(VIEWPOINTS), self.config.prefilter)]
 
     def _combine(self, raw: Mapping[str, ArrayLike]) -> Any:
         """``sum_s w_s d_s / scale_s`` of per-stage distances (float32 in, float32 out)."""
@@ -500,16 +524,25 @@ class PlaceDatabase:
         """
         self._refresh_scales()
         m = len(self)
-        if len(self._scratch) < m * len(self.config.prefilter):
-            self._scratch = np.empty(2 * m * len(self.config.prefilter), np.float32)
-        combined = None
-        for i, s in enumerate(self.config.prefilter):
-            buf = self._scratch[i * m : (i + 1) * m]
-            d = self._stores[s].fast_distances(_vector(s, q[s]), out=buf)
-            d *= np.float32(self._weights[i] / self._scales[i])
-            combined = d if combined is None else np.add(combined, d, out=combined)
-        assert combined is not None
-        return combined
+        n_stages = len(self.config.prefilter)
+        if len(self._scratch) < m * n_stages:
+            self._scratch = np.empty(2 * m * n_stages, np.float32)
+        factors = {s: self._weights[i] / self._scales[i]
+                   for i, s in enumerate(self.config.prefilter)}
+        best = None
+        for vectors in self._query_vectors(q):
+            combined = None
+            for i, s in enumerate(self.config.prefilter):
+                buf = self._scratch[i * m : (i + 1) * m] if best is None else None
+                d = self._stores[s].fast_distances(vectors[s], out=buf)
+                d *= np.float32(factors[s])
+                combined = d if combined is None else np.add(combined, d, out=combined)
+            assert combined is not None
+            if len(self._views):
+                np.minimum(combined, self._views.screen(vectors, factors, m), out=combined)
+            best = combined if best is None else np.minimum(best, combined, out=best)
+        assert best is not None
+        return best
 
     def candidates(
         self,
@@ -561,11 +594,7 @@ class PlaceDatabase:
                 n = min(n, int(mask.sum()))
             pick = smallest_k(screened, n)
             combined = screened.astype(np.float64) if keep_prefilter else None
-        raw = {
-            s: self._stores[s].exact_distances(_vector(s, q[s]), pick)
-            for s in self.config.prefilter
-        }
-        pre = self._combine(raw)
+        pre, raw = self._exact_prefilter(q, pick)
         order = np.lexsort((pick, pre))
         similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
         return _Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},

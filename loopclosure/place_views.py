@@ -1,0 +1,161 @@
+"""A place database's extra prefilter vectors: stored keyframes described from offset
+viewpoints (`loopclosure.viewpoints`), the distance to a keyframe the smallest over
+its viewpoints.
+
+A stored keyframe's descriptors may carry, under `VIEWPOINTS`, the prefilter vectors
+of V further descriptions of its place ``{stage: (V, D) array}`` (its submap seen
+from beside it).  The database keeps them here, one row per viewpoint, rows of one
+keyframe contiguous and in insertion order of the keyframes (`ViewpointRows`).  The
+combined prefilter distance of a query q to stored keyframe j becomes
+
+    p(j) = min( p_own(j), min_v p_v(j) ),   p_v(j) = sum_s w_s d_s(q, v) / scale_s
+
+(`loopclosure.place_database`, step 1; the scales and weights are the database's).
+The query keeps its single description, unless `PlaceDatabaseConfig.query_viewpoints`
+(a query that carries its own viewpoints, as a stored keyframe asking with its
+stored descriptors does): then p(j) is the smallest over every pair of a query
+description and a stored one, so two viewpoints of radius r cover revisits up to
+2 r apart.  A keyframe's stage distances are those
+of its viewpoint of smallest p, so the fused score sees the description that
+matched.
+
+Screening (`screen`): one float32 matrix-vector product per stage over all
+viewpoint rows, then the minimum per keyframe by one `np.minimum.reduceat` over
+the contiguous runs: no Python loop over keyframes.  The cost grows with the
+number of viewpoint rows (about V times the keyframes').
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from data.errors import UserError
+from loopclosure.matchers.vector_search import VectorStore
+from loopclosure.place_rows import FloatRows
+
+Array = NDArray[np.float64]
+VIEWPOINTS = "viewpoints"
+"""Descriptor key of a keyframe's offset viewpoints: ``{stage: (V, D) array}``."""
+
+
+class ViewpointRows:
+    """Offset viewpoints' prefilter vectors of every stored keyframe (module docstring)."""
+
+    def __init__(self, stages: tuple[str, ...]) -> None:
+        self.stages = tuple(stages)
+        self._stores: dict[str, VectorStore] = {}
+        self._span = FloatRows(2, dtype=np.int64)  # per keyframe row: first view row, count
+        self._owner = FloatRows(1, dtype=np.int64)  # per view row: its keyframe row
+        self._size = 0
+
+    def __len__(self) -> int:
+        """Viewpoint rows stored (all keyframes together)."""
+        return self._size
+
+    def append(self, vectors: Mapping[str, ArrayLike] | None) -> None:
+        """The viewpoints of the next keyframe row (None or V = 0: none)."""
+        n = 0
+        if vectors is not None:
+            arrays = {s: np.asarray(vectors[s], float) for s in self.stages if s in vectors}
+            missing = [s for s in self.stages if s not in arrays]
+            sizes = {a.shape[0] for a in arrays.values() if a.ndim == 2}
+            if missing or len(sizes) != 1 or any(a.ndim != 2 for a in arrays.values()):
+                raise UserError(
+                    "viewpoint descriptors need a (V, D) array of every prefilter stage "
+                    f"({', '.join(self.stages)}), V alike")
+            n = sizes.pop()
+            for s, a in arrays.items():
+                if n == 0:
+                    continue
+                if s not in self._stores:
+                    self._stores[s] = VectorStore(a.shape[1])
+                self._stores[s].extend(a)
+        row = len(self._span.data)
+        self._span.append([self._size, n])
+        for _ in range(n):
+            self._owner.append([row])
+        self._size += n
+
+    def vectors(self, row: int) -> dict[str, Array] | None:
+        """``{stage: (V, D)}`` of keyframe row `row` (None without viewpoints)."""
+        first, n = (int(v) for v in self._span.data[row])
+        if n == 0:
+            return None
+        return {s: np.array([st.row(first + i) for i in range(n)]) for s, st in
+                self._stores.items()}
+
+    def screen(self, query: Mapping[str, ArrayLike], factors: Mapping[str, float],
+               rows: int) -> NDArray[np.float32]:
+        """``(rows,)`` float32 smallest combined distance over each keyframe row's
+        viewpoints (inf: none); `factors` holds w_s / scale_s per stage."""
+        best = np.full(rows, np.inf, np.float32)
+        if self._size == 0:
+            return best
+        combined: NDArray[np.float32] | None = None
+        for s in self.stages:
+            d = self._stores[s].fast_distances(query[s])
+            d *= np.float32(factors[s])
+            combined = d if combined is None else np.add(combined, d, out=combined)
+        assert combined is not None
+        span = self._span.data
+        has = np.flatnonzero(span[:, 1] > 0)
+        best[has] = np.minimum.reduceat(combined, span[has, 0])
+        return best
+
+    def exact(
+        self, query: Mapping[str, ArrayLike], rows: NDArray[np.intp],
+        combine: Callable[[dict[str, Array]], Array],
+    ) -> tuple[Array, dict[str, Array]]:
+        """Per keyframe row of `rows`, its viewpoint of smallest combined distance
+        p_v (float64): ``(p, raw)`` with ``p`` ``(len(rows),)`` (inf: no viewpoint)
+        and ``raw`` stage -> that viewpoint's distances (inf: none)."""
+        rows = np.asarray(rows, np.intp)
+        p = np.full(len(rows), np.inf)
+        raw = {s: np.full(len(rows), np.inf) for s in self.stages}
+        if self._size == 0 or len(rows) == 0:
+            return p, raw
+        first, count = self._span.data[rows, 0], self._span.data[rows, 1]
+        group = np.repeat(np.arange(len(rows)), count)
+        if len(group) == 0:
+            return p, raw
+        start = np.repeat(np.cumsum(count) - count, count)
+        idx = np.repeat(first, count) + (np.arange(len(group)) - start)
+        dist = {s: self._stores[s].exact_distances(query[s], idx) for s in self.stages}
+        pv = np.asarray(combine(dist), float)
+        order = np.lexsort((pv, group))
+        lead = order[np.r_[True, group[order][1:] != group[order][:-1]]]
+        p[group[lead]] = pv[lead]
+        for s in self.stages:
+            raw[s][group[lead]] = dist[s][lead]
+        return p, raw
+
+
+def viewpoint_sets(views: Mapping[str, ArrayLike] | None, stages: tuple[str, ...]
+                   ) -> list[dict[str, Array]]:
+    """A keyframe's viewpoint vectors ``{stage: (V, D)}`` as V query vector sets
+    ``{stage: (D,)}`` (none for None)."""
+    if views is None:
+        return []
+    arrays = {s: np.asarray(views[s], float) for s in stages}
+    n = len(next(iter(arrays.values())))
+    return [{s: a[i] for s, a in arrays.items()} for i in range(n)]
+
+
+def with_viewpoints(
+    own: tuple[Array, dict[str, Array]], views: tuple[Array, dict[str, Array]]
+) -> tuple[Array, dict[str, Array]]:
+    """``(p, raw)`` of each row from its own description or, where smaller, its best
+    viewpoint's (`ViewpointRows.exact`)."""
+    p_own, raw_own = own
+    p_view, raw_view = views
+    use = p_view < p_own
+    if not use.any():
+        return p_own, raw_own
+    return (np.where(use, p_view, p_own),
+            {s: np.where(use, raw_view[s], d) for s, d in raw_own.items()})
+
+
+__all__ = ["VIEWPOINTS", "ViewpointRows", "viewpoint_sets", "with_viewpoints"]
