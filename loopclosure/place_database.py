@@ -99,7 +99,13 @@ from loopclosure.matchers.pair_histogram import PairHistogramConfig, surface_sam
 from loopclosure.matchers.vector_search import VectorStore, smallest_k
 from loopclosure.place_config import PREFILTER_STAGES, PlaceDatabaseConfig
 from loopclosure.place_rows import FloatRows, KeyIndex
-from loopclosure.place_views import VIEWPOINTS, ViewpointRows, viewpoint_sets, with_viewpoints
+from loopclosure.place_views import (
+    VIEWPOINTS,
+    ViewpointRows,
+    screen_sets,
+    viewpoint_sets,
+    with_viewpoints,
+)
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -529,20 +535,20 @@ class PlaceDatabase:
             self._scratch = np.empty(2 * m * n_stages, np.float32)
         factors = {s: self._weights[i] / self._scales[i]
                    for i, s in enumerate(self.config.prefilter)}
-        best = None
-        for vectors in self._query_vectors(q):
+        sets = self._query_vectors(q)
+        if len(sets) == 1:
             combined = None
             for i, s in enumerate(self.config.prefilter):
-                buf = self._scratch[i * m : (i + 1) * m] if best is None else None
-                d = self._stores[s].fast_distances(vectors[s], out=buf)
+                buf = self._scratch[i * m : (i + 1) * m]
+                d = self._stores[s].fast_distances(sets[0][s], out=buf)
                 d *= np.float32(factors[s])
                 combined = d if combined is None else np.add(combined, d, out=combined)
             assert combined is not None
-            if len(self._views):
-                np.minimum(combined, self._views.screen(vectors, factors, m), out=combined)
-            best = combined if best is None else np.minimum(best, combined, out=best)
-        assert best is not None
-        return best
+        else:  # the query's viewpoints too: one pass over the rows for all of them
+            combined = screen_sets(self._stores, sets, factors)
+        if len(self._views):
+            np.minimum(combined, self._views.screen(sets, factors, m), out=combined)
+        return combined
 
     def candidates(
         self,

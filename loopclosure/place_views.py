@@ -19,10 +19,12 @@ description and a stored one, so two viewpoints of radius r cover revisits up to
 of its viewpoint of smallest p, so the fused score sees the description that
 matched.
 
-Screening (`screen`): one float32 matrix-vector product per stage over all
-viewpoint rows, then the minimum per keyframe by one `np.minimum.reduceat` over
-the contiguous runs: no Python loop over keyframes.  The cost grows with the
-number of viewpoint rows (about V times the keyframes').
+Screening (`ViewpointRows.screen`): one float32 pass per stage over all viewpoint
+rows (a matrix-vector product; with the query's viewpoints, one matrix product with
+all its vector sets, `stacked_distances`), the minimum over the query's sets, then
+the minimum per keyframe by one `np.minimum.reduceat` over the contiguous runs: no
+Python loop over keyframes.  The cost grows with the number of viewpoint rows
+(about V times the keyframes').
 """
 
 from __future__ import annotations
@@ -87,19 +89,15 @@ class ViewpointRows:
         return {s: np.array([st.row(first + i) for i in range(n)]) for s, st in
                 self._stores.items()}
 
-    def screen(self, query: Mapping[str, ArrayLike], factors: Mapping[str, float],
+    def screen(self, queries: list[Mapping[str, ArrayLike]], factors: Mapping[str, float],
                rows: int) -> NDArray[np.float32]:
         """``(rows,)`` float32 smallest combined distance over each keyframe row's
-        viewpoints (inf: none); `factors` holds w_s / scale_s per stage."""
+        viewpoints and the query vector sets `queries` (inf: no viewpoint);
+        `factors` holds w_s / scale_s per stage."""
         best = np.full(rows, np.inf, np.float32)
         if self._size == 0:
             return best
-        combined: NDArray[np.float32] | None = None
-        for s in self.stages:
-            d = self._stores[s].fast_distances(query[s])
-            d *= np.float32(factors[s])
-            combined = d if combined is None else np.add(combined, d, out=combined)
-        assert combined is not None
+        combined = screen_sets(self._stores, queries, factors)
         span = self._span.data
         has = np.flatnonzero(span[:, 1] > 0)
         best[has] = np.minimum.reduceat(combined, span[has, 0])
@@ -133,6 +131,34 @@ class ViewpointRows:
         return p, raw
 
 
+def stacked_distances(store: VectorStore, queries: ArrayLike) -> NDArray[np.float32]:
+    """``(Q, M)`` float32 Euclidean distances of Q queries ``(Q, D)`` to every row of
+    `store`, from one pass over its rows (``|x|^2 - 2 x.q + |q|^2``, as
+    `VectorStore.fast_distances` for one query; `np.einsum`'s own loop, not BLAS)."""
+    q = (np.atleast_2d(np.asarray(queries, float)) - store.reference).astype(np.float32)
+    d2 = np.einsum("ij,kj->ki", store.matrix, -2.0 * q)
+    d2 += store.sqnorms[None, :]
+    d2 += np.einsum("kj,kj->k", q, q)[:, None]
+    np.maximum(d2, 0.0, out=d2)
+    return np.sqrt(d2, out=d2)
+
+
+def screen_sets(stores: Mapping[str, VectorStore], queries: list[Mapping[str, ArrayLike]],
+                factors: Mapping[str, float]) -> NDArray[np.float32]:
+    """``(M,)`` float32 smallest over the query vector sets `queries` of the combined
+    distance ``sum_s factors[s] d_s`` to every row of `stores` (one per stage)."""
+    combined: NDArray[np.float32] | None = None
+    for s, store in stores.items():
+        if len(queries) == 1:
+            d = store.fast_distances(queries[0][s])[None, :]
+        else:
+            d = stacked_distances(store, np.stack([np.asarray(q[s], float) for q in queries]))
+        d *= np.float32(factors[s])
+        combined = d if combined is None else np.add(combined, d, out=combined)
+    assert combined is not None
+    return combined.min(axis=0)
+
+
 def viewpoint_sets(views: Mapping[str, ArrayLike] | None, stages: tuple[str, ...]
                    ) -> list[dict[str, Array]]:
     """A keyframe's viewpoint vectors ``{stage: (V, D)}`` as V query vector sets
@@ -158,4 +184,5 @@ def with_viewpoints(
             {s: np.where(use, raw_view[s], d) for s, d in raw_own.items()})
 
 
-__all__ = ["VIEWPOINTS", "ViewpointRows", "viewpoint_sets", "with_viewpoints"]
+__all__ = ["VIEWPOINTS", "ViewpointRows", "screen_sets", "stacked_distances",
+           "viewpoint_sets", "with_viewpoints"]

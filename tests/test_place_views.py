@@ -75,7 +75,11 @@ def test_viewpoint_rows_take_the_smallest_distance_per_keyframe() -> None:
             d = (0.5 * np.linalg.norm(v[:, 0] - q["a"], axis=1)
                  + 2.0 * np.linalg.norm(v[:, 1] - q["b"], axis=1))
             expected[r] = d.min()
-    np.testing.assert_allclose(rows.screen(q, factors, 4), expected, rtol=1e-4)
+    np.testing.assert_allclose(rows.screen([q], factors, 4), expected, rtol=1e-4)
+    # two query sets: the smaller of the two per keyframe, from one pass
+    q2 = {"a": rng.normal(size=3), "b": rng.normal(size=3)}
+    both = np.minimum(expected, rows.screen([q2], factors, 4))
+    np.testing.assert_allclose(rows.screen([q2, q], factors, 4), both, rtol=1e-4)
     p, raw = rows.exact(q, np.array([3, 1, 0, 2]),
                         lambda d: 0.5 * d["a"] + 2.0 * d["b"])
     np.testing.assert_allclose(p, expected[[3, 1, 0, 2]], rtol=1e-6)
@@ -89,7 +93,7 @@ def _square(half: float, centre: tuple[float, float] = (0.0, 0.0)) -> Polygon:
     cx, cy = centre
     v = np.concatenate([np.c_[t, np.full_like(t, -half)], np.c_[np.full_like(t, half), t],
                         np.c_[-t, np.full_like(t, half)], np.c_[np.full_like(t, -half), -t]])
-    return Polygon([*v, cx, cy])
+    return Polygon(v + np.array([cx, cy]))
 
 
 def test_database_distance_is_the_smallest_over_viewpoints() -> None:
