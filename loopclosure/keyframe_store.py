@@ -110,7 +110,10 @@ class KeyframeStore:
         keyframe restored from a saved map).  `place` stores a description already
         made by `describe_keyframe` (in another process, on the same keyframes).
         `session` labels the log the keyframe comes from (`loopclosure.loop_detector`,
-        "Sessions"); its frame starts as the session's own.
+        "Sessions"); its frame starts as the session's own.  A keyframe described from
+        a virtual scan of its submap is also described from the offset viewpoints of
+        `LoopClosureConfig.viewpoints` (`loopclosure.viewpoints`; their prefilter
+        vectors are stored with its descriptors, `loopclosure.place_views`).
 
         Returns False when no polygon could be made (all beams invalid, a degenerate
         local map): the keyframe is then never a candidate, but keys stay aligned.
