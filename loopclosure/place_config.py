@@ -106,6 +106,10 @@ class PlaceDatabaseConfig:
         query_viewpoints: a query carrying offset viewpoints of its own (descriptor
             ``viewpoints``, `loopclosure.place_views`) is compared from each of them
             too, the smallest distance kept (False: its own description only).
+        viewpoint_scores: the fused score of a candidate sees the prefilter
+            distances of its best pair of viewpoints (the ones p took); False: of the
+            query's and the candidate's own descriptions, the distances the logistic
+            model was fitted on (the viewpoints then only choose the candidates).
     """
 
     prefilter: tuple[str, ...] = ("pairs",)
@@ -130,6 +134,7 @@ class PlaceDatabaseConfig:
     scale_pairs: int = 64
     seed: int = 0
     query_viewpoints: bool = False
+    viewpoint_scores: bool = False
 
     def __post_init__(self) -> None:
         if not self.prefilter:

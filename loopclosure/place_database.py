@@ -489,19 +489,25 @@ class PlaceDatabase:
         self._refresh_scales()
         return self._exact_prefilter(q, np.arange(len(self)) if rows is None else rows)
 
-    def _exact_prefilter(self, q: Descriptors, rows: NDArray[np.intp]
+    def _exact_prefilter(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
                          ) -> tuple[Array, dict[str, Array]]:
         """Exact p and raw stage distances of `rows`, each row's smallest over its own
         description and its offset viewpoints, and over the query's own viewpoints
-        with ``query_viewpoints`` (`loopclosure.place_views`)."""
+        with ``query_viewpoints`` (`loopclosure.place_views`).  `scored`: the raw
+        distances the fused score sees, which are those of the two own descriptions
+        unless ``viewpoint_scores``."""
         best: tuple[Array, dict[str, Array]] | None = None
+        own_raw: dict[str, Array] | None = None
         for vectors in self._query_vectors(q):
             raw = {s: self._stores[s].exact_distances(v, rows) for s, v in vectors.items()}
+            own_raw = raw if own_raw is None else own_raw
             cur = (self._combine(raw), raw)
             if len(self._views):
                 cur = with_viewpoints(cur, self._views.exact(vectors, rows, self._combine))
             best = cur if best is None else with_viewpoints(best, cur)
-        assert best is not None
+        assert best is not None and own_raw is not None
+        if scored and not self.config.viewpoint_scores:
+            return best[0], own_raw
         return best
 
     def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
@@ -600,7 +606,7 @@ class PlaceDatabase:
                 n = min(n, int(mask.sum()))
             pick = smallest_k(screened, n)
             combined = screened.astype(np.float64) if keep_prefilter else None
-        pre, raw = self._exact_prefilter(q, pick)
+        pre, raw = self._exact_prefilter(q, pick, scored=True)
         order = np.lexsort((pick, pre))
         similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
         return _Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},

@@ -16,8 +16,10 @@ The query keeps its single description, unless `PlaceDatabaseConfig.query_viewpo
 stored descriptors does): then p(j) is the smallest over every pair of a query
 description and a stored one, so two viewpoints of radius r cover revisits up to
 2 r apart.  A keyframe's stage distances are those
-of its viewpoint of smallest p, so the fused score sees the description that
-matched.
+of its viewpoint of smallest p; the fused score sees them only with
+`PlaceDatabaseConfig.viewpoint_scores` (by default it sees the distances of the own
+descriptions, the feature its logistic model was fitted on: a minimum over several
+descriptions is smaller for wrong places too, and would raise their scores).
 
 Screening (`ViewpointRows.screen`): one float32 pass per stage over all viewpoint
 rows (a matrix-vector product; with the query's viewpoints, one matrix product with

@@ -144,3 +144,20 @@ def test_query_viewpoints_are_compared_only_when_asked() -> None:
         assert (p[2] == pytest.approx(0.0, abs=1e-9)) == asked
         if asked:
             assert db.candidates(query).indices[0] == 2
+
+
+def test_fused_score_sees_own_distances_unless_asked() -> None:
+    rooms = [_square(s) for s in (2.0, 3.0, 4.0, 5.0)]
+    for scores in (False, True):
+        db = PlaceDatabase(prefilter=("pairs",), verifiers=(), fusion="prefilter",
+                           grid_headings=0, n_headings=0, top_k=2, viewpoint_scores=scores)
+        query = db.describe(_square(6.0))
+        for key, room in enumerate(rooms):
+            desc = db.describe(room)
+            if key == 1:
+                desc[VIEWPOINTS] = {"pairs": np.asarray(query["pairs"])[None]}
+            db.add_descriptors(key, desc)
+        c = db.candidates(query)
+        assert c.indices[0] == 1 and c.prefilter[0] == pytest.approx(0.0, abs=1e-9)
+        own = np.linalg.norm(np.asarray(query["pairs"]) - db.describe(rooms[1])["pairs"])
+        assert c.distances[0, 0] == pytest.approx(0.0 if scores else own, abs=1e-6)
