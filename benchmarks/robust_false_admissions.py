@@ -18,7 +18,7 @@ units; the TLS rule keeps a loop whose cost is below ``c``), its own factor erro
 prefix solution, and the largest move [m] of every 25th pose between the two solutions
 (how far it bent the map).  Then the pass's totals: false loops admitted, true loops
 rejected.  `--undo`: the pass tests its undo hypotheses
-(`slam.admission.AdmissionPass._undo`); `--cache`: a folder keeping the clean optimum
+(`slam.admission_undo`); `--cache`: a folder keeping the clean optimum
 between runs, as in `benchmarks/robust_modes.py`.
 """
 
@@ -107,7 +107,8 @@ def main() -> None:
     print(f"pass at odometry x{args.rung:g}, defer {args.defer}: "
           f"{int((w[false] > 0.5).sum())} false admitted, "
           f"{int((w[~false] < 0.5).sum())} true rejected, "
-          f"{run.undone} of {run.tried} undo hypotheses kept")
+          f"{run.undone} of {run.tried} undo hypotheses kept, {run.reverted} of "
+          f"{run.examined} look-aheads reverted")
 
 
 if __name__ == "__main__":

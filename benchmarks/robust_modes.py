@@ -1,21 +1,22 @@
 """Diagnosis: the time-ordered admission under each of its optional modes, on one
 corrupted pose graph: deferring loops whose innovation test has no power
 (`slam.deferral`, ``--defer``) and undoing earlier admissions that a later block's loops
-contradict (`slam.admission.AdmissionPass._undo`, ``--undo``).
+contradict (`slam.admission_undo`, ``--undo``).
 
 Run from the repository root::
 
     python benchmarks/robust_modes.py input_M3500a_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--defer off,all,candidate]
-        [--undo off,on] [--cache DIR]
+        [--undo off,on,myopic] [--cache DIR]
 
 For each pair of a `--defer` mode and an `--undo` setting of `slam.optimize.optimize`
 (``gnc``, incremental, from the odometry chain) prints one line: ATE against the
 outlier-free optimum [m], false loops obeyed (of them, consistent with the outlier-free
 graph), true loops rejected, seconds (wall, and CPU of this process) and the TLS
 objective's gap to the clean optimum, as `benchmarks/robustness.py` judges a cell.
-`--cache`: a folder where the clean optimum of each graph and scaling is kept between
-runs (minutes on M3500a).
+`--undo myopic`: the undo hypotheses without their look-ahead (every kept hypothesis is
+final; `slam.admission_undo.LOOKAHEAD` 0).  `--cache`: a folder where the clean optimum
+of each graph and scaling is kept between runs (minutes on M3500a).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import slam.admission_undo as admission_undo
 from benchmarks.robust_cell import cell_parser, read_cell
 from evaluation.robustness import aligned_position_error, consistent_with_clean
 from slam.consistency import tls_cost
@@ -44,10 +46,12 @@ def main() -> None:
     clean_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
     threshold = default_outlier_residual(graph.dim)
     modes = [(defer, undo) for defer in args.defer.split(",") for undo in args.undo.split(",")]
+    lookahead = admission_undo.LOOKAHEAD
     for defer, undo in modes:
+        admission_undo.LOOKAHEAD = 0 if undo == "myopic" else lookahead
         start, cpu = time.perf_counter(), time.process_time()
         result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
-                          defer=defer, undo=undo == "on")
+                          defer=defer, undo=undo != "off")
         seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         residuals = np.array([whitened_residual(c, result.poses, graph.dim)
                               for c in corrupted.loops])

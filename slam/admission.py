@@ -28,6 +28,8 @@ from numpy.typing import NDArray
 
 from data import se2
 from data.errors import UserError
+from slam.admission_undo import pose_of, settle, test_hypotheses
+from slam.admission_undo import with_loops as _with
 from slam.deferral import (
     MIN_POWER,
     alternative_offsets,
@@ -57,9 +59,6 @@ GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
-UNDO_BLOCKS = 2  # an undo hypothesis re-decides loops admitted this many loop-bearing blocks back
-UNDO_SUPPORT = 2  # rejected loops near an admitted one's two ends that open a hypothesis
-UNDO_TRIES = 2  # undo hypotheses tested per block
 
 
 @dataclass(slots=True)
@@ -147,16 +146,6 @@ def _extend(
         solved.update((k, moved @ given[k]) for k in new)
 
 
-def _with(
-    fixed: gtsam.NonlinearFactorGraph, factors: list, indices: NDArray[np.int64]
-) -> gtsam.NonlinearFactorGraph:
-    """A copy of `fixed` plus ``factors[k]`` for every k in `indices`."""
-    graph = gtsam.NonlinearFactorGraph(fixed)
-    for k in indices:
-        graph.add(factors[k])
-    return graph
-
-
 def _variance_factor(
     factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, poses: int, dof: int
 ) -> float | None:
@@ -212,7 +201,8 @@ def admit_incrementally(
             and is rejected there.
         undo: after each block, test whether loops admitted in the last blocks are what
             made this block's loops fail, and undo them when the TLS objective of the
-            decided loops says so (`AdmissionPass.undo`).
+            decided loops says so; a kept hypothesis is compared again with the pass
+            without it after the next loop-bearing blocks (`slam.admission_undo`).
     """
     run = AdmissionPass(graph, values, probability=probability, block=block, gate=gate,
                         max_rounds=max_rounds, solver=solver, barred=barred,
@@ -307,6 +297,9 @@ class AdmissionPass:
         self._admitted_at = np.full(len(graph.loops), -1, dtype=np.int64)
         self.undone = 0  # undo hypotheses kept
         self.tried = 0  # undo hypotheses tested
+        self.examined = self.reverted = 0  # look-ahead windows settled; of them, reverted
+        self._rival: AdmissionPass | None = None  # the pass without the open window's hypotheses
+        self._rival_until = 0  # `blocks` at which the open window is settled
         self.current = gtsam.Values()  # the solved prefix, then the new block composed onto it
         self.last, self.blocks = -1, 0  # position of the last pose added; blocks solved
         self._ends = [*range(block - 1, len(self.keys) - 1, block), len(self.keys) - 1]
@@ -326,6 +319,7 @@ class AdmissionPass:
         """Drop the iSAM2 of the solved prefix (memory: one per pass, and
         `slam.consistency.incremental_tls` keeps several passes until it chooses among
         them); only for a pass that will not `advance` again."""
+        self._rival = None
         if self._isam is not None:
             self._isam = None
             self._released = True
@@ -335,12 +329,17 @@ class AdmissionPass:
         `blocks` more blocks."""
         n = 0
         while not self.done and (blocks is None or n < blocks):
-            if (self.snapshots is not None and not self.folded
+            if (self.snapshots is not None and not self.folded and self._rival is None
                     and self._step % self._stride == 0
                     and (not self.snapshots or self.snapshots[-1].step < self._step)):
                 self.snapshots.append(self._snapshot())
+            rival = self._rival  # a look-ahead's rival adds the same block (`settle`)
             self._add_block(self._ends[self._step])
+            if rival is not None:
+                rival._add_block(self._ends[self._step])
+                rival._step += 1
             self._step += 1
+            settle(self)
             n += 1
             if until_fold and self.folded:
                 return
@@ -370,6 +369,7 @@ class AdmissionPass:
         run.barred = self.barred if barred is None else barred
         run.gate = self.gate if gate is None else gate
         run.folded, run._released, run.calibrated_step = False, False, None
+        run._rival = None  # snapshots are taken with no look-ahead open
         run.snapshots = earlier
         if not earlier:  # before the first block: a new pass
             run.last, run.blocks, run._step = -1, 0, 0
@@ -379,7 +379,7 @@ class AdmissionPass:
             run._fixed = gtsam.NonlinearFactorGraph()
             run._base = gtsam.NonlinearFactorGraph()
             run._admitted_at = np.full(len(self.graph.loops), -1, dtype=np.int64)
-            run.undone = run.tried = 0
+            run.undone = run.tried = run.examined = run.reverted = 0
             run._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
             return run
         snap = earlier[-1]
@@ -398,7 +398,7 @@ class AdmissionPass:
         last, current, fixed, isam = self.last, self.current, self._fixed, self._isam
         new = keys[last + 1 : end + 1]
         ref = keys[last] if last >= 0 else None
-        solved = {} if ref is None else {ref: _pose_of(current, ref, graph.dim)}
+        solved = {} if ref is None else {ref: pose_of(current, ref, graph.dim)}
         _extend(solved, self._given, ref, new, graph.dim)
         for k in new:
             pose = to_gtsam_pose(solved[k], graph.dim)
@@ -494,123 +494,7 @@ class AdmissionPass:
             fixed.add(unit[pending[q]])
         self._admitted_at[pending[accepted]] = self.blocks
         if self.undo:
-            self._undo(arrived, prefix)
-
-    def _undo(self, arrived: NDArray[np.int64], prefix: list[int]) -> None:
-        """Undo hypotheses after a block: were loops admitted in the last `UNDO_BLOCKS`
-        loop-bearing blocks what made this block's loops fail?
-
-        A hypothesis opens for an admitted recent loop ``a`` when at least `UNDO_SUPPORT`
-        loops of this block that were rejected lie near it (both ends within `UNDO_BLOCKS`
-        blocks of ``a``'s: the same return to the same place; its *support*) and outnumber
-        the recent admitted loops near it (its *cluster*, ``a`` included). The hypothesis
-        removes every loop admitted in the last `UNDO_BLOCKS` loop-bearing blocks (``a`` and
-        whatever else bent the prefix since) and this block's admissions from the accepted
-        prefix, re-solves it, decides the support first (as if it had arrived first), then
-        this block's other loops and the removed ones, by the same rules as the block
-        (`_plain_rounds`). It replaces the block's outcome when its TLS objective over every
-        loop decided so far is lower (`_decided_cost`: each loop at its inlier cost or the
-        truncation ``c``, the same candidate set for both). At most `UNDO_TRIES` hypotheses
-        a block, those whose support most outnumbers its cluster first.
-        """
-        w = self.weights
-        rejected = arrived[w[arrived] < 0.5]
-        if len(rejected) < UNDO_SUPPORT:
-            return
-        recent = np.flatnonzero((w > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
-        lo, hi, reach = self.loop_start, self.loop_end, UNDO_BLOCKS * self._block
-
-        def near(k: int, others: NDArray[np.int64]) -> NDArray[np.int64]:
-            return others[(np.abs(lo[others] - lo[k]) <= reach)
-                          & (np.abs(hi[others] - hi[k]) <= reach)]
-
-        hypotheses: dict[tuple[int, ...], int] = {}
-        for a in recent:
-            support, cluster = near(int(a), rejected), near(int(a), recent)
-            if len(support) >= UNDO_SUPPORT and len(support) > len(cluster):
-                hypotheses.setdefault(tuple(support), len(support) - len(cluster))
-        ranked = sorted(hypotheses.items(), key=lambda h: -h[1])[:UNDO_TRIES]
-        for support_key, _ in ranked:
-            support = np.array(support_key, dtype=np.int64)
-            if (self.weights[support] > 0.5).any():  # an earlier hypothesis admitted it
-                continue
-            # Every recent admission is re-decided: the one the support contradicts and
-            # any other that bent the prefix since.
-            undone = np.flatnonzero(
-                (self.weights > 0.5) & (self._admitted_at >= self.blocks - UNDO_BLOCKS))
-            # The block's outcome solved by the same batch solver as the hypothesis (an
-            # iSAM2 estimate stops at another tolerance), so the costs compare decisions.
-            try:
-                before = self._decided_cost(self._solve(self._fixed, self.current))
-            except RuntimeError:
-                return
-            self.tried += 1
-            keep = np.flatnonzero(self.weights > 0.5)
-            keep = np.setdiff1d(keep, np.union1d(undone, arrived))
-            try:
-                values = self._solve(_with(self._base, self.unit, keep), self.current)
-                first, values = self._plain_rounds(support, keep, values, prefix)
-                keep = np.union1d(keep, first)
-                rest = np.setdiff1d(np.union1d(arrived, undone), first)
-                then, values = self._plain_rounds(rest, keep, values, prefix)
-            except RuntimeError:  # singular information or a failed solve: no hypothesis
-                continue
-            weights = self.weights.copy()
-            weights[np.union1d(arrived, undone)] = 0.0
-            weights[np.union1d(first, then).astype(np.int64)] = 1.0
-            if not self._decided_cost(values) < before * (1.0 - 1e-9):
-                continue
-            newly = np.flatnonzero((weights > 0.5) & (self.weights < 0.5))
-            self._admitted_at[weights < 0.5] = -1
-            self._admitted_at[newly] = self.blocks
-            self.weights = weights
-            self._fixed = _with(self._base, self.unit, np.flatnonzero(weights > 0.5))
-            self.current = values
-            self.undone += 1
-            if self.gate == "stated" and self.calibrated_step is None:
-                # a calibrated pass resumed after this block would not have tested it
-                self.calibrated_step = self._step
-            if self._isam is not None:
-                self._isam = IsamPrefix()
-                for n in range(self._fixed.size()):
-                    self._isam.add(self._fixed.at(n))
-                for k in prefix:
-                    self._isam.insert(k, to_gtsam_pose(_pose_of(values, k, self.graph.dim),
-                                                       self.graph.dim))
-                # A rebuilt iSAM2 that does not converge hands over to batch solves; the
-                # pass is not marked folded (its admitted loops are the hypothesis's).
-                self.current, self._isam = isam_or_batch(self._isam, self._solve,
-                                                         self._fixed, values)
-
-    def _plain_rounds(
-        self, pending: NDArray[np.int64], accepted: NDArray[np.int64], current: gtsam.Values,
-        prefix: list[int],
-    ) -> tuple[NDArray[np.int64], gtsam.Values]:
-        """The block's rounds (residual rule, then the greedy innovation gate; batch
-        solves, no deferral) deciding `pending` against the prefix of the loops
-        `accepted`, solved at `current`; the loops of `pending` admitted and the solution."""
-        unit, c = self.unit, self._c
-        taken = np.zeros(len(pending), dtype=bool)
-        factors = _with(self._base, unit, accepted)
-        for _ in range(self._max_rounds):
-            errors = np.array([unit[k].error(current) for k in pending])
-            newly = ~taken & (errors <= c)
-            if not newly.any():
-                rest = np.flatnonzero(~taken)
-                if len(rest) == 0:
-                    break
-                limit = self._gate_limit(factors, current, len(prefix), c)
-                test = InnovationTest(factors, current, prefix, self._d)
-                gains = test.gains([unit[pending[q]] for q in rest])
-                chosen, _ = greedy_admission(gains, limit)
-                if not chosen:
-                    break
-                newly = np.zeros(len(pending), dtype=bool)
-                newly[rest[chosen]] = True
-            taken |= newly
-            factors = _with(self._base, unit, np.union1d(accepted, pending[taken]))
-            current = self._solve(factors, current)
-        return pending[taken], current
+            test_hypotheses(self, arrived, prefix)
 
     def _decided_cost(self, values: gtsam.Values) -> float:
         """TLS objective at `values` of the part decided so far: anchors and odometry of
@@ -680,10 +564,3 @@ class AdmissionPass:
             prefix = "isam2-then-batch"
         return Admission(self.current, w, float(cost), self.blocks, self.gate, prefix)
 
-
-def _pose_of(values: gtsam.Values, key: int, dim: int) -> Array:
-    """Pose `key` of `values` as (x, y, theta) or a 4x4 matrix."""
-    if dim == 2:
-        p = values.atPose2(key)
-        return np.array([p.x(), p.y(), p.theta()])
-    return values.atPose3(key).matrix()

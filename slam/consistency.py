@@ -375,7 +375,7 @@ def incremental_tls(
 
     `undo`: every pass tests, after each block, whether loops it admitted in the last
     blocks made the block's loops fail, and undoes them when the decided loops' TLS
-    objective drops (`slam.admission.AdmissionPass._undo`); off by default.
+    objective drops (`slam.admission_undo`); off by default.
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")

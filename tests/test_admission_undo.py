@@ -1,4 +1,4 @@
-"""Undo hypotheses of the time-ordered admission (`slam.admission.AdmissionPass._undo`)."""
+"""Undo hypotheses of the time-ordered admission (`slam.admission_undo`)."""
 
 from __future__ import annotations
 
