@@ -1,10 +1,11 @@
-"""Undo hypotheses of the time-ordered admission (`slam.admission_undo`)."""
+"""Undo hypotheses of the time-ordered admission and their look-ahead (`slam.admission_undo`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+import slam.admission_undo as admission_undo
 from data.errors import UserError
 from slam.admission import AdmissionPass
 from slam.optimize import initial_guess
@@ -73,3 +74,55 @@ def test_the_decided_cost_is_the_tls_objective_once_every_pose_is_added() -> Non
     run = _pass(graph, undo=True)
     assert run.unit[false].error(run.current) > run._c
     assert run._decided_cost(run.current) == pytest.approx(tls_cost(graph, run.current))
+
+
+def _forced_false_loop(long_window: bool) -> tuple[AdmissionPass, AdmissionPass, int]:
+    """The lap closed by its true loops and a false loop (40, LAP + 20) that says pose
+    LAP + 20 is where pose 40 is (about 4 m off; the plain pass rejects it).  After its
+    block a hypothesis is forced by hand: the false loop admitted, the true loop of the
+    same block rejected, the look-ahead opened as `test_hypotheses` opens it.  Returns the
+    pass so continued, the plain pass, and the false loop's index."""
+    graph, _ = loose_lap(TRUE_LOOPS, False)
+    false = graph.add_loop(40, LAP + 20, np.zeros(3), np.diag([400.0, 400.0, 2500.0]))
+    plain = _pass(graph, undo=False)
+    assert plain.weights[false] == 0.0
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    run = AdmissionPass(graph, values, block=10, undo=True, prefix_solver="batch")
+    while run._step <= run.block_of(false):
+        run.advance(blocks=1)
+    assert run.weights[false] == 0.0 and run._rival is None
+    admission_undo.open_window(run)
+    weights = run.weights.copy()
+    weights[false] = 1.0
+    weights[[k for k in range(len(graph.loops)) if graph.loops[k].j == LAP + 20
+             and k != false]] = 0.0
+    run.weights = weights
+    run._fixed = admission_undo.with_loops(run._base, run.unit, np.flatnonzero(weights > 0.5))
+    run.current = run._solve(run._fixed, run.current)
+    if long_window:  # still open at the last block
+        run._rival_until = run.blocks + 100
+    return run, plain, false
+
+
+def test_a_hypothesis_the_next_blocks_contradict_is_reverted() -> None:
+    run, plain, false = _forced_false_loop(False)
+    run.advance(blocks=1)
+    assert run._rival is not None  # the window is still open after one loop-bearing block
+    run.advance()
+    assert run.examined == 1 and run.reverted == 1
+    assert run.weights[false] == 0.0
+    np.testing.assert_array_equal(run.weights, plain.weights)
+
+
+def test_an_open_look_ahead_is_settled_at_the_last_block() -> None:
+    run, plain, _ = _forced_false_loop(True)
+    run.advance()
+    assert run._rival is None and run.examined == 1 and run.reverted == 1
+    np.testing.assert_array_equal(run.weights, plain.weights)
+
+
+def test_a_hypothesis_the_next_blocks_confirm_is_kept() -> None:
+    graph, false = _false_return_a_block_early()
+    run = _pass(graph, undo=True)
+    assert run.undone >= 1 and run.examined >= 1 and run.reverted == 0
+    assert run.weights[false] == 0.0
