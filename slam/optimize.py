@@ -161,7 +161,7 @@ def optimize(
     fast_path: bool = True,
     swap: bool = False,
     defer: str = "off",
-    undo: bool = False,
+    undo: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -197,9 +197,12 @@ def optimize(
     ``"bounded"`` (waits one loop-bearing block for the consensus of the loops that
     arrive, then the plain gate decides), ``"both"`` (each rung without and with it, the
     choice among all), ``"all"`` and ``"candidate"`` as there.
-    `undo`: the incremental admission's passes undo earlier admissions that a later
-    block's loops contradict when the TLS objective says so
-    (`slam.consistency.incremental_tls`); off by default.
+    `undo` (on by default): the incremental admission's passes undo earlier admissions
+    that a later block's loops contradict when the TLS objective of the decided part says
+    so, and compare each kept hypothesis again with the pass without it after the next
+    loop-bearing blocks (`slam.admission_undo`): an early false return no longer bends
+    the prefix that every later loop is judged against, and a consistent false group that
+    looks cheaper when it arrives is reverted once the following returns contradict it.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
