@@ -288,3 +288,29 @@ def test_compiled_sector_of_offsets_equals_the_arctangent_one() -> None:
             want = _bins(np.array([x]), np.array([y]), 1.5, orient, 4, 12)[0]
             assert _bin(x, y, *args) == want
         assert _bin(0.0, 0.0, *args) == _bins(np.zeros(1), np.zeros(1), 1.5, orient, 4, 12)[0]
+
+
+def test_scale_test_without_the_logarithm_agrees_with_it_at_the_bounds() -> None:
+    from loopclosure.matchers.flirt_kernel import _compatible
+
+    gate = float(np.log(2.0)) + 1e-12
+    hi = float(np.exp(gate))
+    lo_in, hi_in = (1.0 + 1e-9) / hi, hi * (1.0 - 1e-9)
+    lo_out, hi_out = (1.0 - 1e-9) / hi, hi * (1.0 + 1e-9)
+    # Hand-checked: a ratio of exactly 2 (or 1/2) is compatible, 2.001 is not.
+    assert _compatible(2.0, gate, lo_in, hi_in, lo_out, hi_out)
+    assert _compatible(0.5, gate, lo_in, hi_in, lo_out, hi_out)
+    assert not _compatible(2.001, gate, lo_in, hi_in, lo_out, hi_out)
+    assert not _compatible(1.0 / 2.001, gate, lo_in, hi_in, lo_out, hi_out)
+    # Every ratio around both bounds and the margins' ends: the logarithm's answer.
+    xs = []
+    for centre in (hi, 1.0 / hi, lo_in, hi_in, lo_out, hi_out, 1.0):
+        x = centre
+        for _ in range(50):
+            x = np.nextafter(x, 0.0)
+        for _ in range(100):
+            xs.append(x)
+            x = np.nextafter(x, np.inf)
+    xs += list(np.linspace(0.3, 3.0, 2001)) + list(hi * (1.0 + np.linspace(-3e-9, 3e-9, 601)))
+    for x in xs:
+        assert _compatible(x, gate, lo_in, hi_in, lo_out, hi_out) == (abs(np.log(x)) <= gate)

@@ -21,7 +21,15 @@ milliseconds in all).  This kernel walks each entry once with the same arithmeti
 5. the one-to-one inliers and the distance in [0, 2].
 
 Only the order of floating-point sums and the library of ``sin``, ``cos`` and
-``atan2`` differ from numpy's, so the results agree to rounding.  The descriptor
+``atan2`` differ from numpy's, so the results agree to rounding.  Three shortcuts
+change no result: the scale test ``|log(s_a / s_b)| <= log(scale_ratio)`` is
+decided by comparing the ratio with ``scale_ratio^-+1`` except within a relative
+1e-9 of them (`_compatible`); a hypothesis whose pair orientations disagree with
+its rotation by a margin of 1e-9 in the cosine (the rotation's cosine and sine
+taken as the normalised dot and cross products, equal to ``cos`` and ``sin`` of
+the ``atan2`` to rounding) is dropped before the trigonometry; and the guided
+matching walks each query feature's allowed features from a list made once per
+entry instead of testing every stacked feature.  The descriptor
 distances (a matrix product) stay in numpy and come in as `dd`.
 
 numba is imported with this module, which `flirt` loads on first use; kernels are
@@ -37,17 +45,18 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _guided(qp, qo, pts, ori, th, tx, ty, tau_all, allowed, tie, cos_tol, e, match):
-    """Guided matching of one entry under ``(th, tx, ty)``: fills ``e`` and ``match`` (Q,)."""
+def _guided(qp, qo, pts, ori, th, tx, ty, tau_all, alist, acount, tie, cos_tol, e, match):
+    """Guided matching of one entry under ``(th, tx, ty)``: fills ``e`` and ``match`` (Q,).
+    ``alist[q, :acount[q]]``: the stacked features query feature q may match, in
+    increasing order (the allowed ones of step 1)."""
     c, s = math.cos(th), math.sin(th)
-    n_q, width = allowed.shape
+    n_q = alist.shape[0]
     for q in range(n_q):
         best_v = np.inf
         best_e = np.inf
         best_f = 0
-        for f in range(width):
-            if not allowed[q, f]:
-                continue
+        for u in range(acount[q]):
+            f = alist[q, u]
             if math.cos(qo[q] - ori[f] - th) < cos_tol:
                 continue
             ex = (c * pts[f, 0] - s * pts[f, 1] + tx) - qp[q, 0]
@@ -104,6 +113,19 @@ def _procrustes(qp, pts, match, inl, weight, th, tx, ty):
     return new_th, mqx - (c * mpx - s * mpy), mqy - (s * mpx + c * mpy)
 
 
+@numba.njit(cache=True, inline="always")
+def _compatible(x, gate, lo_in, hi_in, lo_out, hi_out):
+    """``|log x| <= gate``: decided by comparisons where `x` lies clearly inside
+    (``lo_in..hi_in``) or outside (beyond ``lo_out..hi_out``) of ``exp(-+gate)``
+    (margins of 1e-9 relative, far above the rounding of ``log`` and ``exp``), by
+    the logarithm itself in between: the same answer as the logarithm everywhere."""
+    if lo_in < x < hi_in:
+        return True
+    if x < lo_out or x > hi_out:
+        return False
+    return abs(math.log(x)) <= gate
+
+
 @numba.njit(cache=True)
 def flirt_entries(
     qp, qs, qo, dd, pts, scl, ori, valid, counts, hi, ha, hj, hb,
@@ -133,7 +155,9 @@ def flirt_entries(
     best_out = np.full((m, width), np.inf)
     cand = np.empty((n_q, k), dtype=np.intp)
     cand_d = np.empty((n_q, k))
-    allowed = np.zeros((n_q, width), dtype=np.bool_)
+    alist = np.zeros((n_q, width), dtype=np.intp)
+    acount = np.zeros(n_q, dtype=np.intp)
+    nfin = np.zeros(n_q, dtype=np.intp)
     tie = np.zeros((n_q, width))
     tau_all = np.empty((n_q, width))
     cpx = np.empty((n_q, k))
@@ -144,7 +168,16 @@ def flirt_entries(
     weight = np.empty(n_q)
     inl = np.zeros(n_q, dtype=np.bool_)
     gate = log_scale_ratio + 1e-12
+    # |log x| <= gate decided without the logarithm away from the two bounds.
+    e_hi = math.exp(gate)
+    lo_in, hi_in = (1.0 + 1e-9) / e_hi, e_hi * (1.0 - 1e-9)
+    lo_out, hi_out = (1.0 - 1e-9) / e_hi, e_hi * (1.0 + 1e-9)
     inv_tau2 = np.empty((n_q, k))
+    # The query side of every hypothesis (the same for all entries).
+    hvq = np.empty((n_h, 3))
+    for h in range(n_h):
+        vqx, vqy = qp[hj[h], 0] - qp[hi[h], 0], qp[hj[h], 1] - qp[hi[h], 1]
+        hvq[h, 0], hvq[h, 1], hvq[h, 2] = vqx, vqy, math.sqrt(vqx * vqx + vqy * vqy)
     for r in range(m):
         # 1. Compatible pairs, k nearest (stable), gate and tie-breaker.
         look_sum = 0.0
@@ -153,7 +186,8 @@ def flirt_entries(
                 cand_d[q, kk] = np.inf  # stays inf where fewer than k features
             filled = 0
             for f in range(width):
-                ok = valid[r, f] and abs(math.log(qs[q] / scl[r, f])) <= gate
+                ok = valid[r, f] and _compatible(qs[q] / scl[r, f], gate, lo_in, hi_in,
+                                                 lo_out, hi_out)
                 v = dd[r, q, f] if ok else np.inf
                 tau_all[q, f] = inlier_factor * math.sqrt(qs[q] * scl[r, f])
                 tie[q, f] = v  # the masked distance, until the gate is known
@@ -177,10 +211,19 @@ def flirt_entries(
             for kk in range(k):
                 if np.isfinite(cand_d[q, kk]) and cand_d[q, kk] > kth:
                     kth = cand_d[q, kk]
+            acount[q] = 0
             for f in range(width):
                 v = tie[q, f]
-                allowed[q, f] = v <= kth  # false where incompatible: v = inf, kth finite
-                tie[q, f] = v * (1e-6 / d_max) if allowed[q, f] else 0.0
+                if v <= kth:  # false where incompatible: v = inf, kth finite
+                    alist[q, acount[q]] = f
+                    acount[q] += 1
+                    tie[q, f] = v * (1e-6 / d_max)
+                else:
+                    tie[q, f] = 0.0
+            # cand_d[q] is sorted with its infinite entries last.
+            nfin[q] = 0
+            while nfin[q] < k and np.isfinite(cand_d[q, nfin[q]]):
+                nfin[q] += 1
             for kk in range(k):
                 f = cand[q, kk]
                 cpx[q, kk] = pts[r, f, 0]
@@ -202,13 +245,24 @@ def flirt_entries(
                 continue
             if cand[i, a] == cand[j, b]:
                 continue
-            vqx, vqy = qp[j, 0] - qp[i, 0], qp[j, 1] - qp[i, 1]
+            vqx, vqy, len_q = hvq[h, 0], hvq[h, 1], hvq[h, 2]
             vpx, vpy = cpx[j, b] - cpx[i, a], cpy[j, b] - cpy[i, a]
-            len_q = math.sqrt(vqx * vqx + vqy * vqy)
             len_p = math.sqrt(vpx * vpx + vpy * vpy)
             if not (abs(len_q - len_p) <= tau[i, a] + tau[j, b] and len_q > 0):
                 continue
-            theta = math.atan2(vpx * vqy - vpy * vqx, vpx * vqx + vpy * vqy)
+            cross = vpx * vqy - vpy * vqx
+            dot = vpx * vqx + vpy * vqy
+            norm = len_p * len_q
+            if norm > 0.0:
+                # cos and sin of theta to rounding: a pair clearly turned too far
+                # (by a margin far above that rounding) is dropped before the
+                # trigonometry; the exact test below decides the rest.
+                ca, sa = dot / norm, cross / norm
+                if rel_c[i, a] * ca + rel_s[i, a] * sa < cos_tol - 1e-9:
+                    continue
+                if rel_c[j, b] * ca + rel_s[j, b] * sa < cos_tol - 1e-9:
+                    continue
+            theta = math.atan2(cross, dot)
             c, s = math.cos(theta), math.sin(theta)
             if rel_c[i, a] * c + rel_s[i, a] * s < cos_tol:
                 continue
@@ -221,9 +275,7 @@ def flirt_entries(
             cost = 0.0
             for q in range(n_q):
                 low = 1.0
-                for kk in range(k):
-                    if not np.isfinite(cand_d[q, kk]):
-                        continue
+                for kk in range(nfin[q]):
                     if rel_c[q, kk] * c + rel_s[q, kk] * s < cos_tol:
                         continue
                     ex = c * cpx[q, kk] - s * cpy[q, kk] + (htx - qp[q, 0])
@@ -244,14 +296,14 @@ def flirt_entries(
         e = e_out[r]
         match = match_out[r]
         for _ in range(2):
-            _guided(qp, qo, pts[r], ori[r], th, tx, ty, tau_all, allowed, tie,
+            _guided(qp, qo, pts[r], ori[r], th, tx, ty, tau_all, alist, acount, tie,
                     cos_tol, e, match)
             for q in range(n_q):
                 inl[q] = found and e[q] < 1.0
                 t_q = tau_all[q, match[q]]
                 weight[q] = 1.0 / (t_q * t_q)
             th, tx, ty = _procrustes(qp, pts[r], match, inl, weight, th, tx, ty)
-        _guided(qp, qo, pts[r], ori[r], th, tx, ty, tau_all, allowed, tie,
+        _guided(qp, qo, pts[r], ori[r], th, tx, ty, tau_all, alist, acount, tie,
                 cos_tol, e, match)
 
         # 5. One-to-one inliers and the distance.
