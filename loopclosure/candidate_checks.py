@@ -15,7 +15,9 @@ the places accepted for one query must agree (`_verify_free`).  Each check is
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections import OrderedDict
+from collections.abc import Hashable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,11 +29,55 @@ from loopclosure.longer_check import is_degenerate, joined, recheck_longer, trai
 from loopclosure.loop_candidate import LoopCandidate, place_figures
 from loopclosure.place_database import PlaceMatch
 
+if TYPE_CHECKING:
+    from loopclosure.grid_target import GridTarget
+
 Array = NDArray[np.float64]
 
 
 class CandidateChecks(KeyframeStore):
     """The checks of candidates (module docstring) on the stored keyframes."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # key -> (submap version, lazy grid) for the checks from a prior (`_prior_grid`),
+        # least recently used first.
+        self._grids: OrderedDict[int, tuple[Hashable, GridTarget]] = OrderedDict()
+
+    def release_caches(self) -> None:
+        """Drop the cached registration targets and grids of the submaps (rebuilt on
+        demand)."""
+        super().release_caches()
+        self._grids.clear()
+
+    def _prior_grid(self, key: int) -> GridTarget | None:
+        """The compiled ICP's lazy grid of `key`'s submap for a check from a prior
+        (`loopclosure.fast_icp`), rebuilt when the submap's version changed; None when
+        the check does not run the compiled ICP, or its normals would not be the
+        target's (`_target`, whose `GridTarget.from_target` the check would use).
+
+        The target computes a normal for every submap point; the lazy grid only for
+        the points ICP and the overlap screen meet, with the same computation on the
+        same cells (`loopclosure.fast_icp.estimate_normals_fast` puts the points in
+        cells of side ``normal_radius``, this grid in cells of `TARGET_GRID_CELL`:
+        when the two are equal the sorted points, their neighbours and so every
+        normal are the same), so every figure of the check is the same."""
+        cfg = self.config.check
+        from loopclosure.fast_icp import TARGET_GRID_CELL, GridTarget  # numba on first use
+
+        if not cfg.compiled_icp or cfg.icp.normal_radius != TARGET_GRID_CELL:
+            return None
+        version = None if self._submap_version is None else self._submap_version(key)
+        cached = self._grids.get(key)
+        if cached is not None and cached[0] == version:
+            self._grids.move_to_end(key)
+            return cached[1]
+        grid = GridTarget(self._submap_points(key), cfg.icp, TARGET_GRID_CELL, lazy=True)
+        self._grids[key] = (version, grid)
+        self._grids.move_to_end(key)
+        while len(self._grids) > self.config.target_cache:
+            self._grids.popitem(last=False)
+        return grid
 
     def _check_prior(
         self, key: int, cand: int, match: PlaceMatch | None, poses: Array,
@@ -43,9 +89,11 @@ class CandidateChecks(KeyframeStore):
         prior_cov = None if cov is None else 2.0 * cov
         # A prior good to better than the offset step needs no offset guesses.
         offsets = 0.0 if sigma < 0.5 * cfg.check.offsets else None
+        grid = self._prior_grid(cand)
         result = verify(
-            query_points, self._target(cand), prior=prior, prior_covariance=prior_cov,
-            offsets=offsets, max_distance=cfg.max_distance, config=cfg.check,
+            query_points, self._target(cand) if grid is None else None, prior=prior,
+            prior_covariance=prior_cov, offsets=offsets, max_distance=cfg.max_distance,
+            config=cfg.check, grid=grid,
         )
         distance = float(np.hypot(prior[0], prior[1]))
         if match is None:

@@ -104,6 +104,7 @@ ICP's Gauss-Newton covariance, which is optimistic, never below `covariance_floo
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -120,6 +121,9 @@ from loopclosure.registration import (
     RegistrationTarget,
     voxel_downsample,
 )
+
+if TYPE_CHECKING:
+    from loopclosure.grid_target import GridTarget
 
 Array = NDArray[np.float64]
 NOT_A_REVISIT = "not a revisit"
@@ -388,7 +392,7 @@ def _verify_correlative(
 
 def verify(
     query_points: ArrayLike,
-    candidate: RegistrationTarget,
+    candidate: RegistrationTarget | None,
     *,
     prior: ArrayLike | None = None,
     prior_covariance: ArrayLike | None = None,
@@ -397,12 +401,14 @@ def verify(
     offsets: float | None = None,
     max_distance: float | None = None,
     config: GeometricCheckConfig | None = None,
+    grid: GridTarget | None = None,
 ) -> LoopVerification:
     """Check that the query submap (its frame) fits the candidate's submap (see module doc).
 
     Args:
         query_points: ``(N, 2)`` submap of the query keyframe, in its sensor frame [m].
-        candidate: the candidate keyframe's submap as a registration target.
+        candidate: the candidate keyframe's submap as a registration target (None
+            when `grid` is given).
         prior: ``(3,)`` predicted pose of the query in the candidate's frame (from the
             current estimates), or None for a purely appearance-based candidate.
         prior_covariance: ``3x3`` uncertainty of `prior`; enables the prior gate.
@@ -414,9 +420,21 @@ def verify(
             0: none, e.g. when the prior is already good to a few centimetres).
         max_distance: a verified relative pose longer than this is not a revisit
             [m] (None: no limit).
+        grid: the candidate's submap as the compiled ICP's grid
+            (`loopclosure.fast_icp.GridTarget`, e.g. a lazy one kept by the caller)
+            instead of `candidate`: for a check from a prior with ``compiled_icp``.
+
+    Raises:
+        UserError: `grid` for a check that needs the `RegistrationTarget`, or
+            neither given.
     """
     cfg = config or GeometricCheckConfig()
+    if grid is not None and (prior is None or not cfg.compiled_icp):
+        raise UserError("verify: a grid serves a check from a prior with compiled ICP only")
+    if grid is None and candidate is None:
+        raise UserError("verify needs the candidate's target or its grid")
     if prior is None and cfg.method == "correlative":
+        assert candidate is not None
         return _verify_correlative(query_points, candidate, headings, max_distance, cfg)
     base = np.zeros(3) if prior is None else np.asarray(prior, dtype=float).reshape(3)
     if prior is None and translation is not None:
@@ -435,20 +453,22 @@ def verify(
     min_fitness = cfg.min_fitness_gated if gated else cfg.min_fitness
     min_inliers = cfg.min_inlier_ratio_gated if gated else cfg.min_inlier_ratio
     gate = cfg.icp.max_correspondence_distance
-    grid = None
     overlap = bound = np.inf  # no screen
     if cfg.compiled_icp:
         from loopclosure import fast_icp
 
         # Both screens in one compiled pass on the grid ICP runs on; the candidate's
         # KD-tree is needed only when ICP runs (its prescreen of the guesses).
-        grid = fast_icp.GridTarget.from_target(candidate, fast_icp.TARGET_GRID_CELL)
+        if grid is None:
+            assert candidate is not None
+            grid = fast_icp.GridTarget.from_target(candidate, fast_icp.TARGET_GRID_CELL)
         if prior is not None and (cfg.min_prior_overlap > 0 or cfg.bound_reach > 0):
             scores, bounds = fast_icp.overlap_screen(source, grid, guesses, gate,
                                                      cfg.bound_reach)
             overlap = float(scores.max(initial=0.0))
             bound = float(bounds.max(initial=0.0))
     elif prior is not None and cfg.min_prior_overlap > 0:
+        assert candidate is not None
         overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
     if prior is not None and cfg.min_prior_overlap > 0 and overlap < cfg.min_prior_overlap:
         return _rejected_early(

@@ -260,3 +260,33 @@ def test_a_runner_up_is_implausible_when_free_space_rules_it_out(
         return Consistency(consistency=v, conflict_ratio=1 - v, hits=100, conflicts=0)
 
     assert implausible_runner_up(c(runner_up), c(best), cfg) is expected
+
+
+def test_check_from_a_prior_on_a_lazy_grid_equals_the_check_on_the_target() -> None:
+    """A lazy grid of the candidate's submap in cells of the normals' radius gives the
+    check every figure the prepared target gives (the same normals where ICP meets
+    points); a grid is refused for a check without a prior."""
+    from data.errors import UserError
+    from loopclosure.fast_icp import TARGET_GRID_CELL, GridTarget, estimate_normals_fast
+
+    rng = np.random.default_rng(4)
+    a, b = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1])
+    cfg = GeometricCheckConfig()
+    cand = _seen_from(ROOM, a, rng, 0.005)
+    query = _seen_from(ROOM, b, rng, 0.005)
+    target = RegistrationTarget(cand, cfg.icp, normals=estimate_normals_fast)
+    for off, cov in (([0.15, -0.1, 0.05], np.diag([0.1, 0.1, 0.02]) ** 2 * 4),
+                     ([0.6, 0.4, 0.2], np.diag([0.3, 0.3, 0.1]) ** 2)):
+        prior = se2.compose(se2.between(a, b), np.array(off))
+        grid = GridTarget(cand, cfg.icp, TARGET_GRID_CELL, lazy=True)
+        ref = verify(query, target, prior=prior, prior_covariance=cov, config=cfg)
+        got = verify(query, None, prior=prior, prior_covariance=cov, config=cfg, grid=grid)
+        assert got.reason == ref.reason and got.accepted == ref.accepted
+        np.testing.assert_array_equal(got.relative, ref.relative)
+        np.testing.assert_array_equal(got.covariance, ref.covariance)
+        assert (got.fitness, got.rms, got.margin, got.hypotheses) == (
+            ref.fitness, ref.rms, ref.margin, ref.hypotheses)
+    with pytest.raises(UserError):
+        verify(query, target, headings=[0.0], config=cfg, grid=grid)
+    with pytest.raises(UserError):
+        verify(query, None, prior=prior, config=cfg)

@@ -549,3 +549,22 @@ def test_per_view_calibration_scores_the_wide_view_by_its_own_model(narrow_keyfr
     with pytest.raises(UserError, match="per-view"):
         LoopClosureConfig(view_calibration="per-view",
                           database=PlaceDatabaseConfig(fusion="rank"))
+
+
+def test_checks_from_a_prior_keep_one_lazy_grid_per_submap_version() -> None:
+    """`_prior_grid` builds a candidate's grid once per submap version and drops it with
+    the other caches."""
+    import numpy as np
+
+    from loopclosure.loop_detector import LoopClosureDetector
+
+    version = {"v": 0}
+    pts = np.column_stack([np.linspace(0, 3, 200), np.zeros(200)])
+    det = LoopClosureDetector(submap=lambda key: pts, submap_version=lambda key: version["v"])
+    first = det._prior_grid(0)
+    assert first is not None and det._prior_grid(0) is first
+    version["v"] = 1
+    second = det._prior_grid(0)
+    assert second is not first and det._prior_grid(0) is second
+    det.release_caches()
+    assert det._prior_grid(0) is not second
