@@ -211,7 +211,9 @@ def match_prior_free(
 
     cfg = config or PriorFreeConfig()
     query = as_points(query_points, "query points")
-    if len(query) == 0 or candidate.tree is None:
+    # Nothing ICP can match (`RegistrationTarget.tree` is None exactly then), asked
+    # without building the KD-tree: the compiled ICP and the free-space test use none.
+    if len(query) == 0 or len(candidate) == 0:
         return PriorFreeMatch()
     if headings is None or len(np.atleast_1d(headings)) == 0:
         angles = correlative.search_angles([0.0], np.pi, np.radians(cfg.coarse_angle_step_deg))
