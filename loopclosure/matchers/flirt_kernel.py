@@ -159,7 +159,7 @@ def flirt_entries(
     acount = np.zeros(n_q, dtype=np.intp)
     nfin = np.zeros(n_q, dtype=np.intp)
     tie = np.zeros((n_q, width))
-    tau_all = np.empty((n_q, width))
+    tau_all = np.ones((n_q, width))  # set per entry where read (step 1)
     cpx = np.empty((n_q, k))
     cpy = np.empty((n_q, k))
     tau = np.empty((n_q, k))
@@ -189,7 +189,6 @@ def flirt_entries(
                 ok = valid[r, f] and _compatible(qs[q] / scl[r, f], gate, lo_in, hi_in,
                                                  lo_out, hi_out)
                 v = dd[r, q, f] if ok else np.inf
-                tau_all[q, f] = inlier_factor * math.sqrt(qs[q] * scl[r, f])
                 tie[q, f] = v  # the masked distance, until the gate is known
                 # Insert after every kept value <= v (stable order).
                 if filled < k:
@@ -217,6 +216,9 @@ def flirt_entries(
                 if v <= kth:  # false where incompatible: v = inf, kth finite
                     alist[q, acount[q]] = f
                     acount[q] += 1
+                    # tau of the pairs guided matching may use (every candidate is
+                    # one of them); the others' are never read.
+                    tau_all[q, f] = inlier_factor * math.sqrt(qs[q] * scl[r, f])
                     tie[q, f] = v * (1e-6 / d_max)
                 else:
                     tie[q, f] = 0.0
