@@ -404,3 +404,16 @@ def test_a_gated_check_screens_and_registers_without_the_candidates_kd_tree() ->
         assert res.accepted == ref.accepted == accepted and res.reason.startswith(reason)
         assert ref.reason == res.reason
         np.testing.assert_allclose(res.relative, ref.relative, atol=1e-9)
+
+
+def test_upper_median_by_selection_is_the_sorted_one() -> None:
+    """`_upper_median_abs` is ``sorted(|v[:n]|)[n // 2]`` for every n (ties, signs, a
+    tail beyond n that must not count)."""
+    from loopclosure.fast_icp import _upper_median_abs
+
+    rng = np.random.default_rng(5)
+    for n in range(1, 60):
+        v = np.concatenate([rng.normal(size=n), [1e9, -1e9]])
+        v[: n // 3] = np.round(v[: n // 3], 1)  # ties
+        assert _upper_median_abs(v, n) == np.sort(np.abs(v[:n]))[n // 2]
+    assert _upper_median_abs(np.array([-3.0, 1.0, 2.0]), 3) == 2.0  # |.| = 3, 1, 2
