@@ -133,7 +133,8 @@ __all__ = [
     "BAR_TRIES", "DEFER_MODES", "LM_BUDGET", "ODOMETRY_LADDER", "POLISH_TOLERANCE",
     "Admission", "AdmissionPass", "InnovationTest", "StatedFactors", "admission_costs",
     "admit_incrementally", "bar_search", "greedy_admission", "has_odometry_spine",
-    "incremental_tls", "needs_qr", "polish", "refine_tls", "tls_cost", "tls_threshold",
+    "incremental_tls", "needs_qr", "polish", "refine_tls", "stated_with_loops", "tls_cost",
+    "tls_threshold",
 ]
 
 Array = NDArray[np.float64]
@@ -452,7 +453,7 @@ def incremental_tls(
         if pick >= 0:
             best, decided, source = finished[pick]
         if pick >= 0 and offered is not None:
-            kept = _with_loops(stated, offered)
+            kept = stated_with_loops(stated, offered)
             refined = solver(kept, best.values)
             best = Admission(refined, np.asarray(offered, dtype=float),
                              tls_cost(graph, refined, probability, stated), best.blocks,
@@ -490,7 +491,7 @@ def polish(
     at ``1e-6``, or at gtsam's default absolute decrease of ``1e-5``, can end visibly
     short of the optimum (MITb with odometry information scaled by 0.01: decimetres).
     """
-    kept = _with_loops(factors, weights)
+    kept = stated_with_loops(factors, weights)
     params = gtsam.DoglegParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(POLISH_TOLERANCE)
@@ -499,7 +500,7 @@ def polish(
     return gtsam.DoglegOptimizer(kept, values, params).optimize()
 
 
-def _with_loops(factors: StatedFactors, weights: Array) -> gtsam.NonlinearFactorGraph:
+def stated_with_loops(factors: StatedFactors, weights: Array) -> gtsam.NonlinearFactorGraph:
     """The stated graph `factors` with only the loops of ``weights > 0.5``."""
     base, loop_index = factors
     kept = gtsam.NonlinearFactorGraph()

@@ -45,6 +45,7 @@ from slam.consistency import (
     StatedFactors,
     admit_incrementally,
     refine_tls,
+    stated_with_loops,
     tls_cost,
 )
 from slam.least_squares import StickySolver
@@ -113,7 +114,7 @@ def swap_search(
         out.tried.append(group)
         w = best.weights.copy()
         w[group] = 1.0
-        solved = solve(_with_loops(stated, w), best.values)
+        solved = solve(stated_with_loops(stated, w), best.values)
         refined, new = refine_tls(graph, solved, w, probability=probability, solver=solve,
                                   solved=True, factors=stated)
         out_now = [int(k) for k in np.flatnonzero((best.weights > 0.5) & (new < 0.5))]
@@ -141,14 +142,3 @@ def swap_search(
             out.replayed = True
     out.admission = best
     return out
-
-
-def _with_loops(factors: StatedFactors, weights: Array) -> gtsam.NonlinearFactorGraph:
-    """The stated graph `factors` with only the loops of ``weights > 0.5``."""
-    base, loop_index = factors
-    kept = gtsam.NonlinearFactorGraph()
-    for k in range(base.size() - len(loop_index)):
-        kept.add(base.at(k))
-    for k in np.flatnonzero(np.asarray(weights) > 0.5):
-        kept.add(base.at(loop_index[k]))
-    return kept
