@@ -102,6 +102,7 @@ from loopclosure.place_rows import FloatRows, KeyIndex
 from loopclosure.place_views import (
     VIEWPOINTS,
     ViewpointRows,
+    prefilter_vector,
     screen_sets,
     viewpoint_sets,
     with_viewpoints,
@@ -118,12 +119,6 @@ _GRID_SAMPLES = PairHistogramConfig()
 GRID = "grid"
 """Descriptor key of the bit-packed polar occupancy grid of the grid headings."""
 _SAME_HEADING = np.radians(5.0)
-
-
-def _vector(stage: str, descriptor: Any) -> ArrayLike:
-    """The Euclidean vector of a prefilter stage's descriptor (an `FFTDescriptor`'s
-    amplitudes, a ring profile, or an already extracted vector)."""
-    return getattr(descriptor, "amplitudes", descriptor)
 
 
 def _rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
@@ -378,7 +373,7 @@ class PlaceDatabase:
         if missing:
             raise UserError(f"descriptors of key {key!r} lack stage(s) {', '.join(missing)}")
         for s in self.config.prefilter:
-            vec = np.asarray(_vector(s, descriptors[s]), dtype=float)
+            vec = np.asarray(prefilter_vector(descriptors[s]), dtype=float)
             if s not in self._stores:
                 self._stores[s] = VectorStore(len(vec))
             self._stores[s].append(vec)
@@ -513,7 +508,7 @@ class PlaceDatabase:
     def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
         """The query's prefilter vectors: its own, then (``query_viewpoints``) those of
         each of its offset viewpoints."""
-        own = {s: _vector(s, q[s]) for s in self.config.prefilter}
+        own = {s: prefilter_vector(q[s]) for s in self.config.prefilter}
         if not self.config.query_viewpoints:
             return [own]
         return [own, *viewpoint_sets(q.get(VIEWPOINTS), self.config.prefilter)]
@@ -542,16 +537,7 @@ class PlaceDatabase:
         factors = {s: self._weights[i] / self._scales[i]
                    for i, s in enumerate(self.config.prefilter)}
         sets = self._query_vectors(q)
-        if len(sets) == 1:
-            combined = None
-            for i, s in enumerate(self.config.prefilter):
-                buf = self._scratch[i * m : (i + 1) * m]
-                d = self._stores[s].fast_distances(sets[0][s], out=buf)
-                d *= np.float32(factors[s])
-                combined = d if combined is None else np.add(combined, d, out=combined)
-            assert combined is not None
-        else:  # the query's viewpoints too: one pass over the rows for all of them
-            combined = screen_sets(self._stores, sets, factors)
+        combined = screen_sets(self._stores, sets, factors, self._scratch)
         if len(self._views):
             np.minimum(combined, self._views.screen(sets, factors, m), out=combined)
         return combined

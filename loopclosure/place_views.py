@@ -32,6 +32,7 @@ Python loop over keyframes.  The cost grows with the number of viewpoint rows
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +46,12 @@ VIEWPOINTS = "viewpoints"
 """Descriptor key of a keyframe's offset viewpoints: ``{stage: (V, D) array}``."""
 
 
+def prefilter_vector(descriptor: Any) -> ArrayLike:
+    """The Euclidean vector of a prefilter stage's descriptor (an `FFTDescriptor`'s
+    amplitudes, a ring profile, or an already extracted vector)."""
+    return getattr(descriptor, "amplitudes", descriptor)
+
+
 class ViewpointRows:
     """Offset viewpoints' prefilter vectors of every stored keyframe (module docstring)."""
 
@@ -52,7 +59,6 @@ class ViewpointRows:
         self.stages = tuple(stages)
         self._stores: dict[str, VectorStore] = {}
         self._span = FloatRows(2, dtype=np.int64)  # per keyframe row: first view row, count
-        self._owner = FloatRows(1, dtype=np.int64)  # per view row: its keyframe row
         self._size = 0
 
     def __len__(self) -> int:
@@ -77,10 +83,7 @@ class ViewpointRows:
                 if s not in self._stores:
                     self._stores[s] = VectorStore(a.shape[1])
                 self._stores[s].extend(a)
-        row = len(self._span.data)
         self._span.append([self._size, n])
-        for _ in range(n):
-            self._owner.append([row])
         self._size += n
 
     def vectors(self, row: int) -> dict[str, Array] | None:
@@ -146,19 +149,26 @@ def stacked_distances(store: VectorStore, queries: ArrayLike) -> NDArray[np.floa
 
 
 def screen_sets(stores: Mapping[str, VectorStore], queries: list[Mapping[str, ArrayLike]],
-                factors: Mapping[str, float]) -> NDArray[np.float32]:
+                factors: Mapping[str, float], scratch: NDArray[np.float32] | None = None
+                ) -> NDArray[np.float32]:
     """``(M,)`` float32 smallest over the query vector sets `queries` of the combined
-    distance ``sum_s factors[s] d_s`` to every row of `stores` (one per stage)."""
+    distance ``sum_s factors[s] d_s`` to every row of `stores` (one per stage).
+
+    `scratch`: a float32 buffer of at least ``M`` times the stages that a single query
+    set's distances are written into (no fresh pages per query; the result is then a
+    view of it, valid until the buffer is written again)."""
     combined: NDArray[np.float32] | None = None
-    for s, store in stores.items():
+    for i, (s, store) in enumerate(stores.items()):
         if len(queries) == 1:
-            d = store.fast_distances(queries[0][s])[None, :]
+            m = len(store)
+            out = None if scratch is None else scratch[i * m : (i + 1) * m]
+            d = store.fast_distances(queries[0][s], out=out)
         else:
             d = stacked_distances(store, np.stack([np.asarray(q[s], float) for q in queries]))
         d *= np.float32(factors[s])
         combined = d if combined is None else np.add(combined, d, out=combined)
     assert combined is not None
-    return combined.min(axis=0)
+    return combined if combined.ndim == 1 else combined.min(axis=0)
 
 
 def viewpoint_sets(views: Mapping[str, ArrayLike] | None, stages: tuple[str, ...]
@@ -186,5 +196,5 @@ def with_viewpoints(
             {s: np.where(use, raw_view[s], d) for s, d in raw_own.items()})
 
 
-__all__ = ["VIEWPOINTS", "ViewpointRows", "screen_sets", "stacked_distances",
-           "viewpoint_sets", "with_viewpoints"]
+__all__ = ["VIEWPOINTS", "ViewpointRows", "prefilter_vector", "screen_sets",
+           "stacked_distances", "viewpoint_sets", "with_viewpoints"]

@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data.errors import UserError
 from data.types import Scan
+from loopclosure.place_views import prefilter_vector
 from loopclosure.polygon import DegeneratePolygonError, PolygonConfig, polygon_from_scan
 from loopclosure.virtual_scan import virtual_scan
 
@@ -137,7 +138,7 @@ def viewpoint_vectors(
             continue
         for s in stages:
             desc = database.matchers[s].describe(poly)
-            rows[s].append(np.asarray(getattr(desc, "amplitudes", desc), float))
+            rows[s].append(np.asarray(prefilter_vector(desc), float))
     if not rows[stages[0]]:
         return None
     return {s: np.stack(v) for s, v in rows.items()}
