@@ -193,6 +193,28 @@ def self_consistency(mapper, poses: np.ndarray, first: int, last: int) -> str:
             f"{ids[-1]}: {moves_deg[-1]:.2f} deg), rms {np.median(rms):.2f} cm")
 
 
+def keyframe_consistency(mapper, poses: np.ndarray, half: int = 5) -> np.ndarray:
+    """For every keyframe i, how far [deg] ICP turns its scan onto the scans of
+    keyframes ``i - half .. i + half`` (itself left out) as `poses` place them, started
+    at its pose in `poses` (NaN: no pose); `self_consistency` over the whole log."""
+    kfs = mapper.keyframes.keyframes
+    out = np.full(len(kfs), np.nan)
+    for i in range(len(kfs)):
+        if not np.isfinite(poses[i]).all():
+            continue
+        ids = [j for j in range(max(0, i - half), min(len(kfs), i + half + 1))
+               if j != i and np.isfinite(poses[j]).all()]
+        if len(ids) < 2:
+            continue
+        others = np.vstack([se2.transform_points(se2.between(poses[i], poses[j]),
+                                                 kfs[j].points) for j in ids])
+        r = register(np.asarray(kfs[i].points, float), RegistrationTarget(others, FINE),
+                     np.zeros(3), config=FINE)
+        if r.ok:
+            out[i] = abs(float(np.degrees(r.pose[2])))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("log")
@@ -201,6 +223,9 @@ def main() -> None:
     ap.add_argument("--correct", type=int, default=5, help="correct detections to compare")
     ap.add_argument("--keys", help="only these query keys (comma-separated)")
     ap.add_argument("--csv", type=Path, help="write the rows here")
+    ap.add_argument("--keyframe-consistency", action="store_true",
+                    help="also every keyframe's scan against its neighbours', by the front "
+                         "end's and by the reference's poses (`keyframe_consistency`)")
     args = ap.parse_args()
     rows = list(csv.DictReader(open(args.queries)))
     source = LoopSource(args.log, relations=args.relations,
@@ -208,6 +233,15 @@ def main() -> None:
                         odometry_noise=None if args.relations else 0, folder=str(Path.cwd()))
     mapper, result, ref = mapped_input(source, PipelineConfig())
     det = mapper.detector
+    if args.keyframe_consistency:
+        front = np.array([k.odom_pose for k in mapper.keyframes.keyframes], float)
+        for name, poses in (("front end", front), ("reference", ref)):
+            turn = keyframe_consistency(mapper, poses)
+            t = turn[np.isfinite(turn)]
+            print(f"keyframe scan vs its neighbours' by the {name}'s poses: ICP turns it "
+                  f"median {np.median(t):.3f} deg, 90th pct {np.percentile(t, 90):.3f}, "
+                  f"> 1 deg {np.mean(t > 1):.3f}, > 2 deg {np.mean(t > 2):.3f} "
+                  f"({len(t)} keyframes)", flush=True)
     acc = [r for r in rows if r["final_match"] != ""]
     if args.keys:
         keys = {int(k) for k in args.keys.split(",")}
