@@ -372,3 +372,33 @@ def test_kiss_runs_on_lifted_scans_and_clouds(run) -> None:
     e = odo.process(empty)
     check_estimate(e)
     assert e.status == "no_points"
+
+
+def test_icp2d_jump_scale_largest_keeps_metre_steps_between_turns_on_the_spot() -> None:
+    """A log of one scan per metre where the robot also turns on the spot: after a
+    0.5 m step, steps alternate two 0.03 m steps with a 0.5 rad turn and one 1.05 m
+    straight.  The median step is 0.03 m, so ``max(1 m, 10 * 0.03 m)`` flags every
+    1.05 m step; the largest recent non-jump step (0.5 m, then 1.05 m) gives at
+    least ``max(1 m, 5 m)``: none is a jump, while a 12 m step (over ``10 * 1.05``)
+    still is, and it does not raise the scale for the next one."""
+    def prediction_flags(scale: str, steps: list[np.ndarray]) -> list[bool]:
+        odo = Icp2dOdometry(Icp2dConfig(jump_scale=scale))
+        pose = np.zeros(3)
+        odo._odom = pose.copy()
+        flags = []
+        for step in steps:
+            pose = se2.compose(pose, step)
+            flags.append(odo._prediction(pose)[2])
+            odo._odom = pose.copy()
+        return flags
+
+    walk, turn = np.array([1.05, 0.0, 0.0]), np.array([0.03, 0.0, 0.5])
+    steps = [np.array([0.5, 0.0, 0.0])] + [turn, turn, walk] * 4
+    median = prediction_flags("median", steps)
+    assert median[3] and all(median[6::3])  # every walk after the first turns
+    assert not any(prediction_flags("largest", steps))
+    kidnap = np.array([12.0, 0.0, 0.0])
+    flags = prediction_flags("largest", [*steps, kidnap, kidnap, walk])
+    assert flags[-3:] == [True, True, False]
+    with pytest.raises(UserError):
+        Icp2dConfig(jump_scale="mean")

@@ -64,12 +64,13 @@ Graceful handling (status of `OdometryEstimate`)
   `min_degeneracy`; the pose is kept (the prior fixed the weak direction, and the
   covariance is large along it).
 * ``odometry_jump``: the odometry increment is implausible: longer than both
-  `max_step` [m] and `jump_ratio` times the median step of the last
+  `max_step` [m] and `jump_ratio` times the usual step of the last
   `jump_history` increments, or turning more than both `max_step_rotation` [rad]
-  and `jump_ratio` times their median turn (relative, so logs recorded at one scan
-  per metre are not flagged all the time).  Kidnap, or a glitch of the log: ICP
-  without prior is tried from the odometry prediction and from the previous pose
-  (zero motion), then the search.  A match that is good and has at least
+  and `jump_ratio` times their usual turn (relative, so logs recorded at one scan
+  per metre are not flagged all the time); usual is their median, or with
+  ``jump_scale="largest"`` the largest of those that were not jumps.  Kidnap, or
+  a glitch of the log: ICP without prior is tried from the odometry prediction and
+  from the previous pose (zero motion), then the search.  A match that is good and has at least
   `jump_fitness_ratio` times the median fitness of the last `jump_history`
   registered scans (a jump needs more evidence than a step) gives the pose
   (``extra["kidnap"] = False``).  Otherwise the robot was carried away
@@ -161,7 +162,15 @@ class Icp2dConfig:
         max_step: odometry increments longer than this (and than `jump_ratio`
             times the recent median) are jumps [m].
         max_step_rotation: the same for the rotation [rad].
-        jump_ratio: a jump is also this many times longer than the recent median.
+        jump_ratio: a jump is also this many times longer than the recent usual
+            motion (`jump_scale`).
+        jump_scale: the recent usual motion: ``"median"``, the median step and turn
+            of the last `jump_history` increments, or ``"largest"``, the largest of
+            the last `jump_history` increments that were not jumps.  The median
+            flags an ordinary step as a jump on logs of about one scan per metre
+            where the robot also turns on the spot (half the steps a few
+            centimetres): the median falls to centimetres and the ordinary
+            metre-long step exceeds `max_step`.
         jump_history: number of recent increments (and fitness values) of the medians.
         jump_fitness_ratio: a match after a jump needs this fraction of the median
             recent fitness.
@@ -205,6 +214,7 @@ class Icp2dConfig:
     max_step: float = 1.0
     max_step_rotation: float = 1.0
     jump_ratio: float = 10.0
+    jump_scale: str = "median"
     jump_history: int = 20
     jump_fitness_ratio: float = 0.75
     kidnap_sigma: tuple[float, float, float] = (10.0, 10.0, np.pi)
@@ -227,6 +237,9 @@ class Icp2dConfig:
         if self.line_anchor not in LINE_ANCHORS:
             raise UserError(f"icp2d line_anchor must be one of {', '.join(LINE_ANCHORS)}, "
                             f"got {self.line_anchor!r}")
+        if self.jump_scale not in ("median", "largest"):
+            raise UserError(f"icp2d jump_scale must be median or largest, "
+                            f"got {self.jump_scale!r}")
         if self.line_anchor != "point" and not self.compiled:
             raise UserError("icp2d line_anchor other than 'point' needs compiled=true")
         if self.map_keyframes < 1 or self.min_points < 3 or self.jump_history < 1:
@@ -371,20 +384,31 @@ class Icp2dOdometry:
         if odom is not None and self._odom is not None:
             u = se2.between(self._odom, odom)
             step, turn = float(np.hypot(u[0], u[1])), float(abs(u[2]))
-            if self._recent_steps:
-                # A few dozen numbers: plain Python (np.median's per-call overhead is
-                # tens of microseconds, paid at every scan); the same mean of the two
-                # middle values for an even count.
-                med_step = statistics.median(s for s, _ in self._recent_steps)
-                med_turn = statistics.median(t for _, t in self._recent_steps)
-            else:
-                med_step = med_turn = 0.0
-            jump = bool(step > max(cfg.max_step, cfg.jump_ratio * med_step)
-                        or turn > max(cfg.max_step_rotation, cfg.jump_ratio * med_turn))
-            self._recent_steps.append((step, turn))  # a lone jump hardly moves the median
+            usual_step, usual_turn = self._usual_motion()
+            jump = bool(step > max(cfg.max_step, cfg.jump_ratio * usual_step)
+                        or turn > max(cfg.max_step_rotation, cfg.jump_ratio * usual_turn))
+            if cfg.jump_scale == "median" or not jump:
+                # A lone jump hardly moves the median; the largest step counts only
+                # the increments that were not jumps, so a kidnap does not raise it.
+                self._recent_steps.append((step, turn))
             return u, cfg.odometry_noise.covariance(u), jump
         u = self._velocity.copy()
         return u, np.diag(np.square(cfg.velocity_sigma)), False
+
+    def _usual_motion(self) -> tuple[float, float]:
+        """Step [m] and turn [rad] the jump rule scales by `jump_ratio`: the median
+        (``jump_scale="median"``) or the largest (``"largest"``) of the recent
+        increments, each taken separately; zero before the first."""
+        if not self._recent_steps:
+            return 0.0, 0.0
+        steps = [s for s, _ in self._recent_steps]
+        turns = [t for _, t in self._recent_steps]
+        if self.config.jump_scale == "largest":
+            return max(steps), max(turns)
+        # A few dozen numbers: plain Python (np.median's per-call overhead is tens of
+        # microseconds, paid at every scan); the mean of the two middle values for an
+        # even count.
+        return float(statistics.median(steps)), float(statistics.median(turns))
 
     def _register(self, points: Array, pred: Array, u_cov: Array) -> IcpResult:
         grid = self._grid
