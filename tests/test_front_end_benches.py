@@ -67,3 +67,30 @@ def test_pipeline_consecutive_errors_by_hand() -> None:
     row = bench.consecutive(est, truth, "c_")
     assert abs(row["c_trans_m"] - 0.01 / 3) < 1e-12
     assert abs(row["c_rot_deg"] - 0.1) < 1e-9
+
+
+def test_turn_scale_of_front_end_bends() -> None:
+    """Turns on the spot of 30 degrees read 1 % too large: turn_scale +1 %; the straight
+    steps (no turn) are left out of it, and the heading RMS is 0.3 deg over the four
+    turns of eight increments: sqrt(4 * 0.3^2 / 8)."""
+    bench = load_benchmark("front_end_bends")
+    turn, walk = np.array([0.01, 0.0, np.radians(30)]), np.array([1.0, 0.0, 0.0])
+    ref, front = [np.zeros(3)], [np.zeros(3)]
+    for k in range(8):
+        step = turn if k % 2 else walk
+        ref.append(se2.compose(ref[-1], step))
+        front.append(se2.compose(front[-1], step * np.array([1.0, 1.0, 1.01])))
+    rpe, scale = bench.turn_scale(np.array(front), np.array(ref))
+    assert abs(scale - 1.0) < 1e-9
+    assert abs(rpe - np.sqrt(4 * 0.3 ** 2 / 8)) < 1e-9
+
+
+def test_turn_onto_finds_a_scan_turned_by_two_degrees() -> None:
+    """An L-shaped room's points turned by 2 degrees about the origin: ICP turns them back."""
+    bench = load_benchmark("front_end_bends")
+    s = np.linspace(0.0, 3.0, 150)
+    room = np.vstack([np.column_stack([s, np.full_like(s, 2.0)]),
+                      np.column_stack([np.full_like(s, 3.0), s - 1.0]),
+                      np.column_stack([-s, np.full_like(s, -1.5)])])
+    turned = se2.transform_points(np.array([0.0, 0.0, np.radians(2.0)]), room)
+    assert abs(bench.turn_onto(turned, room) - 2.0) < 0.05
