@@ -402,3 +402,18 @@ def test_icp2d_jump_scale_largest_keeps_metre_steps_between_turns_on_the_spot() 
     assert flags[-3:] == [True, True, False]
     with pytest.raises(UserError):
         Icp2dConfig(jump_scale="mean")
+
+
+def test_icp2d_jump_scale_largest_learns_metre_steps_from_the_first_scans(run) -> None:
+    """Every ninth scan of the run: steps of about 1.1 m from the very first one, over
+    `max_step`.  Against an empty history the first step is a jump; the map confirms
+    it, its registered increment becomes the usual step, and no later step is a jump."""
+    scans = run.scans[::9][:20]
+    steps = [np.hypot(*se2.between(a.odom, b.odom)[:2]) for a, b in itertools.pairwise(scans)]
+    assert min(steps[:3]) > 1.0
+    odo = Icp2dOdometry(Icp2dConfig(jump_scale="largest"))
+    est = [odo.process(s) for s in scans]
+    for e in est:
+        check_estimate(e)
+    assert est[1].status == "odometry_jump" and est[1].extra["kidnap"] is False
+    assert all(e.status in ("ok", "degenerate") for e in est[2:])

@@ -68,7 +68,8 @@ Graceful handling (status of `OdometryEstimate`)
   `jump_history` increments, or turning more than both `max_step_rotation` [rad]
   and `jump_ratio` times their usual turn (relative, so logs recorded at one scan
   per metre are not flagged all the time); usual is their median, or with
-  ``jump_scale="largest"`` the largest of those that were not jumps.  Kidnap, or
+  ``jump_scale="largest"`` the largest of those that were not jumps (or were
+  jumps the map confirmed, by their registered increment).  Kidnap, or
   a glitch of the log: ICP without prior is tried from the odometry prediction and
   from the previous pose (zero motion), then the search.  A match that is good and has at least
   `jump_fitness_ratio` times the median fitness of the last `jump_history`
@@ -165,8 +166,10 @@ class Icp2dConfig:
         jump_ratio: a jump is also this many times longer than the recent usual
             motion (`jump_scale`).
         jump_scale: the recent usual motion: ``"median"``, the median step and turn
-            of the last `jump_history` increments, or ``"largest"``, the largest of
-            the last `jump_history` increments that were not jumps.  The median
+            of the last `jump_history` odometry increments, or ``"largest"``, the
+            largest of the last `jump_history` increments that were not jumps or
+            were jumps the map confirmed (those by their registered increment: at
+            the start of a log every step is a jump against an empty history).  The median
             flags an ordinary step as a jump on logs of about one scan per metre
             where the robot also turns on the spot (half the steps a few
             centimetres): the median falls to centimetres and the ordinary
@@ -356,6 +359,9 @@ class Icp2dOdometry:
         if jump:
             status = "odometry_jump"
             extra["kidnap"] = False
+            if cfg.jump_scale == "largest":
+                self._recent_steps.append((float(np.hypot(delta[0], delta[1])),
+                                           float(abs(delta[2]))))
         else:
             status = "degenerate" if res.degeneracy < cfg.min_degeneracy else "ok"
             self._recent_fitness.append(res.fitness)
@@ -388,8 +394,9 @@ class Icp2dOdometry:
             jump = bool(step > max(cfg.max_step, cfg.jump_ratio * usual_step)
                         or turn > max(cfg.max_step_rotation, cfg.jump_ratio * usual_turn))
             if cfg.jump_scale == "median" or not jump:
-                # A lone jump hardly moves the median; the largest step counts only
-                # the increments that were not jumps, so a kidnap does not raise it.
+                # A lone jump hardly moves the median; the largest counts only the
+                # increments that were not jumps (a jump the map confirms adds its
+                # registered increment in `process`), so a kidnap does not raise it.
                 self._recent_steps.append((step, turn))
             return u, cfg.odometry_noise.covariance(u), jump
         u = self._velocity.copy()
