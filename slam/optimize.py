@@ -41,6 +41,7 @@ from slam.consistency import (
     refine_tls,
     tls_threshold,
 )
+from slam.fast_path_screen import majority_fails
 from slam.least_squares import StickySolver, conditioning, dogleg_qr, lm_params, solve
 from slam.offer_back import choose_and_offer_back
 from slam.pose_graph import (
@@ -162,6 +163,7 @@ def optimize(
     swap: bool = False,
     defer: str = "off",
     undo: bool = True,
+    screen: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -203,6 +205,8 @@ def optimize(
     loop-bearing blocks (`slam.admission_undo`): an early false return no longer bends
     the prefix that every later loop is judged against, and a consistent false group that
     looks cheaper when it arrives is reverted once the following returns contradict it.
+    `screen` (on by default): the fast path is skipped when a few solver iterations at
+    the stiffest rung leave most loops above ``c`` (`slam.fast_path_screen`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -220,7 +224,7 @@ def optimize(
         clean = None
         if fast_path and gnc_start == "incremental" and segments and len(graph.loops):
             clean = _clean_optimum(graph, factors, loop_index, values, gnc_probability,
-                                   max_iterations, groups, tuple(odometry_ladder))
+                                   max_iterations, groups, tuple(odometry_ladder), screen)
         if clean is not None:
             result, iterations = clean
             weights = np.ones(len(graph.loops))
@@ -296,7 +300,7 @@ def optimize(
 def _clean_optimum(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
-    ladder: tuple[float, ...] = ODOMETRY_LADDER,
+    ladder: tuple[float, ...] = ODOMETRY_LADDER, screen: bool = True,
 ) -> tuple[gtsam.Values, int] | None:
     """The plain least-squares optimum over every loop (polished as the admission's
     result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
@@ -321,12 +325,17 @@ def _clean_optimum(
     and its ladder, choice and bar search would cost many solves to arrive there.  One
     false loop bends the least-squares map so that some loop fails the test (or the
     re-check removes it), and the whole admission runs: the extra cost is one solve.
+    `screen`: that solve is not started at all when a few iterations of it at the
+    stiffest rung leave most loops above ``c`` (`slam.fast_path_screen.majority_fails`):
+    with many false loops it is the dearest solve of the robust back end.
     """
     c = tls_threshold(graph.dim, probability)
     result, iterations = values, 0
-    for factor in sorted(ladder, reverse=True):
+    for n, factor in enumerate(sorted(ladder, reverse=True)):
         rung = factors if factor == 1.0 else with_information_scaled(
             graph, factor).factor_graph(RobustKernel("none"))[0]
+        if screen and n == 0 and majority_fails(rung, loop_index, result, c):
+            return None
         result, used_iterations, used = solve(rung, result, max_iterations)
         iterations += used_iterations
         # The loops' factors are the same on every rung (only odometry is scaled).

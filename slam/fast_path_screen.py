@@ -1,0 +1,61 @@
+"""A few iterations that tell when the plain least-squares optimum cannot be the TLS one.
+
+`slam.optimize`'s fast path solves the graph with every loop in at each rung of the
+odometry ladder and keeps that optimum when every loop's error there is at most ``c``
+(gtsam error units, ``e = 0.5 r^T I r``; ``c`` = `slam.innovation.tls_threshold`).  With
+many false loops between far-apart poses that solve is the dearest of the whole robust
+back end: the false loops fill the elimination of the normal equations in (every
+iteration factorises a nearly dense matrix) and the solve needs tens of iterations,
+only for the fast path to be discarded.
+
+`majority_fails` runs at most `SCREEN_ITERATIONS` iterations of the same solver from the
+same start (Levenberg-Marquardt; Powell's dogleg with multifrontal QR where Cholesky
+breaks down) and stops as soon as every loop is at most ``c``.  When after them more than
+half of the loops still exceed ``c`` (the median loop error is above ``c``), the loops
+are mostly inconsistent with one another: the fast path's premise, a graph whose loops
+agree, fails, and the caller goes straight to the time-ordered admission.  Otherwise the
+fast path's own check runs unchanged from the same start, so a graph that passes the
+screen is decided exactly as without it.  On a consistent graph the first iterations
+take up the odometry's drift and the loops fall below ``c`` within a few of them; the
+false loops of a corrupted one stay far above it, since no map satisfies them together.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from slam.least_squares import dogleg_qr, lm_params
+
+SCREEN_ITERATIONS = 5  # solver iterations of the screen at most
+
+
+def majority_fails(
+    factors: gtsam.NonlinearFactorGraph, loop_index: list[int], values: gtsam.Values,
+    c: float, iterations: int = SCREEN_ITERATIONS,
+) -> bool:
+    """True when, after at most `iterations` solver iterations on `factors` from `values`,
+    more than half of the loop factors ``factors.at(k)``, k in `loop_index`, have an
+    error above `c` (module docstring); False as soon as none has."""
+    if not loop_index:
+        return False
+    try:
+        optimizer = gtsam.LevenbergMarquardtOptimizer(factors, values, lm_params(iterations))
+        return _fails(optimizer, factors, loop_index, c, iterations)
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException: QR as `solve` does
+        return _fails(dogleg_qr(factors, values, iterations), factors, loop_index, c,
+                      iterations)
+
+
+def _fails(
+    optimizer: gtsam.NonlinearOptimizer, factors: gtsam.NonlinearFactorGraph,
+    loop_index: list[int], c: float, iterations: int,
+) -> bool:
+    errors = np.zeros(len(loop_index))
+    for _ in range(iterations):
+        optimizer.iterate()
+        values = optimizer.values()
+        errors = np.array([factors.at(k).error(values) for k in loop_index])
+        if not (errors > c).any():
+            return False
+    return 2 * int((errors > c).sum()) > len(loop_index)

@@ -1,0 +1,57 @@
+"""The fast path's screen: a few iterations that tell when most loops cannot all hold."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from data import se2
+from slam.fast_path_screen import majority_fails
+from slam.innovation import tls_threshold
+from slam.optimize import initial_guess, optimize
+from tests.test_backend import INFO, _square_graph
+
+
+def _with_false_loops(count: int, seed: int = 1):
+    """The three-lap square with `count` loops between random poses, each measured as
+    a random offset (false loops that no map satisfies together)."""
+    graph, truth = _square_graph(noise=0.02, laps=3)
+    rng = np.random.default_rng(seed)
+    n = len(truth)
+    for _ in range(count):
+        i, j = sorted(rng.choice(n, 2, replace=False))
+        graph.add_loop(int(i), int(j), rng.uniform([-4, -4, -np.pi], [4, 4, np.pi]), INFO)
+    return graph, truth
+
+
+def _screen(graph) -> bool:
+    factors, loop_index = graph.factor_graph()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    return majority_fails(factors, loop_index, values, tls_threshold(2))
+
+
+def test_a_consistent_graph_passes_the_screen() -> None:
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    assert not _screen(graph)
+
+
+def test_a_graph_of_mostly_false_loops_fails_the_screen() -> None:
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    true_loops = len(graph.loops)
+    graph, _ = _with_false_loops(true_loops + 8)
+    assert _screen(graph)
+
+
+def test_a_lone_false_loop_leaves_the_decision_to_the_full_check() -> None:
+    graph, truth = _square_graph(noise=0.02, laps=3)
+    wrong = se2.compose(se2.between(truth[3], truth[20]), np.array([0.5, 3.0, 1.0]))
+    graph.add_loop(3, 20, wrong, INFO)
+    assert not _screen(graph)
+
+
+def test_the_screen_changes_no_result() -> None:
+    for graph in (_square_graph(noise=0.02, laps=3)[0], _with_false_loops(60)[0]):
+        on = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental")
+        off = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental",
+                       screen=False)
+        assert on.solver == off.solver and on.loop_outliers == off.loop_outliers
+        assert max(np.abs(on.poses[k] - off.poses[k]).max() for k in on.poses) < 1e-12
