@@ -8,10 +8,10 @@ Run from the repository root::
         [--policy random] [--ratio 50] [--seed 0] [--repeat 1] [--cache DIR]
 
 ``old``: `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with
-``screen=False`` (the fast path's check solved in full);
-``new``: the defaults.  Prints for each the CPU seconds of this process, the ATE
-against the outlier-free optimum [m], false loops obeyed and true loops rejected (as
-`benchmarks/robust_modes.py`), then whether both kept the same loops, the largest
+``screen=False`` (the fast path's check solved in full); ``new``: ``screen=True``
+(`slam.fast_path_screen`; off by default).  Prints for each the CPU seconds of this
+process, the ATE against the outlier-free optimum [m], false loops obeyed and true
+loops rejected (as `benchmarks/robust_modes.py`), then whether both kept the same loops, the largest
 position difference between the two results [m] and the CPU ratio new / old.
 """
 

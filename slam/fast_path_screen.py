@@ -18,6 +18,14 @@ fast path's own check runs unchanged from the same start, so a graph that passes
 screen is decided exactly as without it.  On a consistent graph the first iterations
 take up the odometry's drift and the loops fall below ``c`` within a few of them; the
 false loops of a corrupted one stay far above it, since no map satisfies them together.
+
+Limitation (why `slam.optimize.optimize` has it off by default): a consistent graph whose
+solve from the odometry chain converges slowly (near-singular odometry information, as
+Intel's, with its odometry stated loosely) keeps most loops above ``c`` for many more
+iterations than the screen runs although the converged optimum holds every loop; the
+screen then skips a fast path that the full check accepts, and the result is the
+admission's instead of the plain optimum.  The total error's decrease over the screen's
+iterations does not tell the two apart either.
 """
 
 from __future__ import annotations

@@ -163,7 +163,7 @@ def optimize(
     swap: bool = False,
     defer: str = "off",
     undo: bool = True,
-    screen: bool = True,
+    screen: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -205,8 +205,10 @@ def optimize(
     loop-bearing blocks (`slam.admission_undo`): an early false return no longer bends
     the prefix that every later loop is judged against, and a consistent false group that
     looks cheaper when it arrives is reverted once the following returns contradict it.
-    `screen` (on by default): the fast path is skipped when a few solver iterations at
-    the stiffest rung leave most loops above ``c`` (`slam.fast_path_screen`).
+    `screen`: the fast path is skipped when a few solver iterations at the stiffest rung
+    leave most loops above ``c`` (`slam.fast_path_screen`); off by default, since on a
+    consistent graph whose solve from the odometry chain converges slowly it skips a
+    fast path that holds.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -300,7 +302,7 @@ def optimize(
 def _clean_optimum(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
-    ladder: tuple[float, ...] = ODOMETRY_LADDER, screen: bool = True,
+    ladder: tuple[float, ...] = ODOMETRY_LADDER, screen: bool = False,
 ) -> tuple[gtsam.Values, int] | None:
     """The plain least-squares optimum over every loop (polished as the admission's
     result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
