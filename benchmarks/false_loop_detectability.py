@@ -11,15 +11,15 @@ For each case the graph's odometry information is multiplied by ``scale``, false
 are injected as `eval robustness` does (`evaluation.outlier_policies.inject_false_loops`
 against the clean optimum) and the robust back end (`slam.optimize` ``gnc``, incremental;
 with ``--stated`` choosing among its candidates by the stated TLS cost instead of
-`slam.recheck.calibrated_choice`) solves it from the odometry chain, first without the
+`slam.calibrated_choice.calibrated_choice`) solves it from the odometry chain, first without the
 final segment re-check (``admission``), then, unless ``--no-segments``, with it.  Printed
 per solve: ATE against the clean optimum [m], false loops obeyed, true loops rejected,
 ``tls_gap`` (stated TLS cost of the result less the clean optimum's), seconds; between
-the two, the segment re-check of the admission (`slam.recheck.segment_recheck`): the
+the two, the segment re-check of the admission (`slam.segment_recheck.segment_recheck`): the
 segment variance factors, the re-check's seconds, its gate, and every suspect (false or
 true) with its leave-one-out innovation ``rho`` under the segment-calibrated odometry
 and its innovation ``delta`` against the graph without the suspects, and every group
-of agreeing loops the group test (`slam.recheck.group_recheck`; off with ``--no-groups``)
+of agreeing loops the group test (`slam.group_recheck.group_recheck`; off with ``--no-groups``)
 tested, with its false members, its joint leave-group-out innovation ``rho_G``, its
 joint innovation ``delta_G`` against the graph without the round's suspect groups and
 its gate (gtsam error units); then the
@@ -31,26 +31,26 @@ covariance over the span the loop closes); with, for each, its span in ids, its
 whitened residual at the clean optimum and under the result, and whether the result
 obeys it.  Every obeyed false loop is listed.  Last, the largest leave-one-out
 innovation of the graph's own true loops at the clean optimum (``0.5 b^T (I - M)^-1 b``,
-`slam.recheck.removal_costs`): a false loop whose ``delta`` is below it is more
+`slam.loop_recheck.removal_costs`): a false loop whose ``delta`` is below it is more
 consistent with the map than that true loop.
 
 With ``--candidates``, first the candidates the time-ordered admission chooses among
 (`slam.consistency.incremental_tls`'s rungs and gates, refined; the same loops listed
 once): stated TLS cost, false loops kept, true loops left out, ATE against the clean
-optimum [m], the odometry variance factor its own loops support (`slam.recheck.own_factor`:
-estimate, redundancy and 99 % upper bound, `Calibrated.upper_bound`), and the one
-`slam.recheck.calibrated_choice` picks.  A candidate bent by false loops shows a factor
-far above an outlier-free one's; when the choice still picks it, the bent candidate is a
-fixed point of the choice's iteration.  Then a trial of another choice (diagnostic only,
-not the back end's): ``A`` the calibrated choice's pick, ``B`` the candidate whose own
-factor has the smallest upper bound; ``A`` *bends* ``B``'s segments when, over the
-segments of 100 poses where ``B`` has redundancy (`slam.segment_variance`), the pooled
-factor of ``A``'s odometry residuals over ``B``'s exceeds Fisher's ``F`` 0.99 quantile;
-if so, ``B``'s loops are solved under merged segment factors (``B``'s where it has
-redundancy, ``A``'s elsewhere) and ``A``'s other loops offered back (innovation alone
-below ``c``, then `slam.consistency.greedy_admission`); printed: the F statistic, the
-loops offered and admitted (false among them) and the outcome's false loops kept and true
-loops left out.
+optimum [m], the odometry variance factor its own loops support
+(`slam.calibrated_choice.own_factor`: estimate, redundancy and 99 % upper bound,
+`Calibrated.upper_bound`), and the one `slam.calibrated_choice.calibrated_choice` picks.
+A candidate bent by false loops shows a factor far above an outlier-free one's; when the
+choice still picks it, the bent candidate is a fixed point of the choice's
+iteration.  Then a trial of another choice (diagnostic only, not the back end's): ``A``
+the calibrated choice's pick, ``B`` the candidate whose own factor has the smallest
+upper bound; ``A`` *bends* ``B``'s segments when, over the segments of 100 poses where
+``B`` has redundancy (`slam.segment_variance`), the pooled factor of ``A``'s odometry
+residuals over ``B``'s exceeds Fisher's ``F`` 0.99 quantile; if so, ``B``'s loops are
+solved under merged segment factors (``B``'s where it has redundancy, ``A``'s elsewhere)
+and ``A``'s other loops offered back (innovation alone below ``c``, then
+`slam.consistency.greedy_admission`); printed: the F statistic, the loops offered and
+admitted (false among them) and the outcome's false loops kept and true loops left out.
 """
 
 from __future__ import annotations
@@ -70,6 +70,7 @@ from scipy.special import fdtri
 from data.g2o import read_g2o
 from evaluation.outlier_policies import inject_false_loops
 from evaluation.robustness import aligned_position_error, clean_optimum
+from slam.calibrated_choice import calibrated_choice, own_factor
 from slam.consistency import (
     InnovationTest,
     admission_costs,
@@ -79,9 +80,10 @@ from slam.consistency import (
     tls_threshold,
 )
 from slam.least_squares import StickySolver
+from slam.loop_recheck import removal_costs
 from slam.optimize import default_outlier_residual, initial_guess, optimize
 from slam.pose_graph import PoseGraph, pose_dof, poses_from_values, whitened_residual
-from slam.recheck import calibrated_choice, own_factor, removal_costs, segment_recheck
+from slam.segment_recheck import segment_recheck
 from slam.segment_variance import SegmentFactors, calibrated_odometry, segment_factors
 from slam.variance_components import with_information_scaled
 

@@ -9,7 +9,7 @@ Run from the repository root::
 Each graph (e.g. a mapper run's ``graph.g2o``) is brought to where the final pass's fast
 path re-checks it (`slam.optimize._clean_optimum`: the plain least-squares optimum over
 every loop, solved down the odometry ladder from the file's poses), then
-`slam.recheck.segment_recheck` (with its group test) runs there with
+`slam.segment_recheck.segment_recheck` (with its group test) runs there with
 ``slam.innovation.SELECTED_INVERSE`` off (full SuperLU solves of ``H^-1 B^T``, the
 earlier path) and on (`slam.selected_inverse`), alternately `--repeat` times in one
 process; then the whole final pass (`slam.optimize.optimize`, ``gnc`` with
@@ -44,7 +44,7 @@ from slam.consistency import LM_BUDGET, ODOMETRY_LADDER, needs_qr
 from slam.least_squares import StickySolver, solve
 from slam.optimize import optimize
 from slam.pose_graph import PoseGraph, RobustKernel
-from slam.recheck import SegmentRecheck, segment_recheck
+from slam.segment_recheck import SegmentRecheck, segment_recheck
 from slam.variance_components import with_information_scaled
 
 

@@ -38,13 +38,13 @@ from slam.pose_graph import PoseGraph
 STAGES = {
     "fast-path check": ("optimize.py", "_clean_optimum"),
     "admission passes": ("admission.py", "advance"),
-    "calibrated choice": ("recheck.py", "calibrated_choices"),
-    "  own factors": ("recheck.py", "own_factor"),
-    "  judgements": ("recheck.py", "winner_at"),
+    "calibrated choice": ("calibrated_choice.py", "calibrated_choices"),
+    "  own factors": ("calibrated_choice.py", "own_factor"),
+    "  judgements": ("calibrated_choice.py", "winner_at"),
     "offer back": ("offer_back.py", "offer_back"),
     "bar search": ("consistency.py", "bar_search"),
     "refine_tls": ("consistency.py", "refine_tls"),
-    "segment re-check": ("recheck.py", "segment_recheck"),
+    "segment re-check": ("segment_recheck.py", "segment_recheck"),
     "least-squares solves": ("least_squares.py", "__call__"),
     "polish": ("consistency.py", "polish"),
 }

@@ -25,7 +25,8 @@ Protocol (one run per outlier ratio p and kernel):
    squares loss of GNC (Yang et al. 2020) with odometry as known inliers, solved by
    time-ordered admission (`slam.consistency`, ``optimize(..., method="gnc",
    gnc_start="incremental")``, its candidates compared under calibrated odometry and its
-   loops finally re-checked under odometry calibrated per segment, `slam.recheck`):
+   loops finally re-checked under odometry calibrated per segment,
+   `slam.segment_recheck`):
    graduated non-convexity itself folds M3500 once half its loops are false, from any
    start.  ``gnc-stated`` is the same admission deciding at the stated odometry
    information only (no odometry ladder), and ``gnc-unsegmented`` the same without the

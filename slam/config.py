@@ -57,7 +57,7 @@ class BackendConfig:
         final_start: how that final GNC-TLS decides the loops: ``"incremental"``
             (time-ordered TLS admission from the odometry chain,
             `slam.consistency.incremental_tls`, its candidates compared under
-            calibrated odometry by `slam.recheck`: the back end
+            calibrated odometry by `slam.calibrated_choice`: the back end
             `eval robustness` measures as ``gnc``, which holds where most loops are
             false; seconds on thousands of keyframes) or ``"given"`` (warm GNC from
             the mapper's iSAM2 estimate: fast, and right when the accepted loops are

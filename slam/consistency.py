@@ -370,7 +370,7 @@ def incremental_tls(
     `choose`: picks the winner among the refined runs instead of the lowest stated cost,
     called as ``choose(graph, [(values, weights, stated cost), ...], probability=...,
     solver=..., unit=...)`` and returning an index, or -1 to keep the lowest stated cost
-    (`slam.recheck.calibrated_choice`); or ``(index, weights)``, weights (or None) that
+    (`slam.calibrated_choice.calibrated_choice`); or ``(index, weights)``, weights (or None) that
     replace the chosen run's loop decisions (`slam.offer_back.choose_and_offer_back`),
     the stated graph re-solved with them.
 

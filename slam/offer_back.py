@@ -1,6 +1,6 @@
 """Loops a stiff candidate left out, offered back under per-segment odometry factors.
 
-`slam.recheck.calibrated_choices` picks among the admission's candidates from two starts:
+`slam.calibrated_choice.calibrated_choices` picks among the admission's candidates from two starts:
 *B*, from the candidate whose odometry variance factor is stiffest with confidence (the
 choice: a candidate bent by agreeing false loops cannot hold it at its own inflated
 factor), and *A*, from the candidate of lowest stated cost.  One factor for all the
@@ -49,15 +49,17 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from slam.calibrated_choice import calibrated_choices
 from slam.consistency import InnovationTest, greedy_admission, tls_threshold
 from slam.least_squares import StickySolver
+from slam.loop_recheck import _quadratic
 from slam.pose_graph import PoseGraph, pose_dof
-from slam.recheck import _quadratic, _segment_calibrated, calibrated_choices
 from slam.segment_variance import (
     FLOOR,
     PRIOR_DOF,
     SEGMENT,
     SegmentFactors,
+    _segment_calibrated,
     segment_factors,
 )
 
@@ -156,7 +158,7 @@ def choose_and_offer_back(
     factor: list[float] | None = None,
 ) -> tuple[int, Array | None]:
     """`slam.consistency.incremental_tls`'s `choose`: the stiff start's choice B of
-    `slam.recheck.calibrated_choices` and its weights with A's loops offered back
+    `slam.calibrated_choice.calibrated_choices` and its weights with A's loops offered back
     (`offer_back`; None when nothing changed).  ``(-1, None)`` when a calibrated solve
     fails.  `factor`, when given, receives B's own variance factor."""
     solve = solver or StickySolver()

@@ -6,7 +6,8 @@ loss of Yang et al. 2020 with odometry and priors known inliers, solved by our
 warm-started GNC (`gnc_warm`) or, with ``gnc_start="incremental"``, by time-ordered
 admission (`slam.consistency`), the one that survives half the loops being false,
 whose candidates are compared under calibrated odometry and whose final loops are
-re-checked under odometry calibrated per segment of consecutive poses (`slam.recheck`);
+re-checked under odometry calibrated per segment of consecutive poses
+(`slam.segment_recheck`);
 ``method="gnc-gtsam"``: gtsam's own GncLMOptimizer).
 
 `Smoother` is the interface a mapper uses as keyframes and loops arrive:
@@ -43,6 +44,7 @@ from slam.consistency import (
 )
 from slam.fast_path_screen import majority_fails
 from slam.least_squares import StickySolver, conditioning, dogleg_qr, lm_params, solve
+from slam.loop_recheck import recheck_loops
 from slam.offer_back import choose_and_offer_back
 from slam.pose_graph import (
     Constraint,
@@ -55,7 +57,7 @@ from slam.pose_graph import (
     to_gtsam_pose,
     whitened_residual,
 )
-from slam.recheck import recheck_loops, segment_recheck
+from slam.segment_recheck import segment_recheck
 from slam.swap import swap_search
 from slam.variance_components import with_information_scaled
 
@@ -178,16 +180,16 @@ def optimize(
     odometry information factors the incremental admission decides at
     (`slam.consistency.incremental_tls`; ``(1.0,)`` decides at the stated information only).
     `calibrated`: the incremental admission picks among its candidates by TLS cost under
-    calibrated odometry (`slam.recheck.calibrated_choice`) instead of the stated cost.
+    calibrated odometry (`slam.calibrated_choice.calibrated_choice`) instead of the stated cost.
     `recheck`: its decisions are then re-checked under calibrated odometry
-    (`slam.recheck.recheck_loops`) and, where that changes them, the stated graph
+    (`slam.loop_recheck.recheck_loops`) and, where that changes them, the stated graph
     re-solved (off by default: it changed no decision the choice had not already made on
     the cases measured, and costs a solve per accepted loop and round).
     `segments`: the incremental admission's loops are finally re-checked under odometry
-    calibrated per segment of consecutive poses (`slam.recheck.segment_recheck`); loops
+    calibrated per segment of consecutive poses (`slam.segment_recheck.segment_recheck`); loops
     it removes are barred and the stated graph re-decided (`slam.consistency.refine_tls`)
     and polished (`slam.consistency.polish`).  `groups`: the segment re-check also tests
-    groups of loops that agree with one another as a whole (`slam.recheck.group_recheck`).
+    groups of loops that agree with one another as a whole (`slam.group_recheck.group_recheck`).
     `fast_path`: with ``gnc_start="incremental"`` and `segments`, the plain least-squares
     optimum is returned when every loop passes its chi-square test there and the segment
     re-check removes none (`_clean_optimum`; solver ``"least-squares-clean"``).
@@ -310,7 +312,7 @@ def _clean_optimum(
     information multiplied by the rung's factor, solved stiffest first, each from the
     solution of the one before, the stated graph last) every loop's factor error is at
     most ``c`` (`tls_threshold`, the chi-square test of its dof at `probability`), and
-    the segment re-check (`slam.recheck.segment_recheck`, with its group test when
+    the segment re-check (`slam.segment_recheck.segment_recheck`, with its group test when
     `groups`) removes none of the loops at the stated graph's optimum; else None.
 
     Why every rung: under loosely stated odometry the least-squares map bends onto
@@ -358,7 +360,7 @@ def _rechecked(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, weights: Array, probability: float, solver: str, start: float,
 ) -> tuple[gtsam.Values, Array, str]:
-    """`slam.recheck.recheck_loops` on an admission; the stated graph re-solved with the
+    """`slam.loop_recheck.recheck_loops` on an admission; the stated graph re-solved with the
     re-checked loops when they differ (dogleg-QR, as `incremental_tls` polishes)."""
     unit = [factors.at(k) for k in loop_index]
     new, _ = recheck_loops(graph, values, weights, probability=probability, unit=unit,
@@ -380,8 +382,8 @@ def _segment_rechecked(
     values: gtsam.Values, weights: Array, probability: float, solver: str,
     groups: bool = True,
 ) -> tuple[gtsam.Values, Array, str]:
-    """`slam.recheck.segment_recheck` on a TLS solution (`groups`: with its group test);
-    when it removes loops or offers rejected ones back (`slam.recheck.group_recheck`'s
+    """`slam.segment_recheck.segment_recheck` on a TLS solution (`groups`: with its group test);
+    when it removes loops or offers rejected ones back (`slam.group_recheck.group_recheck`'s
     readmitted loops, weight 1 from here on), the removed ones are barred, the rest
     re-decided on the stated graph by
     `slam.consistency.refine_tls` and the result polished (`slam.consistency.polish`), as

@@ -1,12 +1,12 @@
 """Variance factors of the odometry segment by segment.
 
-One variance factor for all the odometry (`slam.variance_components`, `slam.recheck`)
-assumes the front end is as good (or as bad) everywhere.  Real odometry is not: a robot
-that slips through a doorway or turns on the spot has stretches whose residuals are
-several times its average, and a false loop that lands on a quiet stretch bends it
-further than that stretch's own residuals support, while the pooled factor, inflated by
-the noisy stretches, lets it.  This module estimates one factor per *segment* of
-consecutive poses.
+One variance factor for all the odometry (`slam.variance_components`,
+`slam.calibrated_choice`) assumes the front end is as good (or as bad) everywhere.  Real
+odometry is not: a robot that slips through a doorway or turns on the spot has stretches
+whose residuals are several times its average, and a false loop that lands on a quiet
+stretch bends it further than that stretch's own residuals support, while the pooled
+factor, inflated by the noisy stretches, lets it.  This module estimates one factor per
+*segment* of consecutive poses.
 
 Helmert variance-component estimation (Förstner & Wrobel, *Photogrammetric Computer
 Vision*, 2016, section 4.2.4; Koch, *Parameter Estimation and Hypothesis Testing in
@@ -40,6 +40,7 @@ calibrated graph divides each odometry information matrix by its segment's facto
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -220,3 +221,19 @@ def calibrated_odometry(graph: PoseGraph, factors: SegmentFactors) -> list[Const
     per = factors.per_odometry()
     return [Constraint(o.i, o.j, o.measurement, o.information / s)
             for o, s in zip(graph.odometry, per, strict=True)]
+
+
+def _segment_calibrated(
+    graph: PoseGraph, factors: SegmentFactors, unit: Sequence[gtsam.NonlinearFactor],
+    weights: Array,
+) -> gtsam.NonlinearFactorGraph:
+    """Anchors, the odometry calibrated by `factors` and the loops `unit` of
+    ``weights > 0.5``: the graph the segment and group re-checks solve."""
+    calibrated = gtsam.NonlinearFactorGraph()
+    for k in graph.anchor_keys():
+        calibrated.add(graph.prior_factor(k))
+    for o in calibrated_odometry(graph, factors):
+        calibrated.add(graph.between_factor(o))
+    for k in np.flatnonzero(np.asarray(weights, dtype=float) > 0.5):
+        calibrated.add(unit[k])
+    return calibrated

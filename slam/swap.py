@@ -6,7 +6,7 @@ admitted early (each cheap alone against a loosely stated prefix), the true loop
 contradict them arrive at errors far above ``c`` and are rejected one by one, though
 together they outweigh the false ones: a single true loop cannot pay for pushing a
 false loop out, a group of them can.  True loops come in groups (a revisit closes a
-loop at several consecutive poses, both ends within a few ids: `slam.recheck.loop_groups`),
+loop at several consecutive poses, both ends within a few ids: `slam.group_recheck.loop_groups`),
 while loops injected or found at random rarely do.
 
 `swap_search` therefore tries every group of at least `MIN_GROUP` rejected loops: the
@@ -48,9 +48,9 @@ from slam.consistency import (
     stated_with_loops,
     tls_cost,
 )
+from slam.group_recheck import loop_groups
 from slam.least_squares import StickySolver
 from slam.pose_graph import PoseGraph, RobustKernel
-from slam.recheck import loop_groups
 
 Array = NDArray[np.float64]
 MIN_GROUP = 3  # rejected loops a group needs to be tried
@@ -73,7 +73,7 @@ class SwapSearch:
 
 
 def rejected_groups(graph: PoseGraph, weights: Array, min_size: int = MIN_GROUP) -> list[list[int]]:
-    """Groups (`slam.recheck.loop_groups`) of at least `min_size` loops of weight 0, largest
+    """Groups (`slam.group_recheck.loop_groups`) of at least `min_size` loops of weight 0, largest
     first (ties in order of their first loop)."""
     rejected = np.flatnonzero(np.asarray(weights) < 0.5)
     groups = [g for g in loop_groups(graph.loops, rejected) if len(g) >= min_size]

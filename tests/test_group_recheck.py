@@ -8,16 +8,11 @@ import pytest
 from data import se2
 from evaluation.robustness import aligned_position_error
 from slam.consistency import InnovationTest
+from slam.group_recheck import group_gate, joint_costs, loop_groups
+from slam.loop_recheck import _quadratic, removal_gate
 from slam.optimize import optimize
 from slam.pose_graph import Constraint, PoseGraph
-from slam.recheck import (
-    _quadratic,
-    group_gate,
-    joint_costs,
-    loop_groups,
-    removal_gate,
-    segment_recheck,
-)
+from slam.segment_recheck import segment_recheck
 from tests.test_segment_variance import _laps, _solved
 
 KWARGS = {"init": "odometry", "gnc_start": "incremental"}

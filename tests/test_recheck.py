@@ -7,17 +7,10 @@ import pytest
 
 from data import se2
 from evaluation.robustness import aligned_position_error
+from slam.calibrated_choice import Calibrated, calibrated_choice, odometry_variance_step
 from slam.consistency import InnovationTest, tls_threshold
+from slam.loop_recheck import greedy_removal, recheck_loops, removal_costs, removal_gate
 from slam.optimize import optimize
-from slam.recheck import (
-    Calibrated,
-    calibrated_choice,
-    greedy_removal,
-    odometry_variance_step,
-    recheck_loops,
-    removal_costs,
-    removal_gate,
-)
 from slam.variance_components import with_information_scaled
 from tests.test_backend import _odometry_graph, _square_graph, _two_poses
 
@@ -193,7 +186,7 @@ def test_polish_solves_a_graph_of_tiny_errors_as_far_as_any_other() -> None:
 def test_calibrated_choice_starts_stiff_when_the_bent_candidate_is_a_fixed_point(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    from slam import recheck
+    from slam import calibrated_choice as choice_module
     from slam.consistency import refine_tls, tls_cost
 
     # Six false loops across the loosely stated square that agree on one wrong place
@@ -217,7 +210,7 @@ def test_calibrated_choice_starts_stiff_when_the_bent_candidate_is_a_fixed_point
     assert candidates[0][2] < candidates[1][2]
     assert calibrated_choice(loose, candidates) == 1
     # From the stated winner (no confidence bound to start from) the bent one stays.
-    monkeypatch.setattr(recheck.Calibrated, "upper_bound", lambda self, p=0.99: np.inf)
+    monkeypatch.setattr(choice_module.Calibrated, "upper_bound", lambda self, p=0.99: np.inf)
     assert calibrated_choice(loose, candidates) == 0
 
 
@@ -264,9 +257,9 @@ def _offer_back_case():
 
 def test_offer_back_returns_the_noisy_stretch_loops_and_not_the_false_one() -> None:
     from slam.least_squares import StickySolver
+    from slam.loop_recheck import _quadratic
     from slam.offer_back import OWN_PRIOR_DOF, mixed_factors, offer_back, shrunk
-    from slam.recheck import _quadratic, _segment_calibrated
-    from slam.segment_variance import segment_factors
+    from slam.segment_variance import _segment_calibrated, segment_factors
 
     graph, a, a_values, b, b_values = _offer_back_case()
     offered = np.flatnonzero((a > 0.5) & (b < 0.5))

@@ -9,8 +9,8 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from slam import innovation
+from slam.group_recheck import joint_costs, loop_groups
 from slam.innovation import InnovationTest
-from slam.recheck import joint_costs, loop_groups
 from slam.selected_inverse import SelectedInverse
 from tests.test_segment_variance import _laps, _solved
 
