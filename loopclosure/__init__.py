@@ -26,7 +26,9 @@ from loopclosure.geometric_check import GeometricCheckConfig, LoopVerification, 
 from loopclosure.loop_detector import LoopCandidate, LoopClosureConfig, LoopClosureDetector
 from loopclosure.matcher_registry import MATCHER_NAMES, get_matcher, matcher_class
 from loopclosure.matchers.base import Matcher
-from loopclosure.place_database import PlaceDatabase, PlaceDatabaseConfig, PlaceMatch
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_match import PlaceMatch
 from loopclosure.polygon import DegeneratePolygonError, Polygon, PolygonConfig, polygon_from_scan
 
 try:

@@ -27,7 +27,7 @@ from loopclosure.geometric_check import NOT_A_REVISIT, LoopVerification, verify
 from loopclosure.keyframe_store import KeyframeStore
 from loopclosure.longer_check import is_degenerate, joined, recheck_longer, trailing_count
 from loopclosure.loop_candidate import LoopCandidate, place_figures
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 if TYPE_CHECKING:
     from loopclosure.grid_target import GridTarget

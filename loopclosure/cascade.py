@@ -111,7 +111,8 @@ from data.errors import UserError
 from loopclosure.fusion import LogisticFusion, fit_logistic, log_features
 from loopclosure.matchers.base import Matcher
 from loopclosure.place_config import PlaceDatabaseConfig
-from loopclosure.place_database import Descriptors, PlaceDatabase
+from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_match import Descriptors
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]

@@ -29,7 +29,7 @@ Producers (all return best first):
   (`loopclosure.matchers.fft.FFTDescriptor.range_function`: range about the centroid
   per angle bin, in the sensor frame's orientation), vectorised over K stored
   keyframes; the place database's hypotheses for every candidate
-  (`loopclosure.place_database.PlaceMatch.headings`).
+  (`loopclosure.place_match.PlaceMatch.headings`).
 - `heading_hypotheses`: from two point sets (source = query, target = stored), by
   the cross-correlation of their range functions seen from each frame's origin
   (`range_function`: nearest return per bearing sector), or of their histograms of

@@ -25,7 +25,8 @@ from data.types import Scan
 from loopclosure.key_table import KeyTable
 from loopclosure.loop_config import LoopClosureConfig
 from loopclosure.place_choice import merge_views
-from loopclosure.place_database import Descriptors, PlaceDatabase, PlaceMatch
+from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_match import Descriptors, PlaceMatch
 from loopclosure.place_views import VIEWPOINTS
 from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
 from loopclosure.registration import RegistrationTarget

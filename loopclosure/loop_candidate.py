@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from loopclosure.geometric_check import LoopVerification
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 Array = NDArray[np.float64]
 

@@ -149,7 +149,7 @@ from loopclosure.keyframe_store import KeyframePlace, SubmapFn, SubmapVersionFn,
 from loopclosure.loop_candidate import LoopCandidate
 from loopclosure.loop_config import SEARCHES, LoopClosureConfig
 from loopclosure.place_choice import distinct_places, first_per_key, merge_views
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 Array = NDArray[np.float64]
 

@@ -8,7 +8,7 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 
 def merge_views(per_view: Sequence[Sequence[PlaceMatch]]) -> list[PlaceMatch]:

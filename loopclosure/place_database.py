@@ -34,9 +34,9 @@ and a query runs three steps:
    its `distances` over the K candidates only
    (their descriptors stacked on demand: the database never holds a stacked copy
    of an expensive descriptor).
-3. Fuse (`loopclosure.fusion`): ``fusion="logistic"`` (default): P(same place) =
-   sigma(b + sum_s w_s log(d_s / scale_s + eps)) over every stage (prefilter and
-   verifier) with the coefficients of `PlaceDatabaseConfig.logistic`
+3. Fuse (`loopclosure.place_fusion`, `loopclosure.fusion`): ``fusion="logistic"``
+   (default): P(same place) = sigma(b + sum_s w_s log(d_s / scale_s + eps)) over
+   every stage (prefilter and verifier) with the coefficients of `PlaceDatabaseConfig.logistic`
    (`DEFAULT_LOGISTIC`: fitted on the simulated Box world and three real logs, see
    `loopclosure.place_config`); a verifier's scale is the median
    over 64 random stored pairs (8 anchors x 8 others), refreshed like the prefilter's.
@@ -47,16 +47,14 @@ and a query runs three steps:
    Candidates are returned by decreasing score (ties: prefilter order).
 
 Heading hypotheses: for every candidate, headings of the query in the candidate's
-frame (`loopclosure.headings`, whose docstring defines the convention), the starting
-rotations of the geometric check, best first: first the ``grid_headings`` peaks of
-the correlation of the two places' polar occupancy grids about their sensor origins
-(`headings_from_polar_grids`; the grid, ``grid_rings`` x ``grid_sectors`` cells out to
-``grid_range`` m, holds the surface samples of `loopclosure.matchers.pair_histogram`,
-stored bit-packed, 300 bytes a keyframe), then the ``n_headings`` peaks of the
-circular cross-correlation of the two range functions about the centroids
-(`headings_from_range_functions`), less those within 5 degrees of a grid hypothesis;
-both vectorised over the K candidates.  The two producers' scores are not
-comparable: the order is the producers' order, then each one's score.
+frame, the starting rotations of the geometric check, best first: the peaks of the
+correlation of the two places' polar occupancy grids (``grid_headings``), then those
+of their range functions (``n_headings``) (`loopclosure.place_headings`).
+
+Where the pieces live: result types `loopclosure.place_match`; the shortlist of
+step 1 `loopclosure.place_shortlist`; scales `loopclosure.place_scales`; polar grids
+and their similarity `loopclosure.place_grids`; offset viewpoints
+`loopclosure.place_views`; this module holds the storage and the query steps.
 
 Storage (`loopclosure.place_rows`) grows with amortised doubling (`VectorStore` for
 prefilter vectors, `FloatRows` for range functions, a list of every keyframe's
@@ -77,28 +75,25 @@ are in [0, 1]; headings in radians.
 from __future__ import annotations
 
 from collections.abc import Hashable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from data import se2
 from data.errors import UserError
-from loopclosure.fusion import LogisticFusion, reciprocal_rank_fusion
-from loopclosure.grid_rerank import dilate_polar, dilated_similarity, union_of_rankings
-from loopclosure.headings import (
-    headings_from_polar_grids,
-    headings_from_range_functions,
-    polar_occupancy,
-)
 from loopclosure.matchers import get_matcher
 from loopclosure.matchers.base import Matcher
-from loopclosure.matchers.fft import FFTDescriptor, FFTMatcher
-from loopclosure.matchers.pair_histogram import PairHistogramConfig, surface_samples
+from loopclosure.matchers.fft import FFTMatcher
 from loopclosure.matchers.vector_search import VectorStore, smallest_k
-from loopclosure.place_config import PREFILTER_STAGES, PlaceDatabaseConfig
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_fusion import StageFusion
+from loopclosure.place_grids import GRID, DilatedGrids, polar_grid
+from loopclosure.place_headings import HEADING, as_hypotheses, candidate_headings
+from loopclosure.place_match import CandidateSet, Descriptors, PlaceMatch
 from loopclosure.place_rows import FloatRows, KeyIndex
+from loopclosure.place_scales import stage_scales
+from loopclosure.place_shortlist import Shortlist, rows_mask
 from loopclosure.place_views import (
     VIEWPOINTS,
     ViewpointRows,
@@ -110,132 +105,6 @@ from loopclosure.place_views import (
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
-Descriptors = dict[str, Any]
-"""Descriptors of one polygon: stage name -> that matcher's descriptor
-(plus ``"heading"`` -> an `FFTDescriptor` when headings are on and FFT is no stage)."""
-
-HEADING = "heading"
-_GRID_SAMPLES = PairHistogramConfig()
-GRID = "grid"
-"""Descriptor key of the bit-packed polar occupancy grid of the grid headings."""
-_SAME_HEADING = np.radians(5.0)
-
-
-def _rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
-    """Boolean mask ``(m,)`` over insertion order holding `rows`."""
-    mask = np.zeros(m, bool)
-    mask[rows] = True
-    return mask
-
-
-@dataclass(slots=True, frozen=True)
-class PlaceMatch:
-    """One verified candidate of a query.
-
-    Attributes:
-        key: the stored keyframe's key.
-        prefilter_distance: combined normalised prefilter distance p (unitless).
-        prefilter_rank: 0-based rank among the query's candidates by p (the K best
-            are the K best of all allowed keyframes; the grids' extras follow).
-        distances: raw distance per stage name (prefilter stages and verifiers),
-            in each matcher's unit.
-        score: fused score, higher = more likely the same place (a probability in
-            [0, 1] with logistic fusion; in [0, 1] for every mode).
-        headings: ``(heading [rad], correlation)`` hypotheses, best first: the heading
-            of the query in the stored keyframe's frame (`loopclosure.headings`).
-        stamp: the stored keyframe's stamp [s] (None if not given).
-        pose: the stored keyframe's pose (as given at `add`, e.g. (x, y, theta)).
-        view: which description of the stored keyframe matched, for a host that
-            describes each keyframe more than once in databases of its own (the loop
-            detector's wide view: 1); 0 from `query`.
-    """
-
-    key: Hashable
-    prefilter_distance: float
-    prefilter_rank: int
-    distances: dict[str, float]
-    score: float
-    headings: tuple[tuple[float, float], ...]
-    stamp: float | None = None
-    pose: Any = None
-    view: int = 0
-
-    @property
-    def verifier_distances(self) -> dict[str, float]:
-        """Distances of the stages that are not prefilter stages."""
-        return {k: v for k, v in self.distances.items() if k not in PREFILTER_STAGES}
-
-    def with_view(self, view: int) -> PlaceMatch:
-        """This match with `view` (``dataclasses.replace(self, view=view)``, without
-        its per-call field introspection: the loop detector relabels thousands of
-        matches per keyframe)."""
-        return PlaceMatch(self.key, self.prefilter_distance, self.prefilter_rank,
-                          self.distances, self.score, self.headings, self.stamp, self.pose,
-                          view)
-
-    def with_rank(self, rank: int) -> PlaceMatch:
-        """This match with `prefilter_rank` `rank` (as `with_view`)."""
-        return PlaceMatch(self.key, self.prefilter_distance, rank, self.distances,
-                          self.score, self.headings, self.stamp, self.pose, self.view)
-
-
-@dataclass(slots=True, frozen=True)
-class CandidateSet:
-    """The candidates of one query (the K best by p and the grids' extras) as
-    arrays, in prefilter order.
-
-    Attributes:
-        indices: ``(C,)`` insertion indices of the C candidates.
-        prefilter: ``(C,)`` combined normalised prefilter distance p (increasing).
-        distances: ``(S, C)`` raw distance of every stage (`PlaceDatabaseConfig.stages`).
-        scores: ``(C,)`` fused scores in [0, 1].
-        prefilter_all: ``(M,)`` p of every stored keyframe (inf where not allowed;
-            float32 screening values, relative error ~1e-6), or None unless asked
-            for (`PlaceDatabase.candidates` ``keep_prefilter``).
-    """
-
-    indices: NDArray[np.intp]
-    prefilter: Array
-    distances: Array
-    scores: Array
-    prefilter_all: Array | None
-
-    def order(self) -> NDArray[np.intp]:
-        """Positions sorted by decreasing score, ties in prefilter order."""
-        return np.lexsort((np.arange(len(self.scores)), -self.scores))
-
-
-@dataclass(slots=True, frozen=True)
-class _Shortlist:
-    """The rows a query chooses its candidates from (`PlaceDatabase._shortlist`), in
-    increasing p (ties by row): insertion rows, exact p, exact raw prefilter stage
-    distances, grid similarity c (None without the grids' candidates), and p of
-    every row when asked (`CandidateSet.prefilter_all`)."""
-
-    rows: NDArray[np.intp]
-    prefilter: Array
-    raw: dict[str, Array]
-    similarity: Array | None
-    prefilter_all: Array | None
-
-    def chosen(self, k: int, config: PlaceDatabaseConfig) -> NDArray[np.intp]:
-        """Positions of the candidates (`loopclosure.grid_rerank.union_of_rankings`;
-        the first K without grid similarities), in increasing p."""
-        if self.similarity is None:
-            return np.arange(min(k, len(self.rows)))
-        return union_of_rankings(self.prefilter, self.similarity, k, config.grid_extra,
-                                 config.grid_weight)
-
-    def merged(self, other: _Shortlist, size: int) -> _Shortlist:
-        """The shortlist of both shortlists' rows (disjoint): the `size` smallest p."""
-        rows = np.concatenate([self.rows, other.rows])
-        pre = np.concatenate([self.prefilter, other.prefilter])
-        keep = np.lexsort((rows, pre))[:size]
-        similarity = (None if self.similarity is None or other.similarity is None
-                      else np.concatenate([self.similarity, other.similarity])[keep])
-        return _Shortlist(rows[keep], pre[keep],
-                          {s: np.concatenate([d, other.raw[s]])[keep] for s, d in self.raw.items()},
-                          similarity, None)
 
 
 class PlaceDatabase:
@@ -284,10 +153,8 @@ class PlaceDatabase:
         self._views = ViewpointRows(cfg.prefilter)  # offset viewpoints (`place_views`)
         self._descriptors: list[Descriptors] = []  # per row: what `descriptors` returns
         self._ranges: FloatRows | None = None  # range functions of the heading hypotheses
-        # Per row, its polar grid dilated (`grid_rerank.dilate_polar`, bit-packed; zeros
-        # for a row without a grid) and the dilated grid's occupied cells: made once.
-        self._dilated: FloatRows | None = None
-        self._dilated_counts: FloatRows | None = None
+        # Per row, its dilated polar grid (`place_grids`): made once, at insertion.
+        self._dilated = DilatedGrids(cfg) if self._grid_on else None
         self._keys = KeyIndex()
         self._stamps: list[float | None] = []
         self._poses: list[Any] = []
@@ -297,15 +164,7 @@ class PlaceDatabase:
         self._last_stored: tuple | None = None  # `query_stored`'s previous answer
         if cfg.fixed_scales:
             self._scales = np.asarray(cfg.fixed_scales, float)
-        self._fusion = cfg.resolved_fusion
-        if self._fusion == "logistic":
-            order = [cfg.logistic.names.index(s) for s in cfg.stages]
-            self._logistic = LogisticFusion(
-                cfg.stages,
-                tuple(cfg.logistic.coefficients[i] for i in order),
-                cfg.logistic.intercept,
-                cfg.logistic.eps,
-            )
+        self._fusion = StageFusion(cfg)
 
     # -- contents ---------------------------------------------------------------------
 
@@ -332,7 +191,7 @@ class PlaceDatabase:
         if self._heading_matcher is not None and "fft" not in out:
             out[HEADING] = self._heading_matcher.describe(polygon)
         if self._grid_on:
-            out[GRID] = self._grid(polygon)
+            out[GRID] = polar_grid(polygon, self.config)
         return out
 
     def descriptors(self, key: Hashable) -> Descriptors:
@@ -392,7 +251,8 @@ class PlaceDatabase:
         if self._grid_on:
             if descriptors.get(GRID) is not None:
                 kept[GRID] = descriptors[GRID]
-            self._append_dilated(descriptors.get(GRID))
+            assert self._dilated is not None
+            self._dilated.append(descriptors.get(GRID))
         self._descriptors.append(kept)
         self._keys.add(key)
         self._stamps.append(stamp)
@@ -409,26 +269,8 @@ class PlaceDatabase:
         m = 1 << (len(self).bit_length() - 1)  # largest power of two <= the size
         if m <= self._scales_at:
             return
-        rng = np.random.default_rng([self.config.seed, m])
-        scales = []
-        for s in self.config.prefilter:
-            a, b = _random_pairs(rng, m, 256)
-            store = self._stores[s]
-            diff = store.matrix[a].astype(float) - store.matrix[b].astype(float)
-            scales.append(_positive_median(np.sqrt(np.einsum("ij,ij->i", diff, diff))))
-        for v in self.config.verifiers:
-            matcher = self.matchers[v]
-            descs = [d[v] for d in self._descriptors[:m]]
-            n_anchor = max(1, int(np.sqrt(self.config.scale_pairs)))
-            per = max(1, self.config.scale_pairs // n_anchor)
-            values = []
-            for i in rng.choice(m, size=min(n_anchor, m), replace=False):
-                others = rng.choice(m - 1, size=min(per, m - 1), replace=False)
-                others = others + (others >= i)  # skip the anchor itself
-                stacked = matcher.stack([descs[j] for j in others])
-                values.append(np.asarray(matcher.distances(descs[i], stacked), float))
-            scales.append(_positive_median(np.concatenate(values)))
-        self._scales = np.asarray(scales, float)
+        self._scales = stage_scales(self.config, self._stores, self.matchers,
+                                    self._descriptors, m)
         self._scales_at = m
 
     # -- queries ----------------------------------------------------------------------
@@ -573,7 +415,7 @@ class PlaceDatabase:
 
     def _shortlist(
         self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int, keep_prefilter: bool
-    ) -> _Shortlist:
+    ) -> Shortlist:
         """The rows a query chooses its candidates from: the K smallest p, or with
         grids the ``grid_shortlist`` smallest and their grid similarities; exact p
         and stage distances, in increasing p (ties by row)."""
@@ -595,7 +437,7 @@ class PlaceDatabase:
         pre, raw = self._exact_prefilter(q, pick, scored=True)
         order = np.lexsort((pick, pre))
         similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
-        return _Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
+        return Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
                           similarity, combined)
 
     def _shortlist_size(self, q: Descriptors, k: int) -> int:
@@ -606,33 +448,12 @@ class PlaceDatabase:
         """Whether a query adds the grids' candidates (module docstring, step 1)."""
         return self._grid_on and self.config.grid_extra > 0 and q.get(GRID) is not None
 
-    def _append_dilated(self, packed: NDArray[np.uint8] | None) -> None:
-        """Store the next row's dilated grid and its count (zeros without a grid)."""
-        cfg = self.config
-        cells = cfg.grid_rings * cfg.grid_sectors
-        if self._dilated is None or self._dilated_counts is None:
-            self._dilated = FloatRows((cells + 7) // 8, dtype=np.uint8)
-            self._dilated_counts = FloatRows(1)
-        if packed is None:
-            self._dilated.append(np.zeros((cells + 7) // 8, np.uint8))
-            self._dilated_counts.append([0.0])
-            return
-        dilated = dilate_polar(self._unpack(packed))
-        self._dilated.append(np.packbits(dilated.ravel()))
-        self._dilated_counts.append([np.count_nonzero(dilated)])
-
     def _grid_similarity(self, q: Descriptors, rows: NDArray[np.intp]) -> Array:
         """``(len(rows),)`` grid similarity c of the query with those rows (0 where a
         row has no grid: its dilated grid is empty)."""
-        if len(rows) == 0 or self._dilated is None or self._dilated_counts is None:
+        if self._dilated is None:
             return np.zeros(len(rows))
-        cfg = self.config
-        stored = np.unpackbits(self._dilated.data[rows], axis=1,
-                               count=cfg.grid_rings * cfg.grid_sectors)
-        return dilated_similarity(
-            dilate_polar(self._unpack(q[GRID])),
-            stored.reshape(-1, cfg.grid_rings, cfg.grid_sectors),
-            self._dilated_counts.data[rows, 0])
+        return self._dilated.similarity(q[GRID], rows)
 
     def query(
         self,
@@ -697,13 +518,13 @@ class PlaceDatabase:
         last = self._last_stored
         if (last is None or last[0] != key or last[1] != self._scales_at
                 or not np.isin(last[2], rows, assume_unique=True).all()):
-            short = self._shortlist(q, _rows_mask(rows, len(self)), k, False)
+            short = self._shortlist(q, rows_mask(rows, len(self)), k, False)
             known: dict[int, PlaceMatch] = {}
         else:
             new = np.setdiff1d(rows, last[2], assume_unique=True)
             short = last[3]
             if len(new):
-                short = short.merged(self._shortlist(q, _rows_mask(new, len(self)), k, False),
+                short = short.merged(self._shortlist(q, rows_mask(new, len(self)), k, False),
                                      self._shortlist_size(q, k))
             known = last[4]
         keep = short.chosen(k, self.config)
@@ -740,12 +561,9 @@ class PlaceDatabase:
         self, q: Descriptors, cand: NDArray[np.intp]
     ) -> list[tuple[tuple[float, float], ...]]:
         """Per candidate row, its ``(heading, score)`` hypotheses, best first."""
-        angles, corr = self._headings(q, cand)
-        return [
-            tuple((float(a), float(r)) for a, r in zip(angles[j], corr[j], strict=True)
-                  if np.isfinite(r))
-            for j in range(len(cand))
-        ]
+        angles, corr = candidate_headings(q, cand, self._descriptors, self._ranges,
+                                          self.config, self._grid_on)
+        return as_hypotheses(angles, corr)
 
     def _stage_distances(
         self, q: Descriptors, cand: NDArray[np.intp], raw: dict[str, Array]
@@ -763,81 +581,9 @@ class PlaceDatabase:
         return out
 
     def _fuse(self, dist: Array, pre: Array) -> Array:
-        """``(K,)`` fused scores in [0, 1] of ``(S, K)`` stage distances."""
-        cfg = self.config
-        if self._fusion == "logistic":
-            return self._logistic.score(dist.T, self._scales)
-        if self._fusion == "rank":
-            return reciprocal_rank_fusion(dist, cfg.rank_constant)
-        if self._fusion == "verifier":
-            base = len(cfg.prefilter)
-            norm = dist[base:] / self._scales[base:, None]
-            return np.exp(-norm.mean(axis=0))
-        return np.exp(-pre)
+        """``(K,)`` fused scores in [0, 1] of ``(S, K)`` stage distances (`place_fusion`)."""
+        return self._fusion.scores(dist, pre, self._scales)
 
-    def _grid(self, polygon: Polygon) -> NDArray[np.uint8]:
-        """Bit-packed polar occupancy grid of the polygon's surface samples (sensor frame)."""
-        cfg = self.config
-        pts, _, _ = surface_samples(
-            polygon.vertices, step=_GRID_SAMPLES.step, max_edge=_GRID_SAMPLES.max_edge,
-            max_range=min(_GRID_SAMPLES.max_range, cfg.grid_range),
-        )
-        return np.packbits(polar_occupancy(pts, cfg.grid_rings, cfg.grid_sectors, cfg.grid_range))
-
-    def _unpack(self, packed: NDArray[np.uint8]) -> NDArray[np.bool_]:
-        cfg = self.config
-        n = cfg.grid_rings * cfg.grid_sectors
-        return np.unpackbits(packed, count=n).reshape(cfg.grid_rings, cfg.grid_sectors)
-
-    def _headings(self, q: Descriptors, cand: NDArray[np.intp]) -> tuple[Array, Array]:
-        """``(K, H)`` headings [rad] and scores (-inf: none) of the candidates, best first."""
-        cfg = self.config
-        n = cfg.n_headings
-        parts: list[tuple[Array, Array]] = []
-        grids = [self._descriptors[i].get(GRID) for i in cand.tolist()]
-        if self._grid_on and q.get(GRID) is not None and all(g is not None for g in grids):
-            stored = np.stack([self._unpack(g) for g in grids])
-            parts.append(headings_from_polar_grids(self._unpack(q[GRID]), stored,
-                                                   cfg.grid_headings))
-        if n > 0 and self._ranges is not None:
-            fft: FFTDescriptor = q.get("fft", q.get(HEADING))
-            angles, scores = headings_from_range_functions(
-                fft.range_function, self._ranges.data[cand], n
-            )
-            if parts:  # drop range hypotheses a grid hypothesis already holds
-                ga, gs = parts[0]
-                diff = np.abs(se2.wrap_angle(angles[:, :, None] - ga[:, None, :]))
-                dup = ((diff < _SAME_HEADING) & np.isfinite(gs)[:, None, :]).any(axis=2)
-                scores = np.where(dup, -np.inf, scores)
-            parts.append((angles, scores))
-        if not parts:
-            return np.zeros((len(cand), 0)), np.zeros((len(cand), 0))
-        angles = np.concatenate([a for a, _ in parts], axis=1)
-        scores = np.concatenate([r for _, r in parts], axis=1)
-        # Keep the producers' order, each one's hypotheses by score; missing ones last.
-        order = np.argsort(~np.isfinite(scores), axis=1, kind="stable")
-        return np.take_along_axis(angles, order, 1), np.take_along_axis(scores, order, 1)
-
-
-def _random_pairs(rng: np.random.Generator, m: int, n: int) -> tuple[NDArray, NDArray]:
-    """`n` random pairs (a, b), a != b, of indices below `m` (m >= 2)."""
-    a = rng.integers(0, m, size=n)
-    b = rng.integers(0, m - 1, size=n)
-    b = b + (b >= a)
-    return a, b
-
-
-def _positive_median(values: Array) -> float:
-    """Median of the finite values, falling back to their mean / 1.0 when it is 0."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if len(v) == 0:
-        return 1.0
-    med = float(np.median(v))
-    if med > 0:
-        return med
-    mean = float(v.mean())
-    return mean if mean > 0 else 1.0
 
 
 __all__ = [

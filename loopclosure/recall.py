@@ -25,7 +25,8 @@ import numpy as np
 
 from data.errors import UserError
 from loopclosure.matchers.vector_search import smallest_k
-from loopclosure.place_database import Descriptors, PlaceDatabase
+from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_match import Descriptors
 from loopclosure.polygon import Polygon
 
 

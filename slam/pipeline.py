@@ -54,7 +54,7 @@ from data.types import PointCloud, Scan
 from loopclosure.keyframe_store import KeyframePlace
 from loopclosure.loop_candidate import LoopCandidate
 from loopclosure.loop_detector import LoopClosureDetector
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
 from slam.front_end_worker import BATCH, map_in_worker, worker_available

@@ -12,7 +12,7 @@ from data.sim import simulate_run
 from loopclosure import candidate_checks
 from loopclosure.geometric_check import LoopVerification
 from loopclosure.loop_detector import LoopClosureConfig, LoopClosureDetector
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 TURN = 0.7  # heading of the query in the stored keyframe's frame [rad]
 

@@ -17,7 +17,7 @@ from loopclosure.loop_candidate import LoopCandidate
 from loopclosure.loop_config import LoopClosureConfig
 from loopclosure.loop_detector import LoopClosureDetector
 from loopclosure.place_choice import merge_views
-from loopclosure.place_database import PlaceMatch
+from loopclosure.place_match import PlaceMatch
 
 
 def _detector(stamps: list[float]) -> LoopClosureDetector:
@@ -272,7 +272,7 @@ def test_accepted_places_must_agree_on_where_the_query_is(second_place, accepted
 
 def test_distinct_places_skip_keys_within_five_of_one_taken() -> None:
     from loopclosure.place_choice import distinct_places
-    from loopclosure.place_database import PlaceMatch
+    from loopclosure.place_match import PlaceMatch
 
     def match(key: int) -> PlaceMatch:
         return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
@@ -286,7 +286,7 @@ def test_distinct_places_by_map_position_keep_a_neighbour_key_far_enough() -> No
     """With map positions, keys 3 apart 1.5 m apart are two places; 0.5 m apart one;
     another frame is always another place."""
     from loopclosure.place_choice import distinct_places
-    from loopclosure.place_database import PlaceMatch
+    from loopclosure.place_match import PlaceMatch
 
     def match(key: int) -> PlaceMatch:
         return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=0, distances={},
@@ -488,7 +488,7 @@ def test_trail_joins_the_answers_of_keyframes_near_the_query(keyframes) -> None:
     """Keyframe 5 asks with its own matches and the answer of keyframe 4 (1 m behind it),
     not of keyframe 3 (2 m: beyond `trail_radius`); a keyframe answered twice counts at its
     best score; a trail's wide-view matches and keys not allowed stay out."""
-    from loopclosure.place_database import PlaceMatch
+    from loopclosure.place_match import PlaceMatch
 
     det = LoopClosureDetector(LoopClosureConfig(trail_radius=1.5, trail_keyframes=10),
                               submap=lambda key: keyframes[key].points())

@@ -1,0 +1,65 @@
+"""The shortlist of a place query: the rows it chooses its candidates from.
+
+`PlaceDatabase._shortlist` (`loopclosure.place_database`, step 1) ranks the allowed
+rows by the combined normalised prefilter distance p (unitless) and keeps the K
+smallest, or with the polar grids the ``grid_shortlist`` smallest with their grid
+similarities c; `Shortlist.chosen` picks the candidates among them
+(`loopclosure.grid_rerank.union_of_rankings`: the K smallest p and up to
+``grid_extra`` more by p - w c), and `Shortlist.merged` joins the shortlists of two
+disjoint row sets (`PlaceDatabase.query_stored` screening only newly allowed rows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from loopclosure.grid_rerank import union_of_rankings
+from loopclosure.place_config import PlaceDatabaseConfig
+
+Array = NDArray[np.float64]
+
+
+def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
+    """Boolean mask ``(m,)`` over insertion order holding `rows`."""
+    mask = np.zeros(m, bool)
+    mask[rows] = True
+    return mask
+
+
+@dataclass(slots=True, frozen=True)
+class Shortlist:
+    """The rows a query chooses its candidates from (`PlaceDatabase._shortlist`), in
+    increasing p (ties by row): insertion rows, exact p, exact raw prefilter stage
+    distances, grid similarity c (None without the grids' candidates), and p of
+    every row when asked (`CandidateSet.prefilter_all`)."""
+
+    rows: NDArray[np.intp]
+    prefilter: Array
+    raw: dict[str, Array]
+    similarity: Array | None
+    prefilter_all: Array | None
+
+    def chosen(self, k: int, config: PlaceDatabaseConfig) -> NDArray[np.intp]:
+        """Positions of the candidates (`loopclosure.grid_rerank.union_of_rankings`;
+        the first K without grid similarities), in increasing p."""
+        if self.similarity is None:
+            return np.arange(min(k, len(self.rows)))
+        return union_of_rankings(self.prefilter, self.similarity, k, config.grid_extra,
+                                 config.grid_weight)
+
+    def merged(self, other: Shortlist, size: int) -> Shortlist:
+        """The shortlist of both shortlists' rows (disjoint): the `size` smallest p."""
+        rows = np.concatenate([self.rows, other.rows])
+        pre = np.concatenate([self.prefilter, other.prefilter])
+        keep = np.lexsort((rows, pre))[:size]
+        similarity = (None if self.similarity is None or other.similarity is None
+                      else np.concatenate([self.similarity, other.similarity])[keep])
+        return Shortlist(rows[keep], pre[keep],
+                          {s: np.concatenate([d, other.raw[s]])[keep] for s, d in self.raw.items()},
+                          similarity, None)
+
+
+__all__ = ["Shortlist", "rows_mask"]
