@@ -74,42 +74,59 @@ _MAD = 1.4826
 def voxel_downsample_fast(points: ArrayLike, voxel: float) -> Array:
     """`loopclosure.registration.voxel_downsample`, compiled: the centroid of the points
     in each ``voxel x voxel`` cell [m], cells in the order of their first point;
-    ``voxel <= 0`` returns a float copy."""
+    ``voxel <= 0`` returns a float copy.
+
+    One compiled pass (`_voxel_kernel`): the cells are found by hashing, not sorting,
+    and each cell's points are summed in index order, as the stable sort of the
+    reference sums them, so the centroids are the same to the bit.  The whole
+    function is one kernel call because it runs for every scan of the front end and
+    every submap: numpy's per-call overhead (a floor, a cast, two shifts and an
+    argsort on a few hundred points) was several times the kernel's own work."""
     pts = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 2))
     if voxel <= 0 or len(pts) == 0:
         return pts.copy()
-    cells = np.floor(pts / voxel).astype(np.int64)
-    key = (cells[:, 0] << 32) ^ (cells[:, 1] & 0xFFFFFFFF)
-    # numpy's stable sort (timsort) is several times numba's mergesort on these keys.
-    return _voxel_kernel(pts, key, np.argsort(key, kind="stable"))
+    return _voxel_kernel(pts, float(voxel))
 
 
 @numba.njit(cache=True)
-def _voxel_kernel(pts, key, order):
-    """Centroids of the runs of equal `key` along `order` (a stable argsort of `key`:
-    each cell's points summed in index order), output in the order of each cell's
-    first point (found by a pass over the indices, no second sort)."""
-    n = len(key)
+def _voxel_kernel(pts, voxel):
+    """Centroids of the cells ``key = (floor(x / voxel) << 32) ^ (floor(y / voxel) &
+    0xFFFFFFFF)`` of `pts` (``(N, 2)`` [m]), in the order of each cell's first point;
+    each cell's points summed in index order.  Cells are found in an open-addressing
+    hash table of at least twice N slots (Fibonacci hashing, linear probing)."""
+    n = pts.shape[0]
+    bits = 1
+    while (1 << bits) < 2 * n:
+        bits += 1
+    size = 1 << bits
+    mask = size - 1
+    shift = np.uint64(64 - bits)
+    golden = np.uint64(0x9E3779B97F4A7C15)
+    slot_key = np.empty(size, dtype=np.int64)
+    slot_group = np.full(size, -1, dtype=np.int64)
     sums = np.zeros((n, 2))
     counts = np.zeros(n)
-    group_at = np.full(n, -1, dtype=np.int64)  # cell of the point that opens it
-    g = -1
-    for t in range(n):
-        i = order[t]
-        if t == 0 or key[i] != key[order[t - 1]]:
-            g += 1
-            group_at[i] = g  # the smallest index of the run: the sort is stable
+    groups = 0
+    for i in range(n):
+        cx = np.int64(np.floor(pts[i, 0] / voxel))
+        cy = np.int64(np.floor(pts[i, 1] / voxel))
+        key = (cx << 32) ^ (cy & 0xFFFFFFFF)
+        h = np.int64((np.uint64(key) * golden) >> shift)
+        while slot_group[h] >= 0 and slot_key[h] != key:
+            h = (h + 1) & mask
+        g = slot_group[h]
+        if g < 0:
+            g = groups
+            groups += 1
+            slot_group[h] = g
+            slot_key[h] = key
         sums[g, 0] += pts[i, 0]
         sums[g, 1] += pts[i, 1]
         counts[g] += 1.0
-    out = np.empty((g + 1, 2))
-    row = 0
-    for i in range(n):
-        h = group_at[i]
-        if h >= 0:
-            out[row, 0] = sums[h, 0] / counts[h]
-            out[row, 1] = sums[h, 1] / counts[h]
-            row += 1
+    out = np.empty((groups, 2))
+    for g in range(groups):
+        out[g, 0] = sums[g, 0] / counts[g]
+        out[g, 1] = sums[g, 1] / counts[g]
     return out
 
 
