@@ -91,10 +91,11 @@ def cache_is_cold() -> bool:
     first run after an install, or sources changed since).  Read from numba's cache
     objects; a numba that keeps them elsewhere counts as warm (no child)."""
     from loopclosure import virtual_scan_kernel
-    from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, pair_kernel
+    from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, flirt_peak_kernel, pair_kernel
 
-    kernels = (fast_icp._icp, fast_icp._screen_kernel, correlative._correlate,
-               flirt_kernel.flirt_entries, flirt_grid_kernel.beta_grid_counts,
+    kernels = (fast_icp._icp, fast_icp._screen_kernel, fast_icp._voxel_kernel,
+               correlative._correlate, flirt_kernel.flirt_entries,
+               flirt_grid_kernel.beta_grid_counts, flirt_peak_kernel.local_maxima_kernel,
                pair_kernel._pair_kernel, virtual_scan_kernel.candidates,
                virtual_scan_kernel.front_most)
     try:

@@ -314,3 +314,21 @@ def test_scale_test_without_the_logarithm_agrees_with_it_at_the_bounds() -> None
     xs += list(np.linspace(0.3, 3.0, 2001)) + list(hi * (1.0 + np.linspace(-3e-9, 3e-9, 601)))
     for x in xs:
         assert _compatible(x, gate, lo_in, hi_in, lo_out, hi_out) == (abs(np.log(x)) <= gate)
+
+
+def test_compiled_peak_mask_equals_the_numpy_one() -> None:
+    """The compiled strict 3 x 3 maxima (circular in position, -inf beyond the scale
+    levels) give numpy's mask: ties and plateaus, one position, one level, NaN."""
+    from loopclosure.matchers.flirt_features import _local_maxima, _local_maxima_numpy
+
+    rng = np.random.default_rng(5)
+    for levels, n in ((1, 1), (1, 2), (3, 1), (2, 3), (7, 64)):
+        for a in (rng.normal(size=(levels, n)), np.round(rng.normal(size=(levels, n)), 1)):
+            np.testing.assert_array_equal(_local_maxima(a), _local_maxima_numpy(a))
+    a = np.abs(rng.normal(size=(4, 40)))
+    a[1, 7] = np.nan
+    np.testing.assert_array_equal(_local_maxima(a), _local_maxima_numpy(a))
+    # hand-checked: one peak; its wrapped neighbour at the other end does not count
+    a = np.zeros((2, 5))
+    a[1, 0], a[1, 4] = 2.0, 1.0
+    assert np.argwhere(_local_maxima(a)).tolist() == [[1, 0]]

@@ -242,7 +242,17 @@ def smoothed_curves(curve: Array, sigmas: Array) -> tuple[Array, Array]:
 
 
 def _local_maxima(a: Array) -> NDArray[np.bool_]:
-    """Strict maxima of ``(L, N)`` responses over the 3 x 3 (scale, circular position) box."""
+    """Strict maxima of ``(L, N)`` responses over the 3 x 3 (scale, circular position)
+    box (`flirt_peak_kernel`, compiled: the same mask as `_local_maxima_numpy`)."""
+    # numba loads on first use: importing the matchers stays light.
+    from loopclosure.matchers.flirt_peak_kernel import local_maxima_kernel
+
+    return local_maxima_kernel(np.ascontiguousarray(a, dtype=float), 1.0 + _STRICT,
+                               _STRICT * np.finfo(float).tiny)
+
+
+def _local_maxima_numpy(a: Array) -> NDArray[np.bool_]:
+    """`_local_maxima` in numpy (the reference of the compiled kernel)."""
     big = np.full((a.shape[0] + 2, a.shape[1]), -np.inf)
     big[1:-1] = a
     best = np.full(a.shape, -np.inf)

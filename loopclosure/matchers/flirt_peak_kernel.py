@@ -1,0 +1,48 @@
+"""Compiled FLIRT peak test: `flirt_features._local_maxima` as one loop.
+
+The detector keeps a response ``a[l, n]`` (scale level l, circular curve position n,
+dimensionless) that exceeds every one of its eight neighbours in the 3 x 3 box
+(levels ``l - 1 .. l + 1``, positions ``n - 1 .. n + 1`` modulo N; a level outside
+``0 .. L - 1`` is ``-inf``) by the relative margin ``strict``:
+``a[l, n] > b (1 + strict) + strict tiny`` with b the neighbours' maximum and tiny
+the smallest normal double.  The numpy version builds that maximum from eight
+rolled copies of the array, a few dozen numpy calls per keyframe on arrays of a few
+thousand responses, where the per-call overhead is most of the cost; this kernel
+takes the same maximum of the same values (a NaN among them gives NaN, as
+`np.maximum`) and applies the same comparison with the same two roundings, so the
+mask is identical.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def local_maxima_kernel(a, scale, offset):
+    """Boolean ``(L, N)`` mask ``a > b * scale + offset`` of module docstring's b,
+    with ``scale = 1 + strict`` and ``offset = strict * tiny``."""
+    levels, n = a.shape
+    out = np.zeros((levels, n), dtype=np.bool_)
+    for lv in range(levels):
+        lo = max(lv - 1, 0)
+        hi = min(lv + 1, levels - 1)
+        for i in range(n):
+            left = i - 1 if i > 0 else n - 1
+            right = i + 1 if i < n - 1 else 0
+            best = -np.inf
+            for row in range(lo, hi + 1):  # levels outside the array are -inf
+                for ds in range(3):  # positions n - 1, n, n + 1 (circular)
+                    if row == lv and ds == 1:
+                        continue
+                    v = a[row, left if ds == 0 else (i if ds == 1 else right)]
+                    if v != v or best != best:
+                        best = np.nan
+                    elif v > best:
+                        best = v
+            out[lv, i] = a[lv, i] > best * scale + offset
+    return out
+
+
+__all__ = ["local_maxima_kernel"]
