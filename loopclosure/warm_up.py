@@ -96,7 +96,8 @@ def cache_is_cold() -> bool:
     kernels = (fast_icp._icp, fast_icp._screen_kernel, fast_icp._voxel_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
                flirt_grid_kernel.beta_grid_counts, flirt_peak_kernel.local_maxima_kernel,
-               pair_kernel._pair_kernel, virtual_scan_kernel.candidates,
+               pair_kernel._pair_kernel, pair_kernel.surface_samples_kernel,
+               virtual_scan_kernel.candidates,
                virtual_scan_kernel.front_most)
     try:
         paths = [k._cache._cache_file._index_path for k in kernels]

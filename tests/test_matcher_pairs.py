@@ -117,3 +117,29 @@ def test_compiled_and_numpy_descriptors_agree_on_a_room() -> None:
     fast = PairHistogramMatcher().describe(poly)
     slow = PairHistogramMatcher(compiled=False).describe(poly)
     np.testing.assert_allclose(fast, slow, rtol=1e-6, atol=1e-7)
+
+
+def test_compiled_surface_samples_equal_the_numpy_ones() -> None:
+    """Same samples, normals and weights to the bit: random rings, a repeated vertex
+    (zero-length edge), a vertex beyond the range, long edges and a lone vertex."""
+    from loopclosure.matchers.pair_histogram import surface_samples, surface_samples_numpy
+
+    rng = np.random.default_rng(6)
+    settings = (dict(step=0.25, max_edge=1.0, max_range=20.0),
+                dict(step=0.01, max_edge=np.inf, max_range=np.inf))
+    for n in (0, 1, 2, 40):
+        v = rng.normal(0.0, 5.0, (n, 2))
+        if n > 3:
+            v[1] = v[2]
+            v[3] = [np.inf, 0.0]
+        for kw in settings:
+            for got, ref in zip(surface_samples(v, **kw), surface_samples_numpy(v, **kw),
+                                strict=True):
+                assert got.shape == ref.shape
+                np.testing.assert_array_equal(got, ref)
+    # hand-checked: a 1 m edge at step 0.5 gives two samples at its quarter points
+    pts, nrm, w = surface_samples(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 5.0]]),
+                                  step=0.5, max_edge=2.0, max_range=10.0)
+    np.testing.assert_array_equal(pts, [[0.25, 0.0], [0.75, 0.0]])
+    np.testing.assert_array_equal(nrm, [[0.0, -1.0], [0.0, -1.0]])
+    np.testing.assert_array_equal(w, [0.5, 0.5])

@@ -140,10 +140,29 @@ def surface_samples(
 ) -> tuple[Array, Array, Array]:
     """Samples of the polygon's surface edges (module docstring), sensor frame [m].
 
+    Compiled (`pair_kernel.surface_samples_kernel`: one loop over the edges, the same
+    samples to the bit as `surface_samples_numpy`, without its dozen numpy calls per
+    polygon).
+
     Returns:
         ``(n, 2)`` sample points [m], ``(n, 2)`` unit normals of their edges and ``(n,)``
         weights (arc length per sample [m]).
     """
+    # numba loads on first use: importing the matchers stays light.
+    from loopclosure.matchers.pair_kernel import surface_samples_kernel
+
+    v = np.ascontiguousarray(np.asarray(vertices, float).reshape(-1, 2))
+    return surface_samples_kernel(v, float(step), float(max_edge), float(max_range))
+
+
+def surface_samples_numpy(
+    vertices: Array,
+    *,
+    step: float,
+    max_edge: float,
+    max_range: float,
+) -> tuple[Array, Array, Array]:
+    """`surface_samples` in numpy (the reference of the compiled kernel)."""
     v = np.asarray(vertices, float).reshape(-1, 2)
     w = np.roll(v, -1, axis=0)
     e = w - v

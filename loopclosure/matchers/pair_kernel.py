@@ -61,6 +61,53 @@ def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, edges, hist):
             hist[row + kb] += ww
 
 
+@numba.njit(cache=True)
+def surface_samples_kernel(v, step, max_edge, max_range):
+    """`pair_histogram.surface_samples_numpy` of the ``(N, 2)`` vertices `v` [m]:
+    ``(points, normals, weights)`` with the same arithmetic per sample (edge ``e =
+    v[i + 1] - v[i]`` closing the ring, length by ``hypot``, ``c = max(1, rint(L /
+    step))`` samples at ``v + ((k + 1/2) / c) e``, normal ``(e_y, -e_x) / L``, weight
+    ``L / c``)."""
+    n = v.shape[0]
+    keep = np.zeros(n, dtype=np.bool_)
+    count = np.zeros(n, dtype=np.int64)
+    total = 0
+    for i in range(n):
+        j = i + 1 if i < n - 1 else 0
+        ex = v[j, 0] - v[i, 0]
+        ey = v[j, 1] - v[i, 1]
+        length = math.hypot(ex, ey)
+        if (math.hypot(v[i, 0], v[i, 1]) < max_range and math.hypot(v[j, 0], v[j, 1])
+                < max_range and length < max_edge and length > 0):
+            keep[i] = True
+            count[i] = max(1, np.int64(np.rint(length / step)))
+            total += count[i]
+    points = np.empty((total, 2))
+    normals = np.empty((total, 2))
+    weights = np.empty(total)
+    row = 0
+    for i in range(n):
+        if not keep[i]:
+            continue
+        j = i + 1 if i < n - 1 else 0
+        ex = v[j, 0] - v[i, 0]
+        ey = v[j, 1] - v[i, 1]
+        length = math.hypot(ex, ey)
+        c = count[i]
+        nx = ey / length
+        ny = -ex / length
+        w = length / c
+        for k in range(c):
+            t = (k + 0.5) / c
+            points[row, 0] = v[i, 0] + t * ex
+            points[row, 1] = v[i, 1] + t * ey
+            normals[row, 0] = nx
+            normals[row, 1] = ny
+            weights[row] = w
+            row += 1
+    return points, normals, weights
+
+
 def pair_histogram_compiled(
     points: Array,
     normals: Array,
@@ -82,4 +129,4 @@ def pair_histogram_compiled(
     return hist.reshape(n_distance, n_angle)
 
 
-__all__ = ["pair_histogram_compiled"]
+__all__ = ["pair_histogram_compiled", "surface_samples_kernel"]
