@@ -16,7 +16,11 @@ pose gate's candidates and the appearance candidates inside it) and without one
 (``check_global``, of which the correlative search ``match_prior_free`` and its
 lattices ``pf_two_level``, and ``nearer_place``), the multi-start ICP of the
 checks (``register_multi``, which the front end's recovery search calls too), the
-overlap screen, and the submaps' registration targets (``target``).  Stages nest:
+overlap screen, and the submaps' registration targets (``target``); besides loop
+detection, the front end, keyframe selection, the submaps' points, the graph's
+updates and the final pass, and within the place database its describe (the pair
+histogram, the polar grid, the virtual scans, the wide view) and its query parts
+(the screen, the grid similarity, ``query_stored``).  Stages nest:
 a stage's time includes the stages it calls.  Run it with the old and the new code
 at the same time to compare stages; `benchmarks/run_speed.py` compares whole runs.
 """
@@ -45,6 +49,18 @@ STAGES = [
     ("loopclosure.matchers.flirt", "FlirtMatcher", "distances", "flirt_distances"),
     ("loopclosure.fast_icp", None, "overlap_screen", "overlap_screen"),
     ("slam.pipeline", "Mapper", "_add_keyframe", "add_keyframe (all of it)"),
+    ("slam.pipeline", "Mapper", "_update", "graph update"),
+    ("slam.pipeline", "Mapper", "finish", "finish (final pass)"),
+    ("slam.pipeline", "Mapper", "_local_points", "submap points"),
+    ("slam.odometry.icp2d", "Icp2dOdometry", "process", "front end"),
+    ("slam.keyframes", "KeyframeSelector", "push", "keyframe selection"),
+    ("loopclosure.keyframe_store", "KeyframeStore", "_describe_wide", "describe wide view"),
+    ("loopclosure.place_database", "PlaceDatabase", "describe", "database describe"),
+    ("loopclosure.place_database", "PlaceDatabase", "_grid", "polar grid"),
+    ("loopclosure.place_database", "PlaceDatabase", "_grid_similarity", "grid similarity"),
+    ("loopclosure.place_database", "PlaceDatabase", "_screen", "screen"),
+    ("loopclosure.place_database", "PlaceDatabase", "query_stored", "query_stored"),
+    ("loopclosure.matchers.pair_histogram", "PairHistogramMatcher", "describe", "pairs_describe"),
 ]
 #: Functions imported by name into another module: (module, name, its origin, label).
 IMPORTED = [
@@ -53,6 +69,7 @@ IMPORTED = [
     ("loopclosure.geometric_check", "match_prior_free", "loopclosure.prior_free",
      "match_prior_free"),
     ("loopclosure.prior_free", "_two_level", "loopclosure.prior_free", "pf_two_level"),
+    ("loopclosure.keyframe_store", "virtual_scan", "loopclosure.virtual_scan", "virtual_scan"),
 ]
 
 

@@ -84,7 +84,13 @@ def dilated_similarity(query_dilated: ArrayLike, stored_dilated: ArrayLike,
     the stored ``D(G_j)`` ``(K, R, S)`` and their occupied cell counts ``|D(G_j)|``
     ``(K,)`` (a database dilates and counts each stored grid once, when it is added)."""
     qb = np.asarray(query_dilated, dtype=bool)
-    q, g = qb.astype(np.float32), np.asarray(stored_dilated, dtype=np.float32)
+    stored = np.asarray(stored_dilated)
+    # A ring the query leaves empty adds only zeros to every sum: its stored rings are
+    # not transformed (the sums of the others keep their order, so c is unchanged).
+    rings = np.flatnonzero(qb.any(axis=1))
+    if len(rings) < qb.shape[0]:
+        stored = stored[:, rings]
+    q, g = qb[rings].astype(np.float32), np.asarray(stored, dtype=np.float32)
     sectors = q.shape[-1]
     # float32 FFTs (scipy keeps the precision: a correlation of a few thousand cells
     # comes out within about 1e-3 of a cell); the ring sum is taken in frequency space.

@@ -109,3 +109,21 @@ def test_dilated_similarity_equals_grid_similarity_on_grids_dilated_once() -> No
     got = dilated_similarity(dilate_polar(query), dilated, counts)
     np.testing.assert_array_equal(got, grid_similarity(query, stored))
     assert got[4] == 0.0
+
+
+def test_similarity_skips_the_rings_the_query_leaves_empty() -> None:
+    """The correlation over the query's occupied rings only is the brute-force
+    circular correlation of the whole grids (the empty rings add only zeros), also
+    when the stored grids are occupied there, and 0 for an empty query."""
+    rng = np.random.default_rng(7)
+    query = dilate_polar(rng.random((8, 30)) < 0.2)
+    query[[0, 4, 5, 7]] = False
+    stored = dilate_polar(rng.random((6, 8, 30)) < 0.2)
+    counts = np.count_nonzero(stored, axis=(1, 2))
+    brute = np.array([max(np.sum(g * np.roll(query, -k, axis=1)) for k in range(30))
+                      for g in stored.astype(int)])
+    expected = brute / np.sqrt(query.sum() * counts)
+    np.testing.assert_allclose(dilated_similarity(query, stored, counts), expected,
+                               atol=1e-5)
+    empty = np.zeros_like(query)
+    np.testing.assert_array_equal(dilated_similarity(empty, stored, counts), 0.0)
