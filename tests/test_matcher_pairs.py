@@ -143,3 +143,27 @@ def test_compiled_surface_samples_equal_the_numpy_ones() -> None:
     np.testing.assert_array_equal(pts, [[0.25, 0.0], [0.75, 0.0]])
     np.testing.assert_array_equal(nrm, [[0.0, -1.0], [0.0, -1.0]])
     np.testing.assert_array_equal(w, [0.5, 0.5])
+
+
+def test_angle_table_counts_the_edges_as_comparing_with_each() -> None:
+    """The table's angle bins are the comparison count: histograms equal to the bit
+    for several bin counts (one too fine for a table falls back to counting), and a
+    hand-checked table for edges 0.3, 0.6 at 16 buckets."""
+    from loopclosure.matchers import pair_kernel
+
+    base, near, buckets = pair_kernel.angle_table(np.array([0.3, 0.6]))
+    assert buckets == 16
+    assert base[:6].tolist() == [0, 0, 0, 0, 0, 0] and base[11:].tolist() == [2] * 5
+    assert near[4] == 0.3 and near[9] == 0.6 and np.isinf(near[7])
+    rng = np.random.default_rng(8)
+    pts = rng.normal(0.0, 4.0, (120, 2))
+    nrm = rng.normal(size=(120, 2))
+    nrm /= np.hypot(nrm[:, 0], nrm[:, 1])[:, None]
+    w = rng.random(120)
+    for n_angle in (1, 3, 8, 45, 90):
+        edges = np.sin(np.arange(1, n_angle) * (0.5 * np.pi / n_angle))
+        ref = np.zeros(40 * n_angle)
+        pair_kernel._pair_kernel_counting(pts, nrm, w, 10.0, 40, n_angle, edges, ref)
+        got = pair_kernel.pair_histogram_compiled(pts, nrm, w, max_distance=10.0,
+                                                  n_distance=40, n_angle=n_angle)
+        np.testing.assert_array_equal(got.ravel(), ref)

@@ -12,12 +12,22 @@ k when ``sin(k pi / (2 n_angle)) <= |n . u| < sin((k + 1) pi / (2 n_angle))``
 (arcsin is increasing on [0, 1]).  Only the order of the floating-point sums
 differs from numpy's, so the histograms agree to rounding.
 
+The count of edges at or below ``c = |n . u|`` is read from a table instead of
+comparing c with every edge: with T buckets (a power of two, so ``c T`` and
+``sin_k T`` are exact), an edge whose bucket ``floor(sin_k T)`` lies two or more
+below c's bucket ``floor(c T)`` is below c and one two or more above is above it;
+T is chosen so that the three buckets around any bucket hold at most one edge, and
+c is compared with that one only.  The count is the same integer, so the histogram
+is the same to the bit as counting (`_pair_kernel_counting`, kept for angle bins
+too many for a table).
+
 numba is imported with this module, which `pair_histogram` loads on first use;
 kernels are cached on disk (``cache=True``).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
@@ -28,7 +38,60 @@ Array = NDArray[np.float64]
 
 
 @numba.njit(cache=True)
-def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, edges, hist):
+def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, base, near, buckets, hist):
+    """The pairs' histogram (module docstring) with the angle bins from the table
+    `base`, `near` of `angle_table` (`buckets` entries)."""
+    n = p.shape[0]
+    dscale = n_distance / max_distance
+    max_d2 = max_distance * max_distance
+    top = buckets - 1
+    for a in range(n - 1):
+        ax, ay = p[a, 0], p[a, 1]
+        nax, nay = nrm[a, 0], nrm[a, 1]
+        wa = w[a]
+        for b in range(a + 1, n):
+            dx = p[b, 0] - ax
+            dy = p[b, 1] - ay
+            d2 = dx * dx + dy * dy  # squared first: most far pairs skip the root
+            if not (d2 > 0.0 and d2 < max_d2):
+                continue
+            d = math.sqrt(d2)
+            inv = 1.0 / d
+            ux, uy = dx * inv, dy * inv
+            row = min(int(d * dscale), n_distance - 1) * n_angle
+            ww = wa * w[b]
+            ca = abs(nax * ux + nay * uy)
+            cb = abs(nrm[b, 0] * ux + nrm[b, 1] * uy)
+            ia = max(min(int(ca * buckets), top), 0)
+            ib = max(min(int(cb * buckets), top), 0)
+            hist[row + base[ia] + (near[ia] <= ca)] += ww
+            hist[row + base[ib] + (near[ib] <= cb)] += ww
+
+
+def angle_table(edges: Array, max_buckets: int = 1 << 12
+                ) -> tuple[NDArray[np.int64], Array, int] | None:
+    """``(base, near, T)`` of the module docstring for the sorted angle-bin edges
+    ``sin_k`` in (0, 1): per bucket i, the number of edges in buckets ``<= i - 2``
+    and the one edge in buckets ``i - 1 .. i + 1`` (inf: none); T the smallest power
+    of two (from 16) that leaves at most one edge there.  None when even
+    `max_buckets` does not separate the edges."""
+    buckets = 16
+    while buckets <= max_buckets:
+        of = np.floor(edges * buckets).astype(np.int64)
+        i = np.arange(buckets)
+        lo = np.searchsorted(of, i - 1, side="left")
+        hi = np.searchsorted(of, i + 1, side="right")
+        if np.all(hi - lo <= 1):
+            near = np.full(buckets, np.inf)
+            one = hi > lo
+            near[one] = edges[lo[one]]
+            return lo.astype(np.int64), near, buckets
+        buckets *= 2
+    return None
+
+
+@numba.njit(cache=True)
+def _pair_kernel_counting(p, nrm, w, max_distance, n_distance, n_angle, edges, hist):
     n = p.shape[0]
     dscale = n_distance / max_distance
     max_d2 = max_distance * max_distance
@@ -122,11 +185,24 @@ def pair_histogram_compiled(
     hist = np.zeros(n_distance * n_angle)
     p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
     if len(p) >= 2:
-        _pair_kernel(p, np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 2),
-                     np.ascontiguousarray(weights, dtype=np.float64).ravel(),
-                     float(max_distance), int(n_distance), int(n_angle),
-                     np.sin(np.arange(1, n_angle) * (0.5 * np.pi / n_angle)), hist)
+        nrm = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 2)
+        w = np.ascontiguousarray(weights, dtype=np.float64).ravel()
+        edges = np.sin(np.arange(1, n_angle) * (0.5 * np.pi / n_angle))
+        table = _table(int(n_angle))
+        if table is None:
+            _pair_kernel_counting(p, nrm, w, float(max_distance), int(n_distance),
+                                  int(n_angle), edges, hist)
+        else:
+            base, near, buckets = table
+            _pair_kernel(p, nrm, w, float(max_distance), int(n_distance), int(n_angle),
+                         base, near, buckets, hist)
     return hist.reshape(n_distance, n_angle)
+
+
+@functools.lru_cache(maxsize=8)
+def _table(n_angle: int) -> tuple[NDArray[np.int64], Array, int] | None:
+    """`angle_table` of the edges of `n_angle` bins (made once per bin count)."""
+    return angle_table(np.sin(np.arange(1, n_angle) * (0.5 * np.pi / n_angle)))
 
 
 __all__ = ["pair_histogram_compiled", "surface_samples_kernel"]
