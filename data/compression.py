@@ -27,9 +27,10 @@ import threading
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, TypeVar
 
 from data.errors import DataError
+from data.progress import ReadProgress
 
 __all__ = [
     "StreamBroken",
@@ -51,6 +52,7 @@ _READ = 1 << 15  # bytes read from the file at a time
 _FEED = 1 << 10  # compressed bytes per decompressor call: a failing call loses its output
 _QUEUE = 16  # pieces the decompressing thread may run ahead (bzip2: up to 900 kB each)
 _STREAM_ERRORS = (OSError, EOFError, zlib.error)
+_T = TypeVar("_T")
 
 
 def read_magic(path: str | Path, size: int = 16) -> bytes:
@@ -116,15 +118,28 @@ def decompressed(path: str | Path) -> Iterator[bytes]:
     before the damaged one) before `StreamBroken`.  Concatenated streams are read on.
     Raises `DataError` when the file cannot be opened.
     """
+    pieces = _pieces_at(path)
+    try:
+        for piece, _ in pieces:
+            yield piece
+    finally:
+        pieces.close()
+
+
+def _pieces_at(path: str | Path) -> Iterator[tuple[bytes, int]]:
+    """`decompressed`, each piece with the bytes of the stored file consumed once it
+    was produced (the offset just past the compressed input that released it)."""
     kind = compression_of(path)
     try:
         f = open(path, "rb")  # closed in the finally below
     except OSError as exc:
         raise DataError(path, f"cannot open: {exc.strerror or exc}") from None
     try:
+        read = 0  # bytes of the file read before the current `data`
         if kind == "none":
             while piece := f.read(_READ):
-                yield piece
+                read += len(piece)
+                yield piece, read
             return
         make = bz2.BZ2Decompressor if kind == "bzip2" else lambda: zlib.decompressobj(31)
         decompressor = make()
@@ -137,6 +152,7 @@ def decompressed(path: str | Path) -> Iterator[bytes]:
                 return
             for at in range(0, len(data), _FEED):
                 data_left = data[at : at + _FEED]
+                fed = read + min(at + _FEED, len(data))
                 while data_left:
                     try:
                         out = decompressor.decompress(data_left)
@@ -144,25 +160,26 @@ def decompressed(path: str | Path) -> Iterator[bytes]:
                         raise StreamBroken(exc) from exc
                     fresh = False
                     if out:
-                        yield out
+                        yield out, fed
                     if not decompressor.eof:
                         break
                     data_left = decompressor.unused_data  # a concatenated stream follows
                     decompressor, fresh = make(), True
+            read += len(data)
     finally:
         f.close()
 
 
-def in_thread(pieces: Iterator[bytes]) -> Iterator[bytes]:
+def in_thread(pieces: Iterator[_T]) -> Iterator[_T]:
     """`pieces` produced by a background thread (zlib and bzip2 release the GIL).
 
     At most `_QUEUE` pieces wait in memory; closing the generator stops the thread.
     Exceptions of the producer are raised in the consumer.
     """
-    pipe: queue.Queue[bytes | BaseException | None] = queue.Queue(maxsize=_QUEUE)
+    pipe: queue.Queue[_T | BaseException | None] = queue.Queue(maxsize=_QUEUE)
     stop = threading.Event()
 
-    def put(item: bytes | BaseException | None) -> None:
+    def put(item: _T | BaseException | None) -> None:
         while not stop.is_set():
             try:
                 pipe.put(item, timeout=0.05)
@@ -198,21 +215,37 @@ def in_thread(pieces: Iterator[bytes]) -> Iterator[bytes]:
         worker.join(timeout=5.0)
 
 
-def iter_lines(path: str | Path) -> Iterator[bytes]:
+def iter_lines(path: str | Path, progress: ReadProgress | None = None) -> Iterator[bytes]:
     """Lines of the (decompressed) file without their ``\\n``, in file order.
 
     Compressed files are decompressed by a background thread.  Raises
     `StreamBroken` when decompression fails; the partial line before the failure
-    is dropped.
+    is dropped.  `progress` (unit bytes), when given, follows the bytes of the
+    stored file behind the lines yielded: within a decompressed piece the
+    compressed bytes that released it are shared out in proportion to the
+    decompressed bytes of its lines.
     """
-    pieces = decompressed(path)
+    pieces: Iterator[tuple[bytes, int]] = _pieces_at(path)
     if compression_of(path) != "none":
         pieces = in_thread(pieces)
     tail = b""
-    for piece in pieces:
+    before = 0  # stored bytes consumed before the current piece
+    for piece, after in pieces:
         parts = (tail + piece).split(b"\n")
+        if progress is None:
+            tail = parts.pop()
+            yield from parts
+            continue
+        # Every line but the last of `parts` ends inside `piece`: 0 < used <= size.
+        size, used, span, cell = len(piece), -len(tail), after - before, progress.cell
         tail = parts.pop()
-        yield from parts
+        for line in parts:
+            used += len(line) + 1
+            cell.value = before + span * used // size
+            yield line
+        before = after
+    if progress is not None:
+        progress.done = before
     if tail:
         yield tail
 

@@ -1,8 +1,11 @@
 """One entry point for every scan source: `open_source(path)` picks the reader.
 
 A scan source is anything with a `path`, a `format` name, an `info()` that
-describes it and an iterator that yields `Scan` (or `PointCloud`) objects one at
-a time, in the order of motion.  Readers stream: a 1 GB log is never loaded at once.
+describes it, a `progress()` that says how far an iteration has got, and an
+iterator that yields `Scan` (or `PointCloud`) objects one at a time, in the order
+of motion.  Readers stream: a 1 GB log is never loaded at once.  `info()` may need
+a whole pass; a progress display uses `progress()`, whose total is known without
+reading (file size, or a bag index's message count).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from data.errors import DataError
+from data.progress import ReadProgress
 from data.types import PointCloud, Scan, SourceInfo
 
 
@@ -28,6 +32,10 @@ class ScanSource(Protocol):
 
     def info(self) -> SourceInfo:
         """Counts and sensor description (may read the whole file once)."""
+        ...
+
+    def progress(self) -> ReadProgress:
+        """How far the latest iteration has read, against a total known up front."""
         ...
 
 

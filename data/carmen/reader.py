@@ -16,6 +16,7 @@ from data.carmen.parsing import LASER_MESSAGES
 from data.carmen.sniff import sniff
 from data.carmen.stream import ReadStats, ScanStream
 from data.errors import DataError, UserError
+from data.progress import ReadProgress
 from data.types import Scan, SourceInfo
 
 
@@ -65,10 +66,27 @@ class CarmenLog:
         if reason is not None:
             raise DataError(self.path, f"not a CARMEN log: {reason}")
         self._info: SourceInfo | None = None
+        self._progress = ReadProgress(self.path.stat().st_size, "bytes")
 
     def __iter__(self) -> Iterator[Scan]:
         """Scans in file order, odometry attached (`data.carmen` docstring)."""
-        return self._scans(ReadStats())
+        self._progress.start()
+        return self._counted(self._scans(ReadStats(), self._progress))
+
+    def progress(self) -> ReadProgress:
+        """How far the latest iteration has read: bytes of the stored (possibly
+        compressed) file, of its size, and the scans read; nothing is read to know
+        the total."""
+        return self._progress
+
+    def _counted(self, scans: Iterator[Scan]) -> Iterator[Scan]:
+        """`scans`; at their end the progress gets the exact count yielded."""
+        count = 0
+        for scan in scans:
+            count += 1
+            yield scan
+        self._progress.scans = count
+        self._progress.finish()
 
     def info(self) -> SourceInfo:
         """Counts and sensor description; reads the whole file once (then cached).
@@ -89,9 +107,9 @@ class CarmenLog:
             self._info = self._summary(stats)
         return self._info
 
-    def _scans(self, stats: ReadStats) -> Iterator[Scan]:
+    def _scans(self, stats: ReadStats, progress: ReadProgress | None = None) -> Iterator[Scan]:
         stream = ScanStream(self.path, stats, strict=self.strict, laser=self.laser,
-                            max_range=self.max_range)
+                            max_range=self.max_range, progress=progress)
         return iter(stream)
 
     def _summary(self, stats: ReadStats) -> SourceInfo:

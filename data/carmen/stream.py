@@ -43,6 +43,7 @@ from data.carmen.parsing import (
 )
 from data.compression import StreamBroken, iter_lines
 from data.errors import DataError, warn
+from data.progress import ReadProgress
 from data.types import Scan
 
 Array = NDArray[np.float64]
@@ -113,11 +114,14 @@ class ScanStream:
         strict: raise `DataError` at the first malformed line instead of counting it.
         laser: ``"auto"`` or the laser message name to read.
         max_range: no-return threshold [m] for every scan, or None (the rules).
+        progress: advanced to the bytes of the stored file read (`iter_lines`) and
+            the scans read (counted when their line is parsed, not when released).
     """
 
     def __init__(self, path: Path, stats: ReadStats, *, strict: bool, laser: str,
-                 max_range: float | None) -> None:
+                 max_range: float | None, progress: ReadProgress | None = None) -> None:
         self.path, self.stats, self.strict = path, stats, strict
+        self.progress = progress
         self.laser, self.max_range = laser, max_range
         self.params: dict[str, str] = {}
         self.selected = None if laser == "auto" else laser
@@ -146,7 +150,7 @@ class ScanStream:
     def _read_lines(self) -> Iterator[Scan]:
         lineno = 0
         try:
-            for lineno, raw in enumerate(iter_lines(self.path), start=1):
+            for lineno, raw in enumerate(iter_lines(self.path, self.progress), start=1):
                 scans = self._line(lineno, raw)
                 if scans:
                     yield from scans
@@ -215,8 +219,12 @@ class ScanStream:
         if name != self.selected:
             return _NONE
         if name in OLD_LASERS:
-            return self._old_laser(name, t, lineno)
-        return self._new_laser(name, t, lineno)
+            scans = self._old_laser(name, t, lineno)
+        else:
+            scans = self._new_laser(name, t, lineno)
+        if self.progress is not None:  # read here, perhaps released later
+            self.progress.scan_cell.value += 1
+        return scans
 
     def _old_laser(self, name: str, t: list[bytes], lineno: int) -> Sequence[Scan]:
         """FLASER/RLASER: held back until the maximum range is known."""

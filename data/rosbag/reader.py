@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from data.errors import DataError, warn
+from data.progress import ReadProgress
 from data.rosbag.backends import describe, open_backend
 from data.rosbag.messages import (
     LASERSCAN,
@@ -77,6 +78,13 @@ class RosBag:
             raise
         self._odom_mode, self._odom_topics, self._static_topics = self._choose_odometry(
             odom_topic)
+        self._progress = ReadProgress(self._backend.counts.get(self.topic, 0), "scans")
+
+    def progress(self) -> ReadProgress:
+        """How far the latest iteration has read: messages of the scan topic, of the
+        count in the bag's index (nothing is read to know the total), and the scans
+        yielded."""
+        return self._progress
 
     # -- topic choice
     def _choose_topic(self, topic: str | None) -> str:
@@ -153,9 +161,12 @@ class RosBag:
         odom_msgs = self._odom_topics[0] if self._odom_mode == "odom" else None
         wanted = {self.topic, *self._odom_topics, *self._static_topics}
         index = -1
+        progress = self._progress
+        progress.start()
         for name, msg in self._decoded(wanted, problems):
             if name == self.topic:
                 index += 1  # position of the message on its topic, undecodable ones included
+                progress.done = index + 1
                 if msg is None:
                     continue
                 try:
@@ -173,7 +184,9 @@ class RosBag:
                                                    f"{describe(exc)}") from None
                     problems[f"unusable messages on {name}"] += 1
                     continue
-                yield from sync.push(item, msg.header.frame_id)
+                for ready in sync.push(item, msg.header.frame_id):
+                    progress.scans += 1
+                    yield ready
                 continue
             if msg is None:
                 continue
@@ -184,8 +197,13 @@ class RosBag:
                     sync.add_tf(msg, static=name in self._static_topics)
             except (BadMessage, AttributeError) as exc:
                 problems[f"unusable odometry messages on {name} ({describe(exc)})"] += 1
-            yield from sync.ready()
-        yield from sync.finish()
+            for ready in sync.ready():
+                progress.scans += 1
+                yield ready
+        for ready in sync.finish():
+            progress.scans += 1
+            yield ready
+        progress.finish()
         self._report(sync, problems, dropped, dense_lies)
 
     def _report(self, sync: OdomSync, problems: Counter[str], dropped: int,

@@ -20,11 +20,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from slam.cli.common import print_json, write_json
+
+if TYPE_CHECKING:
+    from data.progress import ReadProgress
 
 DEMO_SENSOR = {"fov_deg": 180.0, "beams": 181, "max_range": 12.0, "noise_sigma": 0.02}
 """The demo's laser: a SICK-like 180-degree scanner (the simulator's default is 360)."""
@@ -104,9 +107,9 @@ def run(
     cfg = _config(config, odometry, overrides, saved.config if saved else None)
     output_dir(out)
     dump_config(cfg, out / "config.yaml")
-    source, scans, total, source_name = _open_input(input, topic, odom_topic, strict)
+    source, scans, reading, source_name = _open_input(input, topic, odom_topic, strict)
     start = time.perf_counter()
-    result = _run_with_progress(Mapper(cfg, saved=saved, name=source_name), scans, total)
+    result = _run_with_progress(Mapper(cfg, saved=saved, name=source_name), scans, reading)
     summary = write_results(
         out, result, source_name, wall_s=time.perf_counter() - start, write_map=not no_map,
         map_config=cfg.map,
@@ -148,10 +151,13 @@ def _config(
 
 def _open_input(
     input: Path | None, topic: str | None, odom_topic: str | None, strict: bool
-) -> tuple[Any, Any, int | None, str]:
-    """``(source, scans, scan count, name)`` of the input, or of the embedded demo (a
-    `data.sim.SimulatedRun`, which is then the source the reporters see)."""
+) -> tuple[Any, Any, ReadProgress, str]:
+    """``(source, scans, progress, name)`` of the input, or of the embedded demo (a
+    `data.sim.SimulatedRun`, which is then the source the reporters see).  The
+    progress is the reader's own (`data.sources.ScanSource.progress`): its total is
+    known without a pass over the input."""
     if input is None:
+        from data.progress import ReadProgress
         from data.sim import OdometryNoise, simulate_run
 
         typer.echo(
@@ -165,18 +171,22 @@ def _open_input(
             "box", seed=0, odometry_noise=OdometryNoise(heading_bias=DEMO_HEADING_BIAS),
             **DEMO_SENSOR,
         )
-        return demo, demo.scans, len(demo.scans), "simulated box world (seed 0)"
+        return (demo, demo.scans, ReadProgress(len(demo.scans), "scans"),
+                "simulated box world (seed 0)")
     from data.sources import open_source
 
     source = open_source(input, topic=topic, odom_topic=odom_topic, strict=strict)
-    return source, source, source.info().scans, str(input)
+    return source, source, source.progress(), str(input)
 
 
-def _run_with_progress(mapper: Any, scans: Any, total: int | None) -> Any:
+def _run_with_progress(mapper: Any, scans: Any, reading: ReadProgress) -> Any:
+    """`mapper.run(scans)` under a progress bar: scans mapped of the input's scan
+    count, exact when the reader knows it, else estimated by the reader from the
+    bytes read so far (shown with ``~``) until its pass ends."""
     from rich.progress import (
         BarColumn,
-        MofNCompleteColumn,
         Progress,
+        TaskProgressColumn,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
@@ -190,17 +200,20 @@ def _run_with_progress(mapper: Any, scans: Any, total: int | None) -> Any:
                 else "  not yet localised") if session else ""
 
     columns = [
-        TextColumn("mapping"), BarColumn(), MofNCompleteColumn(),
-        TextColumn("scans  {task.fields[kf]} keyframes  {task.fields[loops]} loops"
-                   "{task.fields[where]}"),
+        TextColumn("mapping"), BarColumn(), TaskProgressColumn(),
+        TextColumn("{task.fields[scans]} scans  {task.fields[kf]} keyframes  "
+                   "{task.fields[loops]} loops{task.fields[where]}"),
         TimeElapsedColumn(), TimeRemainingColumn(),
     ]
     with Progress(*columns, transient=True) as bar:
-        task = bar.add_task("mapping", total=total, kf=0, loops=0, where=where())
+        task = bar.add_task("mapping", total=None, scans="0", kf=0, loops=0, where=where())
 
         def progress(n: int, keyframes: int, loops: int) -> None:
-            if n % 10 == 0 or n == total:
-                bar.update(task, completed=n, kf=keyframes, loops=loops, where=where())
+            if n % 10 == 0:
+                total, exact = reading.scan_total()
+                count = f"{n}" if total is None else f"{n}/{'' if exact else '~'}{total}"
+                bar.update(task, total=total, completed=n, scans=count, kf=keyframes,
+                           loops=loops, where=where())
 
         return mapper.run(scans, progress=progress)
 
