@@ -17,7 +17,8 @@ it (the accepted prefix's error with it less the error re-solved without it, gts
 units; the TLS rule keeps a loop whose cost is below ``c``), its own factor error at the
 prefix solution, and the largest move [m] of every 25th pose between the two solutions
 (how far it bent the map).  Then the pass's totals: false loops admitted, true loops
-rejected.  `--undo`: the pass tests its undo hypotheses
+rejected.  `--confirm`: the pass re-checks every innovation-gate admission by its
+actual cost (`AdmissionPass.confirm`).  `--undo`: the pass tests its undo hypotheses
 (`slam.admission_undo`); `--cache`: a folder keeping the clean optimum
 between runs, as in `benchmarks/robust_modes.py`.
 """
@@ -45,6 +46,7 @@ def main() -> None:
     parser.add_argument("--defer", choices=("off", "bounded", "all"), default="off")
     parser.add_argument("--show", type=int, default=8)
     parser.add_argument("--undo", action="store_true")
+    parser.add_argument("--confirm", action="store_true")
     args = parser.parse_args()
     graph, reference, corrupted, false = read_cell(args)
     values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
@@ -52,7 +54,7 @@ def main() -> None:
     run = admission.AdmissionPass(decide, values, prefix_solver="batch",
                                   defer=args.defer != "off",
                                   wait=BOUNDED_WAIT if args.defer == "bounded" else None,
-                                  undo=args.undo)
+                                  undo=args.undo, confirm=args.confirm)
     position = {id(f): k for k, f in enumerate(run.unit)}
     candidates: list[int] = []
     rows: list[np.ndarray] = []  # the candidates' whitened residuals, to find subsets' rows
@@ -108,7 +110,8 @@ def main() -> None:
           f"{int((w[false] > 0.5).sum())} false admitted, "
           f"{int((w[~false] < 0.5).sum())} true rejected, "
           f"{run.undone} of {run.tried} undo hypotheses kept, {run.reverted} of "
-          f"{run.examined} look-aheads reverted")
+          f"{run.examined} look-aheads reverted, {run.refused} admissions refused by "
+          f"their nonlinear cost")
 
 
 if __name__ == "__main__":

@@ -257,7 +257,7 @@ class AdmissionPass:
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
         record: bool = False, defer: bool = False, wait: int | None = None,
-        undo: bool = False,
+        undo: bool = False, confirm: bool = False,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
@@ -290,6 +290,8 @@ class AdmissionPass:
         self._fixed = gtsam.NonlinearFactorGraph()
         self._base = gtsam.NonlinearFactorGraph()  # `_fixed` without its loops
         self.undo = undo
+        self.confirm = confirm  # step-2 admissions re-checked by their nonlinear cost
+        self.refused = 0  # step-2 admissions the nonlinear check turned back
         self._block = block
         self.loop_start = np.array([min(self.position[lp.i], self.position[lp.j])
                                     for lp in graph.loops], dtype=int)
@@ -429,15 +431,16 @@ class AdmissionPass:
         waiting = np.zeros(0, dtype=np.int64)  # positions in `pending` deferred (`slam.deferral`)
         forced = np.zeros(len(pending), dtype=bool)  # waited `wait` blocks: the plain gate decides
         factors = fixed  # the accepted graph, whose solution is `current`
+        refused = np.zeros(len(pending), dtype=bool)  # turned back by the nonlinear check
         for _ in range(self._max_rounds):
             errors = np.array([unit[k].error(current) for k in pending])
-            newly = ~accepted & (errors <= c)
+            newly = ~accepted & ~refused & (errors <= c)
             if newly.any():  # step 1
                 accepted |= newly
                 factors = _with(fixed, unit, pending[accepted])
                 current, isam = self._prefix_solve(factors, current, pending[newly])
                 continue
-            rest = np.flatnonzero(~accepted)
+            rest = np.flatnonzero(~accepted & ~refused)
             waiting = np.zeros(0, dtype=np.int64)
             if len(rest) == 0:
                 break
@@ -485,7 +488,18 @@ class AdmissionPass:
                 break
             accepted[rest[admitted]] = True
             factors = _with(fixed, unit, pending[accepted])
-            current, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
+            solved, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
+            if self.confirm:
+                back = self._unconfirmed(fixed, pending, accepted, rest[admitted], solved)
+                if len(back):
+                    refused[back] = True
+                    accepted[back] = False
+                    self.refused += len(back)
+                    factors = _with(fixed, unit, pending[accepted])
+                    # the iSAM2 prefix holds the refused loops: batch solves from here on
+                    self._isam, isam = None, None
+                    solved = self._solve(factors, current)
+            current = solved
         self.current = current
         self.weights[pending] = accepted
         self.deferred = pending[waiting[~accepted[waiting]]]
@@ -495,6 +509,42 @@ class AdmissionPass:
         self._admitted_at[pending[accepted]] = self.blocks
         if self.undo:
             test_hypotheses(self, arrived, prefix)
+
+    def _unconfirmed(
+        self, fixed: gtsam.NonlinearFactorGraph, pending: NDArray[np.int64],
+        accepted: NDArray[np.bool_], admitted: NDArray[np.int64], current: gtsam.Values,
+    ) -> NDArray[np.int64]:
+        """Positions in `pending` among `admitted` (by the innovation gate) to turn back:
+        the actual cost of keeping a loop is the accepted prefix's error at its solution
+        `current` less the error of the prefix re-solved without it (gtsam error units);
+        the TLS rule keeps a loop only when that cost is below ``c``, and the innovation
+        ``delta`` is its linearisation at the prefix before the loop, which a loop that
+        bends a long stretch of odometry can leave well below it.  The costliest loop
+        above ``c`` is turned back and the rest judged again without it (two loops that
+        contradict each other both cost more than ``c`` while both are kept)."""
+        unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
+        out: list[int] = []
+        while left:
+            kept = _with(fixed, unit, pending[accepted])
+            total = kept.error(current)
+            costs = []
+            for q in left:
+                others = accepted.copy()
+                others[q] = False
+                without = _with(fixed, unit, pending[others])
+                try:
+                    costs.append(total - without.error(self._solve(without, current)))
+                except RuntimeError:  # a failed solve: the admission stands
+                    costs.append(-np.inf)
+            worst = int(np.argmax(costs))
+            if not costs[worst] > self._c:
+                break
+            q = left.pop(worst)
+            out.append(q)
+            accepted[q] = False
+            if left:
+                current = self._solve(_with(fixed, unit, pending[accepted]), current)
+        return np.array(out, dtype=np.int64)
 
     def _decided_cost(self, values: gtsam.Values) -> float:
         """TLS objective at `values` of the part decided so far: anchors and odometry of

@@ -223,6 +223,7 @@ def bar_search(
     defer: bool = False,
     wait: int | None = None,
     undo: bool = False,
+    confirm: bool = False,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -264,7 +265,7 @@ def bar_search(
             run = AdmissionPass(decide, values, probability=probability, block=block,
                                 gate=gate, solver=solve, barred=trial,
                                 prefix_solver=prefix_solver, unit=unit, defer=defer,
-                                wait=wait, undo=undo)
+                                wait=wait, undo=undo, confirm=confirm)
         if not _finish_unless_behind(run, best, factors, probability):
             break
         refined, weights = refine_tls(graph, run.current, run.weights,
@@ -317,6 +318,7 @@ def incremental_tls(
     choose: Callable[..., int | tuple[int, Array | None]] | None = None,
     defer: str = "off",
     undo: bool = False,
+    confirm: bool = False,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -377,6 +379,10 @@ def incremental_tls(
     `undo`: every pass tests, after each block, whether loops it admitted in the last
     blocks made the block's loops fail, and undoes them when the decided loops' TLS
     objective drops (`slam.admission_undo`); off by default.
+
+    `confirm`: every pass turns back an admission by the innovation gate whose actual
+    cost (the accepted prefix's error less its error re-solved without the loop) is above
+    ``c`` (`AdmissionPass.confirm`); off by default.
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -416,7 +422,8 @@ def incremental_tls(
                     run = AdmissionPass(decide, values, probability=probability, block=block,
                                         gate=gate, solver=solver, prefix_solver=prefix_solver,
                                         unit=unit, record=tries > 0 or gate == "stated",
-                                        defer=defers, wait=wait, undo=undo)
+                                        defer=defers, wait=wait, undo=undo,
+                                        confirm=confirm)
                 run.advance(until_fold=True)
                 if run.done:
                     run.release_prefix()
@@ -468,7 +475,8 @@ def incremental_tls(
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
                           factors=stated, gate=_gate_of(best), source=source,
                           defer=source is not None and source.defer,
-                          wait=None if source is None else source.wait, undo=undo)
+                          wait=None if source is None else source.wait, undo=undo,
+                          confirm=confirm)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

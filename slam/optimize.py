@@ -166,6 +166,7 @@ def optimize(
     defer: str = "off",
     undo: bool = True,
     screen: bool = False,
+    confirm: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -211,6 +212,8 @@ def optimize(
     leave most loops above ``c`` (`slam.fast_path_screen`); off by default, since on a
     consistent graph whose solve from the odometry chain converges slowly it skips a
     fast path that holds.
+    `confirm`: the admission passes turn back an innovation-gate admission whose actual
+    cost of being kept is above ``c`` (`slam.admission.AdmissionPass`); off by default.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -238,7 +241,7 @@ def optimize(
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
-                defer=defer, undo=undo,
+                defer=defer, undo=undo, confirm=confirm,
             )
             if swap and len(graph.loops):
                 swapped = swap_search(graph, admission, values, probability=gnc_probability,
