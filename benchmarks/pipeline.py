@@ -7,7 +7,9 @@ Run from the repository root::
 
 Every variant maps the same scans of each log with `slam.pipeline.Mapper` and the
 defaults of `slam.config.PipelineConfig` changed by its ``key=value`` overrides (the
-syntax of ``loopclosure run --set``).  The scans are read once, before any timing.
+syntax of ``loopclosure run --set``; a comma not followed by ``key=`` belongs to the
+value, so tuples pass: ``icp2d.covariance_floor=0.005,0.005,0.006``).
+The scans are read once, before any timing.
 For each log and variant the script prints wall-clock seconds and the CPU seconds of
 the mapper's process, seconds per stage (odometry, keyframes, loop detection, iSAM2
 updates, final GNC; the stages a worker process ran overlap the others), loop
@@ -45,6 +47,7 @@ Without ``--variant`` it compares the three loop searches (``loops.search`` =
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -225,7 +228,7 @@ def main() -> None:
         rows: dict[str, dict[str, float]] = {}
         for spec in args.variant or DEFAULT_VARIANTS:
             name, _, sets = spec.partition(":")
-            overrides = [s for s in sets.split(",") if s]
+            overrides = [s for s in re.split(r",(?=[\w.]+=)", sets) if s]
             rows[name] = run_variant(scans, overrides, relations, args.refine, reference,
                                      truth=log.startswith(SIM_PREFIX))
             r = rows[name]
