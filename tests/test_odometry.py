@@ -417,3 +417,35 @@ def test_icp2d_jump_scale_largest_learns_metre_steps_from_the_first_scans(run) -
         check_estimate(e)
     assert est[1].status == "odometry_jump" and est[1].extra["kidnap"] is False
     assert all(e.status in ("ok", "degenerate") for e in est[2:])
+
+
+def test_icp2d_covariance_inflation_by_inlier_ratio() -> None:
+    """``covariance_inflation="inliers"``: (ICP + floor) / inlier ratio, hand-checked at a
+    zero heading (the body frame is the target frame), the ratio clipped at
+    min_inlier_ratio; "none" keeps the sum."""
+    from loopclosure.registration import IcpResult
+
+    icp_cov = np.diag([4e-6, 9e-6, 1e-6])
+    floor = np.array([0.005, 0.005, 0.002])
+    expected_sum = icp_cov + np.diag(floor**2)
+
+    def result(ratio: float) -> IcpResult:
+        return IcpResult(pose=np.zeros(3), covariance=icp_cov, hessian=np.eye(3), sigma=0.01,
+                         inlier_ratio=ratio, rms=0.01, fitness=ratio, degeneracy=0.3,
+                         degenerate_axis=np.array([1.0, 0.0]), iterations=5, converged=True,
+                         correspondences=100, ok=True)
+
+    plain = Icp2dOdometry(Icp2dConfig(covariance_floor=tuple(floor)))
+    inflated = Icp2dOdometry(Icp2dConfig(covariance_floor=tuple(floor),
+                                         covariance_inflation="inliers", min_inlier_ratio=0.25))
+    pose = np.zeros(3)
+    np.testing.assert_allclose(plain._increment_covariance(result(0.5), pose), expected_sum,
+                               atol=1e-11)
+    np.testing.assert_allclose(inflated._increment_covariance(result(1.0), pose), expected_sum,
+                               atol=1e-11)
+    np.testing.assert_allclose(inflated._increment_covariance(result(0.5), pose),
+                               2.0 * expected_sum, atol=1e-11)
+    np.testing.assert_allclose(inflated._increment_covariance(result(0.1), pose),
+                               4.0 * expected_sum, atol=1e-11)
+    with pytest.raises(UserError):
+        Icp2dConfig(covariance_inflation="fitness")

@@ -35,7 +35,12 @@ Outputs (see `slam.odometry` for frames)
 see `loopclosure.registration`) rotated into the right-perturbation frame of the
 new pose, plus ``diag(covariance_floor^2)``.  Treating the scan-to-map covariance
 as the covariance of the increment ignores the map's own uncertainty; the floor
-stands for it and for the optimism of the Gauss-Newton covariance.
+stands for it and for the optimism of the Gauss-Newton covariance.  With
+``covariance_inflation="inliers"`` that sum is divided by the inlier ratio ``f`` of
+the match (never below `min_inlier_ratio`): ``Sigma = (B^T C B + F) / f``, i.e. the
+information of the increment in proportion to the fraction of the scan the map
+explains; a scan that sees much the map lacks (weak overlap) says less about the
+increment than one the map explains fully.  ``"none"`` (default) leaves it as is.
 
 Search (when the prediction is poor)
 ------------------------------------
@@ -159,6 +164,8 @@ class Icp2dConfig:
             prediction (x [m], y [m], theta [rad]).
         covariance_floor: standard deviations added to every increment's covariance
             (x [m], y [m], theta [rad]).
+        covariance_inflation: ``"none"`` or ``"inliers"``: the increment's covariance
+            divided by the match's inlier ratio (module docstring).
         fallback_inflation: covariance multiplier of fallback estimates.
         max_step: odometry increments longer than this (and than `jump_ratio`
             times the recent median) are jumps [m].
@@ -213,6 +220,7 @@ class Icp2dConfig:
     odometry_noise: MotionNoise = field(default_factory=MotionNoise)
     velocity_sigma: tuple[float, float, float] = (0.2, 0.2, 0.2)
     covariance_floor: tuple[float, float, float] = (0.005, 0.005, 0.002)
+    covariance_inflation: str = "none"
     fallback_inflation: float = 10.0
     max_step: float = 1.0
     max_step_rotation: float = 1.0
@@ -243,6 +251,9 @@ class Icp2dConfig:
         if self.jump_scale not in ("median", "largest"):
             raise UserError(f"icp2d jump_scale must be median or largest, "
                             f"got {self.jump_scale!r}")
+        if self.covariance_inflation not in ("none", "inliers"):
+            raise UserError(f"icp2d covariance_inflation must be none or inliers, "
+                            f"got {self.covariance_inflation!r}")
         if self.line_anchor != "point" and not self.compiled:
             raise UserError("icp2d line_anchor other than 'point' needs compiled=true")
         if self.map_keyframes < 1 or self.min_points < 3 or self.jump_history < 1:
@@ -548,7 +559,11 @@ class Icp2dOdometry:
         self.map_rebuilds += 1
 
     def _increment_covariance(self, res: IcpResult, pose: Array) -> Array:
-        return body_covariance(pose, res.covariance) + self._floor()
+        """Body-frame covariance of an accepted increment (module docstring)."""
+        cov = body_covariance(pose, res.covariance) + self._floor()
+        if self.config.covariance_inflation == "inliers":
+            cov = cov / max(res.inlier_ratio, self.config.min_inlier_ratio)
+        return cov
 
     def _floor(self) -> Array:
         return np.diag(np.square(self.config.covariance_floor)) + 1e-12 * np.eye(3)
