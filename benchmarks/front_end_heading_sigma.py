@@ -16,6 +16,12 @@ variant); per bin: scans, median |e|, RMS e, median s, and RMS of ``z = e / s``
 (1 for an honest covariance; larger: the covariance is too confident).  The
 reference has its own error, so z includes it: compare bins, not absolute values.
 Only ``ok``/``searched`` scans after the first are scored.
+
+Lags: the heading error of the ``k``-scan increments (k = 1 .. 40) against the sum of
+the stated variances; a line ``var(e_k) = a + b k`` fitted on k <= 10 separates the
+reference's own jitter (``sqrt(a / 2)``, white pose noise) from the front end's
+random walk per increment (``sqrt(b)``).  Then the 10-scan errors binned by the
+lowest fitness inside the window (quantiles).
 """
 
 from __future__ import annotations
@@ -49,6 +55,8 @@ def run(scans, ref, cfg) -> dict[str, np.ndarray]:
     ref_inc = se2.between(ref[:-1], ref[1:])
     inc = np.array([e.delta for e in est[1:]])
     out = {
+        "poses": np.array([e.pose for e in est]),
+        "var": np.array([e.covariance[2, 2] for e in est]),
         "err": np.degrees(se2.wrap_angle(inc[:, 2] - ref_inc[:, 2])),
         "sigma": np.degrees(np.sqrt([e.covariance[2, 2] for e in est[1:]])),
         "good": np.array([e.status in ("ok", "searched") for e in est[1:]]),
@@ -80,6 +88,49 @@ def table(name: str, r: dict[str, np.ndarray], edges: dict[str, np.ndarray]) -> 
                   f"  P(|z|>3) {np.mean(np.abs(z[m]) > 3):.3f}")
 
 
+def lag_errors(poses: np.ndarray, ref: np.ndarray, k: int) -> np.ndarray:
+    """Heading errors [rad] of the ``k``-scan increments of `poses` against `ref`."""
+    return se2.wrap_angle(se2.between(poses[:-k], poses[k:])[:, 2]
+                          - se2.between(ref[:-k], ref[k:])[:, 2])
+
+
+def jitter_and_walk(poses: np.ndarray, ref: np.ndarray, ks=(1, 2, 5, 10)) -> tuple[float, float]:
+    """``(reference jitter, front-end sigma per increment)`` [rad] from the fit
+    ``mean(e_k^2) = a + b k``: white heading noise of the reference ``sqrt(a / 2)``,
+    a random walk of the estimate ``sqrt(b)``."""
+    v = [np.mean(lag_errors(poses, ref, k) ** 2) for k in ks]
+    a, b = np.linalg.lstsq(np.c_[np.ones(len(ks)), ks], np.array(v), rcond=None)[0]
+    return float(np.sqrt(max(a, 0.0) / 2)), float(np.sqrt(max(b, 0.0)))
+
+
+def lags(r: dict[str, np.ndarray], ref: np.ndarray, lag_list=(1, 2, 5, 10, 20, 40)) -> None:
+    """The k-scan heading errors [deg] against the stated sigma and the fit (docstring)."""
+    poses, var = r["poses"], r["var"]
+    cum = np.concatenate([[0.0], np.cumsum(var[1:])])
+    for k in lag_list:
+        e = lag_errors(poses, ref, k)
+        stated = cum[k:] - cum[:-k]
+        z = np.sqrt(np.mean(e**2 / stated))
+        print(f"    lag {k:3d}: RMS e {np.degrees(np.sqrt(np.mean(e**2))):.3f}  stated "
+              f"{np.degrees(np.sqrt(np.median(stated))):.3f}  RMS z {z:.2f}")
+    jitter, walk = jitter_and_walk(poses, ref)
+    print(f"    fit k<=10: reference jitter {np.degrees(jitter):.3f} deg, "
+          f"front end {np.degrees(walk):.3f} deg per increment, stated median "
+          f"{np.degrees(np.sqrt(np.median(var[1:]))):.3f}")
+    k = 10
+    e = np.degrees(lag_errors(poses, ref, k))
+    fit = np.concatenate([[1.0], r["fitness"]])
+    low = np.array([fit[i + 1 : i + k + 1].min() for i in range(len(poses) - k)])
+    edges = np.quantile(low, [0.1, 0.25, 0.5, 0.75])
+    bins = np.digitize(low, edges)
+    for j in range(len(edges) + 1):
+        m = bins == j
+        lo = edges[j - 1] if j > 0 else -np.inf
+        hi = edges[j] if j < len(edges) else np.inf
+        print(f"    lag 10, min fitness [{lo:5.2f},{hi:5.2f}) n {int(m.sum()):4d}  "
+              f"RMS e {np.sqrt(np.mean(e[m]**2)):.3f}  med|e| {np.median(np.abs(e[m])):.3f}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, default=DEFAULT_DATA)
@@ -105,6 +156,7 @@ def main() -> None:
             if edges is None:
                 edges = {k: np.nanquantile(r[k][r["good"]], [0.1, 0.25, 0.5, 0.75]) for k in KEYS}
             table(name, r, edges)
+            lags(r, ref)
         sys.stdout.flush()
 
 

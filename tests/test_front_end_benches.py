@@ -94,3 +94,19 @@ def test_turn_onto_finds_a_scan_turned_by_two_degrees() -> None:
                       np.column_stack([-s, np.full_like(s, -1.5)])])
     turned = se2.transform_points(np.array([0.0, 0.0, np.radians(2.0)]), room)
     assert abs(bench.turn_onto(turned, room) - 2.0) < 0.05
+
+
+def test_heading_sigma_separates_reference_jitter_from_the_walk() -> None:
+    """Reference = truth + white heading noise 0.4 deg, estimate = truth + a random walk
+    of 0.2 deg per step: the lag fit recovers both within 10 %."""
+    bench = load_benchmark("front_end_heading_sigma")
+    rng = np.random.default_rng(0)
+    n = 20000
+    truth = np.c_[np.arange(n) * 0.5, np.zeros(n), np.zeros(n)]
+    ref = truth.copy()
+    ref[:, 2] += rng.normal(0.0, np.radians(0.4), n)
+    est = truth.copy()
+    est[:, 2] += np.cumsum(rng.normal(0.0, np.radians(0.2), n))
+    jitter, walk = bench.jitter_and_walk(est, ref)
+    assert abs(np.degrees(jitter) - 0.4) < 0.04
+    assert abs(np.degrees(walk) - 0.2) < 0.02
