@@ -24,7 +24,9 @@ With ``--viewpoints V`` every entry also carries V offset viewpoints
 (`loopclosure.place_views`: the prefilter vectors of V other described places stand
 in for them; the cost is the same), and with ``--query-viewpoints`` every query
 carries V of its own and the database compares them too
-(`PlaceDatabaseConfig.query_viewpoints`).
+(`PlaceDatabaseConfig.query_viewpoints`); ``--no-stored-viewpoints`` then leaves the
+entries' viewpoints unscreened (`PlaceDatabaseConfig.stored_viewpoints`: the
+viewpoints on the query's side only).
 
 With ``--baseline REV`` the same measurement runs R times (default 3) in fresh
 processes with the code of revision REV (``git archive``) and with the working tree,
@@ -48,7 +50,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
             verbose: bool = True, viewpoints: int = 0,
-            query_viewpoints: bool = False) -> dict[int, float]:
+            query_viewpoints: bool = False, stored_viewpoints: bool = True
+            ) -> dict[int, float]:
     """CPU ms per query for every database size (module docstring), with the code
     on ``sys.path``."""
     import numpy as np
@@ -91,7 +94,8 @@ def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
         asked = [with_views(q, i) for i, q in enumerate(asked)]
     out: dict[int, float] = {}
     for m in sizes:
-        db = PlaceDatabase(PlaceDatabaseConfig(query_viewpoints=query_viewpoints))
+        db = PlaceDatabase(PlaceDatabaseConfig(query_viewpoints=query_viewpoints,
+                                               stored_viewpoints=stored_viewpoints))
         for key in range(m):
             db.add_descriptors(key, with_views(described[key % n], key), stamp=float(key))
         db.query(asked[0], headings=False)  # warm-up: scales, stacks, compiled kernels
@@ -138,6 +142,8 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=100)
     parser.add_argument("--viewpoints", type=int, default=0)
     parser.add_argument("--query-viewpoints", action="store_true")
+    parser.add_argument("--no-stored-viewpoints", action="store_true",
+                        help="the stored keyframes' viewpoints are not screened")
     parser.add_argument("--baseline", help="a revision to compare with (git archive)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -152,7 +158,8 @@ def main() -> None:
         against_baseline(args, sizes)
         return
     measure(args.data, args.scans, sizes, args.queries, viewpoints=args.viewpoints,
-            query_viewpoints=args.query_viewpoints)
+            query_viewpoints=args.query_viewpoints,
+            stored_viewpoints=not args.no_stored_viewpoints)
 
 
 if __name__ == "__main__":

@@ -110,6 +110,12 @@ class PlaceDatabaseConfig:
             distances of its best pair of viewpoints (the ones p took); False: of the
             query's and the candidate's own descriptions, the distances the logistic
             model was fitted on (the viewpoints then only choose the candidates).
+        stored_viewpoints: a stored keyframe's offset viewpoints are screened (False:
+            the database keeps them in the keyframe's descriptors, so that the
+            keyframe asking as a query carries them, but compares a query with the
+            stored own descriptions only: with ``query_viewpoints`` the viewpoints
+            then stand on the query's side alone, one screen of the database per
+            query viewpoint instead of one per stored and query viewpoint pair).
     """
 
     prefilter: tuple[str, ...] = ("pairs",)
@@ -135,6 +141,7 @@ class PlaceDatabaseConfig:
     seed: int = 0
     query_viewpoints: bool = False
     viewpoint_scores: bool = False
+    stored_viewpoints: bool = True
 
     def __post_init__(self) -> None:
         if not self.prefilter:

@@ -237,7 +237,8 @@ class PlaceDatabase:
                 self._stores[s] = VectorStore(len(vec))
             self._stores[s].append(vec)
         kept = {s: descriptors[s] for s in self.config.stages}
-        self._views.append(descriptors.get(VIEWPOINTS))
+        self._views.append(descriptors.get(VIEWPOINTS) if self.config.stored_viewpoints
+                           else None)
         if descriptors.get(VIEWPOINTS) is not None:
             kept[VIEWPOINTS] = descriptors[VIEWPOINTS]
         if self._heading_matcher is not None:

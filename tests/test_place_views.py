@@ -161,3 +161,25 @@ def test_fused_score_sees_own_distances_unless_asked() -> None:
         assert c.indices[0] == 1 and c.prefilter[0] == pytest.approx(0.0, abs=1e-9)
         own = np.linalg.norm(np.asarray(query["pairs"]) - db.describe(rooms[1])["pairs"])
         assert c.distances[0, 0] == pytest.approx(0.0 if scores else own, abs=1e-6)
+
+
+def test_viewpoints_on_the_query_side_only() -> None:
+    """stored_viewpoints=False: a stored keyframe's viewpoints are kept with its
+    descriptors but not screened; the query's own viewpoints still are."""
+    rooms = [_square(s) for s in (2.0, 3.0, 4.0, 5.0)]
+    db = PlaceDatabase(prefilter=("pairs",), verifiers=(), fusion="prefilter",
+                       grid_headings=0, n_headings=0, top_k=2, query_viewpoints=True,
+                       stored_viewpoints=False)
+    query = db.describe(_square(6.0))
+    for key, room in enumerate(rooms):
+        desc = db.describe(room)
+        if key == 1:  # a stored viewpoint identical to the query: not screened
+            desc[VIEWPOINTS] = {"pairs": np.asarray(query["pairs"])[None]}
+        db.add_descriptors(key, desc)
+    assert VIEWPOINTS in db.descriptors(1)
+    p, _ = db.prefilter_distances(query)
+    assert p[1] > 0.1
+    query[VIEWPOINTS] = {"pairs": np.asarray(db.describe(rooms[2])["pairs"])[None]}
+    p, _ = db.prefilter_distances(query)
+    assert p[2] == pytest.approx(0.0, abs=1e-9) and p[1] > 0.1
+    assert db.candidates(query).indices[0] == 2
