@@ -275,11 +275,12 @@ def _min_over(q: np.ndarray, vecs: np.ndarray, owner: np.ndarray, n: int) -> np.
 
 
 def ranks(data: dict, own: dict, wide: dict, views: tuple | None = None,
-          mode: str = "stored") -> dict[str, np.ndarray]:
+          mode: str = "stored", margin: float = 1.0) -> dict[str, np.ndarray]:
     """Per query: 0-based rank of the first true place in the own view, the wide
     view and their interleaved order (`BIG`: none).  `views` (`viewpoint_stack`):
     the own view's distance is the smallest over the stored keyframe's viewpoints
-    (`mode` "stored"), over the query's (``query``), or over both (``both``)."""
+    (`mode` "stored"), over the query's (``query``), or over both (``both``); a
+    viewpoint's distance is multiplied by `margin` first."""
     keys = data["keys"]
     dim = len(next(iter(own.values())))
     own_m = np.array([own.get(int(k), np.zeros(dim)) for k in keys])
@@ -298,12 +299,14 @@ def ranks(data: dict, own: dict, wide: dict, views: tuple | None = None,
             vecs, owner = views
             qrow = int(np.searchsorted(keys, k))
             if mode in ("stored", "both"):
-                d_own = np.minimum(d_own, _min_over(own[k], vecs, owner, len(keys))[rows])
+                d_own = np.minimum(d_own, margin * _min_over(own[k], vecs, owner,
+                                                             len(keys))[rows])
             if mode in ("query", "both"):
                 for qv in vecs[owner == qrow]:
-                    d_own = np.minimum(d_own, np.linalg.norm(own_m[rows] - qv, axis=1))
+                    d_own = np.minimum(d_own, margin * np.linalg.norm(own_m[rows] - qv, axis=1))
                     if mode == "both":
-                        d_own = np.minimum(d_own, _min_over(qv, vecs, owner, len(keys))[rows])
+                        d_own = np.minimum(d_own, margin * _min_over(qv, vecs, owner,
+                                                                     len(keys))[rows])
         d_own[~has_own[rows]] = np.inf
         other = np.full(len(rows), np.inf)
         asked = q["asked"]
@@ -395,7 +398,8 @@ def main() -> None:
         name, _, rest = v.partition(":")
         kv = dict(item.split("=") for item in rest.split(",") if item)
         variants[name] = {k: float(x) if k in ("cloud_radius", "union_radius", "union_count",
-                                           "combo_weight", "vp_radius", "vp_mode") else
+                                           "combo_weight", "vp_radius", "vp_mode",
+                                           "vp_margin") else
                           type(getattr(PairHistogramConfig(), k))(float(x) if "." in x
                                                                   else int(x))
                           for k, x in kv.items()}
@@ -414,6 +418,7 @@ def main() -> None:
             count = int(over.pop("union_count", 4))
             vp = over.pop("vp_radius", None)
             vp_mode = {0: "stored", 1: "query", 2: "both"}[int(over.pop("vp_mode", 0))]
+            margin = float(over.pop("vp_margin", 1.0))
             matcher = PairHistogramMatcher(replace(PairHistogramConfig(), **over))
             t = time.perf_counter()
             views = None
@@ -438,7 +443,7 @@ def main() -> None:
                            for k, v in own_s.items()}
                     wide = {k: np.concatenate([v, combo * wide.get(k, z)])
                             for k, v in wide_s.items()}
-            r = ranks(data, own, wide, views, vp_mode if vp is not None else "stored")
+            r = ranks(data, own, wide, views, vp_mode if vp is not None else "stored", margin)
             report(f"{vname} ({time.perf_counter() - t:.0f} s)", data, r)
             if vname == "default":
                 miss_table(data, r)
