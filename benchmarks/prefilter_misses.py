@@ -14,13 +14,21 @@ it was), the revisit queries and, per query, its nearest true place's distance,
 heading difference and submap overlap (`evaluation.loop_bench_misses`).
 
 For the default pair histogram and each variant (``NAME:`` then
-`PairHistogramConfig` fields, e.g. ``r8:max_range=8``) every keyframe's two views
+`PairHistogramConfig` fields, e.g. ``r8:max_range=8.0``) every keyframe's two views
 are described again and each revisit query orders the eligible stored keyframes as
 ``bench loops``'s prefilter row does (the own and the wide view interleaved by rank,
-`evaluation.loop_bench_queries.interleaved_order`).  Printed per variant:
-recall@1/10/50 and recall@10 per bin of distance, heading difference and overlap;
-for the default, the misses (no true place among the first 10) split by where the
-true place ranks in each view alone.  ``--misses CSV`` writes one row per miss of
+`evaluation.loop_bench_queries.interleaved_order`).  Further variant fields:
+``cloud_radius=R`` (the histogram of the submap's points within R [m], no virtual
+scan, `cloud_vector`; with ``combo_weight=W`` concatenated to the default's, weight W),
+``union_radius=R`` (the surfaces visible from the origin or from free viewpoints on
+a ring of R, `union_vector`; ``union_count`` viewpoints), ``vp_radius=R`` (offset
+viewpoints of `loopclosure.viewpoints`, ``union_count`` of them, on the stored side,
+``vp_mode=0``, the query's, 1, or both, 2; ``vp_margin`` multiplies their
+distances).  Printed per variant: recall@1/10/50, recall@10 per bin of distance,
+heading difference and overlap, the recall of each view's K best together (2K
+places, as the loop detector verifies), and of other orders of the two views
+(`combined_orders`); for the default, the misses (no true place among the first 10)
+split by where the true place ranks in each view alone.  ``--misses CSV`` writes one row per miss of
 the default: query, nearest true place, its distance [m], heading difference
 [deg], overlap, and the first true place's rank in the own view, the wide view and
 the interleaved order (0-based).
