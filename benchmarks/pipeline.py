@@ -26,8 +26,9 @@ and the error:
   mapped and the short ones (under 1 s apart);
 - a GMapping-corrected log (``freiburg-101``, ``seattle``, ``intel-corrected``,
   ``orebro``, ``belgioioso``, ``freiburg-campus``; whole): the ATE [m] against the
-  logged poses, mapped from the simulator's drifting wheel odometry (seed 0) as
-  ``loopclosure bench slam LOG --odometry-noise 0 --reference-from-log`` does;
+  logged poses, mapped from the simulator's drifting wheel odometry (seed `--seed`,
+  0 by default) as ``loopclosure bench slam LOG --odometry-noise SEED
+  --reference-from-log`` does;
 - a simulated run ``sim-<world>-<beams>`` (``sim-box-361``, ``sim-surface-181``, ...;
   `data.sim.simulate_run`, seed 3, two laps at 0.5 m/s and 5 Hz, a 180-degree laser
   of that many beams, 1 cm range noise, 1 % dropout, 30 m range: the lasers of
@@ -177,9 +178,10 @@ def run_variant(scans: list, overrides: list[str], relations: list | None,
     return row
 
 
-def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Trajectory | None]:
+def load_log(data: Path, name: str, limit: int,
+             seed: int = 0) -> tuple[list, list | None, Trajectory | None]:
     """Scans of log `name` with its relations (Intel) or its reference (corrected logs,
-    simulated runs)."""
+    simulated runs); `seed`: of a corrected log's synthetic wheel odometry."""
     if name.startswith(SIM_PREFIX):
         world, _, beams = name.removeprefix(SIM_PREFIX).partition("-")
         if not beams.isdigit():
@@ -204,7 +206,7 @@ def load_log(data: Path, name: str, limit: int) -> tuple[list, list | None, Traj
     log = data / "carmen-corrected" / f"{name.removesuffix('-corrected')}-corrected.log.gz"
     if not log.exists():
         sys.exit(f"{log} not found: pass --data with the shared data folder")
-    loaded = load_input(log, odometry_noise=0)
+    loaded = load_input(log, odometry_noise=seed)
     return loaded.scans, None, logged_reference(loaded)
 
 
@@ -217,14 +219,16 @@ def main() -> None:
     parser.add_argument("--logs", default="intel",
                         help=f"comma-separated: intel, sim-box-361 (sim-<world>-<beams>), "
                         f"{', '.join(CORRECTED)}")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the corrected logs' synthetic wheel odometry")
     parser.add_argument("--refine", action="store_true",
                         help="also score the scans refined by slam.refine_scans (Intel, sim)")
     parser.add_argument("--variant", action="append", default=None,
                         help="NAME:key=value,key=value (repeatable)")
     args = parser.parse_args()
     for log in [n.strip() for n in args.logs.split(",") if n.strip()]:
-        scans, relations, reference = load_log(args.data, log, args.limit)
-        print(f"\n== {log}, {len(scans)} scans")
+        scans, relations, reference = load_log(args.data, log, args.limit, args.seed)
+        print(f"\n== {log}, {len(scans)} scans, seed {args.seed}")
         rows: dict[str, dict[str, float]] = {}
         for spec in args.variant or DEFAULT_VARIANTS:
             name, _, sets = spec.partition(":")

@@ -7,7 +7,11 @@ clutter (vegetation, furniture) matched point to point (the maths of
 `loopclosure.fast_icp.register_fast`, or by the numpy reference with
 ``compiled=False``) onto a local map: the points of the last `map_keyframes` map
 keyframes, in the odometry frame, merged and voxel-downsampled to `map_voxel`,
-cropped to `map_radius` around the newest keyframe.  A scan becomes a map keyframe
+cropped to `map_radius` around the newest keyframe (with `cull_back_faces`, each
+keyframe's points whose surface faces away from the newest keyframe's position are
+left out: `slam.odometry.facing`, normals from neighbours within `facing_gap`; the
+other face of a thin wall seen earlier from its far side cannot pull a scan that
+sees only the near one).  A scan becomes a map keyframe
 when the pose has moved `keyframe_distance` or turned `keyframe_rotation` since the
 last one; only then is the map's cell grid (`fast_icp.GridTarget`) rebuilt.  Its
 normals are lazy (`loopclosure.grid_target`): a map point's normal is computed
@@ -118,6 +122,7 @@ from loopclosure.registration import (
     voxel_downsample,
 )
 from slam.odometry import MotionNoise, OdometryEstimate, scan_odometry
+from slam.odometry.facing import facing, scan_normals
 
 if TYPE_CHECKING:
     from loopclosure.fast_icp import GridTarget
@@ -195,6 +200,10 @@ class Icp2dConfig:
         search_keep: guesses that run ICP after pre-screening.
         search_sigma: broad prior of the search ranking: deviation from the
             prediction (translation [m], rotation [rad]).
+        cull_back_faces: leave out of the local map the points of surfaces that face
+            away from the newest keyframe's position (module docstring).
+        facing_gap: largest distance [m] of a bearing neighbour that the normal of a
+            keyframe point is computed from (`slam.odometry.facing.scan_normals`).
     """
 
     icp: IcpConfig = field(
@@ -236,6 +245,8 @@ class Icp2dConfig:
     search_offsets: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
     search_keep: int = 12
     search_sigma: tuple[float, float] = (1.0, 1.0)
+    cull_back_faces: bool = False
+    facing_gap: float = 0.25
 
     def __post_init__(self) -> None:
         positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
@@ -296,6 +307,7 @@ class Icp2dOdometry:
         self._recent_steps: deque[tuple[float, float]] = deque(maxlen=cfg.jump_history)
         self._recent_fitness: deque[float] = deque(maxlen=cfg.jump_history)
         self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
+        self._normals: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._keyframe_pose: Array | None = None
         self._grid: GridTarget | None = None
         self.map_rebuilds = 0
@@ -510,6 +522,7 @@ class Icp2dOdometry:
         cfg = self.config
         extra["kidnap"] = True
         self._keyframes.clear()
+        self._normals.clear()
         self._grid = None
         self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
         self._velocity = np.zeros(3)
@@ -537,14 +550,22 @@ class Icp2dOdometry:
         if due:
             self._keyframe_pose = self._pose.copy()
             self._keyframes.append(se2.transform_points(self._pose, points))
+            if cfg.cull_back_faces:
+                c, s = np.cos(self._pose[2]), np.sin(self._pose[2])
+                self._normals.append(scan_normals(points, cfg.facing_gap)
+                                     @ np.array([[c, s], [-s, c]]))
             self._rebuild_map()
 
     def _rebuild_map(self) -> None:
         cfg = self.config
         fast = _fast()
         voxel = fast.voxel_downsample_fast if cfg.compiled else voxel_downsample
-        pts = voxel(np.vstack(list(self._keyframes)), cfg.map_voxel)
         assert self._keyframe_pose is not None
+        frames = list(self._keyframes)
+        if cfg.cull_back_faces and len(self._normals) == len(frames):
+            frames = [p[facing(p, n, self._keyframe_pose[:2])]
+                      for p, n in zip(frames, self._normals, strict=True)]
+        pts = voxel(np.vstack(frames), cfg.map_voxel)
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         if cfg.compiled:
             self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
