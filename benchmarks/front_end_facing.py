@@ -110,7 +110,8 @@ def main() -> None:
         if est.extra.get("keyframe"):
             kf_scans.append(i)
             c, s = np.cos(est.pose[2]), np.sin(est.pose[2])
-            normals.append(scan_normals(odo.scan_points(scan), cfg.facing_gap)
+            normals.append(scan_normals(odo.scan_points(scan), cfg.facing_gap,
+                                        cfg.facing_bend)
                            @ np.array([[c, s], [-s, c]]))
 
 

@@ -10,19 +10,25 @@ from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry
 
 
 def test_scan_normals_face_the_sensor_whatever_the_point_order() -> None:
-    """A wall 1 m ahead (y = 1) and one 2 m to the side (x = 2), shuffled, and a lone
-    point 5 m from any other: normals (0, -1), (-1, 0) and NaN."""
+    """A wall 1 m ahead (y = 1) and one 2 m to the side (x = 2), shuffled, a lone point
+    5 m from any other and a zigzag (steps turning by 90 degrees): normals (0, -1) and
+    (-1, 0) along the walls (one-sided at their ends, whose other bearing neighbour is
+    over 0.25 m away), NaN at the lone point and, with a 30-degree bend limit, inside
+    the zigzag (without one, its points have normals)."""
     front = np.column_stack([np.arange(-1.0, 1.01, 0.1), np.ones(21)])
     side = np.column_stack([np.full(11, 2.0), np.arange(-0.5, 0.51, 0.1)])
     lone = np.array([[-6.0, 3.0]])
-    pts = np.vstack([front, side, lone])
+    zigzag = np.column_stack([np.array([-3.0, -2.9, -3.0, -2.9, -3.0]),
+                              -1.0 - 0.1 * np.arange(5)])
+    pts = np.vstack([front, side, lone, zigzag])
     order = np.random.default_rng(1).permutation(len(pts))
     normals = np.empty_like(pts)
-    normals[order] = scan_normals(pts[order], max_gap=0.25)
+    normals[order] = scan_normals(pts[order], max_gap=0.25, max_bend=np.pi / 6)
     np.testing.assert_allclose(normals[:21], np.tile([0.0, -1.0], (21, 1)), atol=1e-12)
-    # The side wall's ends sit next to the front wall's in bearing, but over 0.25 m away.
     np.testing.assert_allclose(normals[21:32], np.tile([-1.0, 0.0], (11, 1)), atol=1e-12)
     assert np.isnan(normals[32]).all()
+    assert np.isnan(normals[34:37]).all()
+    assert not np.isnan(scan_normals(zigzag, max_gap=0.25)).any()
 
 
 def test_facing_keeps_only_the_face_a_viewpoint_can_see() -> None:
@@ -55,4 +61,5 @@ def test_icp2d_map_leaves_out_the_far_face_of_a_thin_wall() -> None:
         odo._accept(b_pose, np.zeros(3), b_pts, {}, force_keyframe=True)
         maps[cull] = odo.map_points
     assert (maps[False][:, 0] < 0).any() and (maps[False][:, 0] > 0).any()
-    assert len(maps[True]) and (maps[True][:, 0] > 0).all()
+    assert (maps[True][:, 0] > 0).sum() == (maps[False][:, 0] > 0).sum()
+    assert not (maps[True][:, 0] < 0).any()

@@ -8,14 +8,17 @@ can be pulled by ICP onto the face it cannot see: an offset of the wall's thickn
 across it, at a fitness as good as the right pose's.
 
 `scan_normals` gives every end point of a scan (sensor frame, sensor at the origin) the
-unit normal of its local surface, from its neighbours in bearing order, oriented
-towards the sensor: ``n . (0 - p) > 0``.  `facing` keeps a map point ``p`` with oriented
-normal ``n`` (both in the map frame) when a sensor at ``c`` sees the same face::
+unit normal of its local surface, from its two neighbours in bearing order, oriented
+towards the sensor: ``n . (0 - p) > 0``; not where the three points bend (the two steps
+``p - p_prev`` and ``p_next - p`` more than `max_bend` apart): a corner or clutter
+(vegetation, chair legs) has no face to cull.  `facing`
+keeps a map point ``p`` with oriented normal ``n`` (both in the map frame) when a
+sensor at ``c`` sees the same face::
 
     n . (c - p) > 0
 
-(back-face culling, as in rendering).  A point without a normal (no neighbour within
-`max_gap`) is kept.  Units: metres; frames as stated per function.
+(back-face culling, as in rendering).  A point without a normal is kept.  Units:
+metres, radians; frames as stated per function.
 """
 
 from __future__ import annotations
@@ -26,10 +29,11 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 
-def scan_normals(points: Array, max_gap: float) -> Array:
+def scan_normals(points: Array, max_gap: float, max_bend: float = np.pi) -> Array:
     """``(N, 2)`` unit normals of a scan's end points `points` (``(N, 2)``, sensor frame
-    [m], sensor at the origin), oriented towards the sensor; NaN rows where neither
-    bearing neighbour lies within `max_gap` [m].
+    [m], sensor at the origin), oriented towards the sensor; NaN rows where no bearing
+    neighbour lies within `max_gap` [m], or both do and the two steps to them turn by
+    more than `max_bend` [rad].
 
     The points are ordered by bearing; the tangent at point ``i`` is ``p[i+1] - p[i-1]``
     when both neighbours are within `max_gap` of it, the one-sided difference when one
@@ -46,11 +50,16 @@ def scan_normals(points: Array, max_gap: float) -> Array:
     prv = np.vstack([p[:1], p[:-1]])
     has_next = np.r_[np.hypot(*(p[1:] - p[:-1]).T) <= max_gap, False]
     has_prev = np.r_[False, has_next[:-1]]
+    back, ahead = p - prv, nxt - p
+    cross = back[:, 0] * ahead[:, 1] - back[:, 1] * ahead[:, 0]
+    dot = np.einsum("ij,ij->i", back, ahead)
+    straight = np.abs(np.arctan2(cross, dot)) <= max_bend
+    both = has_next & has_prev
     a = np.where(has_prev[:, None], prv, p)
     b = np.where(has_next[:, None], nxt, p)
     t = b - a
     length = np.hypot(t[:, 0], t[:, 1])
-    ok = (has_next | has_prev) & (length > 0)
+    ok = (has_next | has_prev) & (straight | ~both) & (length > 0)
     normal = np.column_stack([-t[:, 1], t[:, 0]])
     normal[ok] /= length[ok, None]
     flip = np.einsum("ij,ij->i", normal, -p) < 0

@@ -204,6 +204,9 @@ class Icp2dConfig:
             away from the newest keyframe's position (module docstring).
         facing_gap: largest distance [m] of a bearing neighbour that the normal of a
             keyframe point is computed from (`slam.odometry.facing.scan_normals`).
+        facing_bend: largest turn [rad] between the steps to the two neighbours of a
+            keyframe point that has a normal (more: no normal, the point is kept);
+            pi: no such test.
     """
 
     icp: IcpConfig = field(
@@ -247,6 +250,7 @@ class Icp2dConfig:
     search_sigma: tuple[float, float] = (1.0, 1.0)
     cull_back_faces: bool = False
     facing_gap: float = 0.25
+    facing_bend: float = float(np.pi)
 
     def __post_init__(self) -> None:
         positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
@@ -552,7 +556,7 @@ class Icp2dOdometry:
             self._keyframes.append(se2.transform_points(self._pose, points))
             if cfg.cull_back_faces:
                 c, s = np.cos(self._pose[2]), np.sin(self._pose[2])
-                self._normals.append(scan_normals(points, cfg.facing_gap)
+                self._normals.append(scan_normals(points, cfg.facing_gap, cfg.facing_bend)
                                      @ np.array([[c, s], [-s, c]]))
             self._rebuild_map()
 
