@@ -13,16 +13,28 @@ iterations.  Its `lm_budget` caps LM's iterations (the rest go to dogleg): on
 near-singular graphs LM does not raise but runs out all its iterations (far longer
 than the dogleg solve), and a sequence of warm-started solves that converge in a few LM
 iterations loses nothing by the cap.  Error units are gtsam's (``0.5 r^T I r``).
+
+`StickySolver` also remembers its last `MEMO_ENTRIES` solutions (`SolveMemo`): the
+robust back end re-solves the same graph from the same start more than once (a pass
+resumed from a snapshot repeats its blocks' solves; a hypothesis re-solves the accepted
+prefix that the one before it solved), and a repeated solve returns the stored solution
+instead of iterating again: the same values the solve would give, since the solver is
+deterministic and its path (LM first or dogleg) is part of the key.
 """
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+
 import gtsam
+import numpy as np
 from scipy.sparse import spmatrix
 from scipy.sparse.linalg import SuperLU, splu
 
 LM = "lm"
 DOGLEG_QR = "dogleg-qr"
+MEMO_ENTRIES = 16  # solutions a `StickySolver` remembers (0: none)
 
 
 def lm_params(
@@ -86,24 +98,109 @@ def conditioning(factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> s
     return LM
 
 
+def _values_digest(values: gtsam.Values) -> bytes:
+    """A digest of the keys and poses of `values` (Pose2 and Pose3 entries, bit for bit)."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update(np.asarray(values.keys(), dtype=np.uint64).tobytes())
+    h.update(np.ascontiguousarray(gtsam.utilities.extractPose2(values)).tobytes())
+    h.update(np.ascontiguousarray(gtsam.utilities.extractPose3(values)).tobytes())
+    return h.digest()
+
+
+def same_factors(a: gtsam.NonlinearFactorGraph, b: gtsam.NonlinearFactorGraph) -> bool:
+    """True when `a` and `b` hold equal factors in the same order (gtsam ``equals`` at
+    tolerance 0: the same keys, measurement and noise model, bit for bit)."""
+    return a.size() == b.size() and all(
+        a.at(n).equals(b.at(n), 0.0) for n in range(a.size()))
+
+
+class SolveMemo:
+    """The last `entries` solutions of a solver, looked up by (graph, start, path).
+
+    The lookup key is cheap (the solver path, the graph's size and a digest of the
+    start's poses); a hit is confirmed by comparing the stored graph with the new one
+    factor by factor (`same_factors`) and the stored start with the new one (gtsam
+    ``equals`` at tolerance 0), so a solution is returned only for the same graph from
+    the same start.  Each entry carries the solver's state after the solve (whether
+    it went on to dogleg for good).  Stored and returned values are copies (callers may
+    change theirs).  `hits` and `misses` count lookups.
+    """
+
+    def __init__(self, entries: int) -> None:
+        self.entries = entries
+        self._store: OrderedDict[
+            tuple, tuple[gtsam.NonlinearFactorGraph, gtsam.Values, gtsam.Values, bool]
+        ] = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    def key(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+            path: object) -> tuple:
+        """The lookup key of a solve of `factors` from `values` along `path`."""
+        return path, factors.size(), _values_digest(values)
+
+    def get(
+        self, key: tuple, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values
+    ) -> tuple[gtsam.Values, bool] | None:
+        """A copy of the stored solution of `factors` from `values` under `key` and the
+        state after it, or None."""
+        stored = self._store.get(key)
+        if (stored is None or not stored[1].equals(values, 0.0)
+                or not same_factors(stored[0], factors)):
+            self.misses += 1
+            return None
+        self.hits += 1
+        self._store.move_to_end(key)
+        return gtsam.Values(stored[2]), stored[3]
+
+    def put(self, key: tuple, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+            solution: gtsam.Values, state: bool) -> None:
+        """Store `solution` of `factors` from `values` under `key` with the solver's
+        `state` after it (the oldest entry goes when full)."""
+        if self.entries <= 0:
+            return
+        self._store[key] = (gtsam.NonlinearFactorGraph(factors), values,
+                            gtsam.Values(solution), state)
+        self._store.move_to_end(key)
+        while len(self._store) > self.entries:
+            self._store.popitem(last=False)
+
+
 class StickySolver:
     """`solve` for a sequence of related graphs; dogleg for good once LM has failed.
 
     With ``sticky=False`` only an LM that raises (sparse Cholesky breaks down: the graph
     needs QR) switches to dogleg for good; an LM that merely runs out of `lm_budget`
     iterations hands that one solve to dogleg.  Set `dogleg` to start with dogleg.
+    `memo`: solutions remembered (`SolveMemo`; default `MEMO_ENTRIES`, 0: none).
     """
 
     def __init__(
-        self, max_iterations: int = 100, lm_budget: int | None = None, sticky: bool = True
+        self, max_iterations: int = 100, lm_budget: int | None = None, sticky: bool = True,
+        memo: int | None = None,
     ) -> None:
         self.max_iterations = max_iterations
         self.lm_budget = lm_budget
         self.sticky = sticky
         self.dogleg = False
+        self.memo = SolveMemo(MEMO_ENTRIES if memo is None else memo)
 
     def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        """The solution of `factors` from `values`."""
+        """The solution of `factors` from `values` (a remembered one when this solver has
+        solved the same graph from the same start along the same path before)."""
+        if self.memo.entries <= 0:
+            return self._solve(factors, values)
+        key = self.memo.key(factors, values, self.dogleg)
+        known = self.memo.get(key, factors, values)
+        if known is not None:
+            solution, self.dogleg = known
+            return solution
+        start = gtsam.Values(values)  # the caller may change its values afterwards
+        result = self._solve(factors, values)
+        self.memo.put(key, factors, start, result, self.dogleg)
+        return result
+
+    def _solve(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
         if self.dogleg:
             return dogleg_qr(factors, values, self.max_iterations).optimize()
         if self.sticky:
