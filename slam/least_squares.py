@@ -20,6 +20,13 @@ resumed from a snapshot repeats its blocks' solves; a hypothesis re-solves the a
 prefix that the one before it solved), and a repeated solve returns the stored solution
 instead of iterating again: the same values the solve would give, since the solver is
 deterministic and its path (LM first or dogleg) is part of the key.
+
+Where Cholesky breaks down, it is one stiff factor that breaks it: a factor whose
+information matrix is nearly singular (a condition number beyond ``1/sqrt(eps)``) makes
+the elimination lose its soft directions when its poses are eliminated after their
+neighbours.  `dogleg_stiff_first` eliminates those poses first and factorises by
+Cholesky; `StickySolver` uses it for its dogleg solves with ``stiff_cholesky``
+(`STIFF_CHOLESKY`, off: its solutions agree with QR's only to the solver's tolerance).
 """
 
 from __future__ import annotations
@@ -35,6 +42,10 @@ from scipy.sparse.linalg import SuperLU, splu
 LM = "lm"
 DOGLEG_QR = "dogleg-qr"
 MEMO_ENTRIES = 16  # solutions a `StickySolver` remembers (0: none)
+STIFF_CHOLESKY = False  # `StickySolver`'s dogleg by Cholesky, stiff factors first (option)
+# Information condition number above which a factor is stiff: the normal equations
+# square the Jacobian's condition, so beyond 1/sqrt(eps) they keep under half the digits.
+STIFF_CONDITION = 1.0 / float(np.sqrt(np.finfo(float).eps))
 
 
 def lm_params(
@@ -60,6 +71,50 @@ def dogleg_qr(
     params.setRelativeErrorTol(1e-6)
     params.setLinearSolverType("MULTIFRONTAL_QR")
     return gtsam.DoglegOptimizer(factors, values, params)
+
+
+def stiff_keys(factors: gtsam.NonlinearFactorGraph) -> list[int]:
+    """The poses of every factor of `factors` with a Gaussian noise model whose
+    information ``R^T R`` has a condition number above `STIFF_CONDITION` (sorted)."""
+    keys: set[int] = set()
+    for n in range(factors.size()):
+        factor = factors.at(n)
+        try:
+            r = factor.noiseModel().R()
+        except (AttributeError, RuntimeError, TypeError):  # not a Gaussian noise model
+            continue
+        s = np.linalg.svd(r, compute_uv=False)
+        if s[-1] <= 0.0 or (s[0] / s[-1]) ** 2 > STIFF_CONDITION:
+            keys.update(int(k) for k in factor.keys())
+    return sorted(keys)
+
+
+def dogleg_stiff_first(
+    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
+    first: list[int],
+) -> gtsam.Values:
+    """Powell's dogleg by multifrontal Cholesky from `values`, the poses `first`
+    eliminated before all others (COLAMD for the rest), else as `dogleg_qr`; QR when
+    Cholesky still breaks down.
+
+    Why: sparse Cholesky breaks down (a negative pivot) where a stiff factor's poses are
+    eliminated late, after the elimination has mixed its stiff direction with the soft
+    ones of the rest of the graph; eliminated first, its stiff block is factorised on its
+    own and the Schur complement passed on is no worse conditioned than its neighbours'.
+    """
+    present = set(int(k) for k in factors.keyVector())
+    first = [k for k in first if k in present]
+    if not first:
+        return dogleg_qr(factors, values, max_iterations).optimize()
+    params = gtsam.DoglegParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setLinearSolverType("MULTIFRONTAL_CHOLESKY")
+    params.setOrdering(gtsam.Ordering.ColamdConstrainedFirstNonlinearFactorGraph(factors, first))
+    try:
+        return gtsam.DoglegOptimizer(factors, values, params).optimize()
+    except RuntimeError:  # gtsam IndeterminateLinearSystemException
+        return dogleg_qr(factors, values, max_iterations).optimize()
 
 
 def solve(
@@ -173,17 +228,31 @@ class StickySolver:
     needs QR) switches to dogleg for good; an LM that merely runs out of `lm_budget`
     iterations hands that one solve to dogleg.  Set `dogleg` to start with dogleg.
     `memo`: solutions remembered (`SolveMemo`; default `MEMO_ENTRIES`, 0: none).
+    `stiff_cholesky` (default `STIFF_CHOLESKY`): the dogleg solves factorise by Cholesky
+    with the poses of stiff factors eliminated first (`dogleg_stiff_first`) where the
+    graph has stiff factors; QR otherwise.
     """
 
     def __init__(
         self, max_iterations: int = 100, lm_budget: int | None = None, sticky: bool = True,
-        memo: int | None = None,
+        memo: int | None = None, stiff_cholesky: bool | None = None,
     ) -> None:
         self.max_iterations = max_iterations
         self.lm_budget = lm_budget
         self.sticky = sticky
         self.dogleg = False
         self.memo = SolveMemo(MEMO_ENTRIES if memo is None else memo)
+        self.stiff_cholesky = STIFF_CHOLESKY if stiff_cholesky is None else stiff_cholesky
+        self._stiff: tuple[int, list[int]] = (-1, [])  # (graph size scanned, stiff keys)
+
+    def _dogleg(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
+        """Dogleg from `values`: `dogleg_stiff_first` when `stiff_cholesky` and the graph
+        has stiff factors (scanned again whenever a larger graph comes), else QR."""
+        if not self.stiff_cholesky:
+            return dogleg_qr(factors, values, self.max_iterations).optimize()
+        if factors.size() > self._stiff[0]:
+            self._stiff = (factors.size(), stiff_keys(factors))
+        return dogleg_stiff_first(factors, values, self.max_iterations, self._stiff[1])
 
     def __call__(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
         """The solution of `factors` from `values` (a remembered one when this solver has
@@ -202,7 +271,7 @@ class StickySolver:
 
     def _solve(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
         if self.dogleg:
-            return dogleg_qr(factors, values, self.max_iterations).optimize()
+            return self._dogleg(factors, values)
         if self.sticky:
             result, _, used = solve(factors, values, self.max_iterations, self.lm_budget)
             self.dogleg = used == DOGLEG_QR
@@ -213,11 +282,11 @@ class StickySolver:
             result = lm.optimize()
         except RuntimeError:  # gtsam IndeterminateLinearSystemException
             self.dogleg = True
-            return dogleg_qr(factors, values, self.max_iterations).optimize()
+            return self._dogleg(factors, values)
         if 0 < lm.iterations() < budget:
             return result
         start = result if factors.error(result) < factors.error(values) else values
-        return dogleg_qr(factors, start, self.max_iterations).optimize()
+        return self._dogleg(factors, start)
 
 
 def factor_information(jacobian: spmatrix) -> SuperLU:
