@@ -67,6 +67,15 @@ class LoopClosureConfig:
             proposes up to `global_verify`; the more of them count, the more often a
             look-alike is supported by chance and checked in vain).
         max_loops: accepted loops per query at most.
+        joined_keyframes: W > 0: a candidate inside the pose gate is not checked when
+            a loop accepted from a prior at one of the query's W previous keyframes
+            joins a keyframe within W keys of it: the two passes are already tied
+            together there, the query by that loop and its odometry, the candidate
+            by its neighbour, and its check would add a loop through largely the
+            same submap points (consecutive keyframes' submaps share most of them).
+            Along a revisit about one keyframe in W + 1 is then checked.  The query
+            counts as anchored (no check without a prior in its frame).  0 (the
+            default): every candidate is checked.
         circle_fallback: when no place checked with no prior was accepted for a
             query, at most this many of them, rejected for their fit, are checked
             again over the whole circle of headings instead of their heading
@@ -122,6 +131,7 @@ class LoopClosureConfig:
     sequence_keys: int = 3
     sequence_places: int = 1
     max_loops: int = 2
+    joined_keyframes: int = 0
     circle_fallback: int = 0
     trail_radius: float = 1.5
     trail_keyframes: int = 10
@@ -164,6 +174,8 @@ class LoopClosureConfig:
                 f"{', '.join(WIDE_LOGISTIC.names)} (the wide view's model is fitted for "
                 f"those); the database has {self.database.resolved_fusion} fusion of "
                 f"{', '.join(self.database.stages)}")
+        if self.joined_keyframes < 0:
+            raise UserError(f"loops.joined_keyframes must be >= 0, got {self.joined_keyframes}")
         if self.circle_fallback < 0:
             raise UserError(f"loops.circle_fallback must be >= 0, got {self.circle_fallback}")
         if not self.trail_radius >= 0 or self.trail_keyframes < 0:

@@ -153,6 +153,8 @@ from loopclosure.place_match import PlaceMatch
 
 Array = NDArray[np.float64]
 
+_NONE = np.zeros(0, dtype=np.int64)
+
 __all__ = [
     "SEARCHES", "KeyframePlace", "LoopCandidate", "LoopClosureConfig", "LoopClosureDetector",
     "SubmapFn", "SubmapVersionFn", "TrailingMapFn", "distinct_places", "merge_views",
@@ -174,6 +176,8 @@ class LoopClosureDetector(CandidateChecks):
         self._since_free = 0  # keyframes since a prior-free check or an accepted loop
         self._proposed: dict[int, NDArray[np.int64]] = {}  # key -> appearance proposals
         self._answers: dict[int, list[PlaceMatch]] = {}  # key -> its own views' matches
+        # key -> keyframes its checks from a prior accepted (`_joined`)
+        self._joins: dict[int, NDArray[np.int64]] = {}
 
     def detect(
         self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None,
@@ -216,14 +220,19 @@ class LoopClosureDetector(CandidateChecks):
         # 5 keyframes of an accepted one (that place is closed), is skipped.
         inside = [(int(m.key), m) for m in appearance if gated(int(m.key))] + [
             (k, None) for k in pose]
+        joined = False
         for k, m in inside:
             if sum(c.accepted for c in out) >= cfg.max_loops:
                 break
             if m is None and any(c.match == k or (c.accepted and abs(c.match - k) <= 5)
                                  for c in out):
                 continue
+            if self._joined(key, k):
+                joined = True
+                continue
             out.append(self._check_prior(key, k, m, poses, cov, sigma, query_points))
-        anchored = any(c.accepted for c in out)
+        self._joins[key] = np.array([c.match for c in out if c.accepted], dtype=np.int64)
+        anchored = joined or any(c.accepted for c in out)
         if anchored:
             self._since_free = 0
         # Outside the gate: in the query's frame only when the pose is not anchored (a
@@ -276,6 +285,14 @@ class LoopClosureDetector(CandidateChecks):
         if sigma > cfg.prior_max_sigma:
             return cov, sigma, -np.inf
         return cov, sigma, cfg.local_radius + cfg.local_sigmas * sigma
+
+    def _joined(self, key: int, cand: int) -> bool:
+        """A loop accepted from a prior at one of the `joined_keyframes` (W) keyframes
+        before `key` joins a keyframe within W keys of `cand` (`LoopClosureConfig`)."""
+        w = self.config.joined_keyframes
+        return w > 0 and any(
+            np.any(np.abs(self._joins.get(key - j, _NONE) - cand) <= w)
+            for j in range(1, w + 1))
 
     def _supported(self, key: int, match: int) -> bool:
         """The appearance searches of the `sequence_keyframes` keyframes before `key`

@@ -4,6 +4,7 @@ versions."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -568,3 +569,25 @@ def test_checks_from_a_prior_keep_one_lazy_grid_per_submap_version() -> None:
     assert second is not first and det._prior_grid(0) is second
     det.release_caches()
     assert det._prior_grid(0) is not second
+
+
+def test_a_pair_joined_by_the_previous_keyframes_loop_is_not_checked_again(revisit) -> None:
+    kfs, poses, submap = revisit
+    _, every = _run(kfs, submap, config=LoopClosureConfig(search="pose"), poses=poses)
+    _, joined = _run(kfs, submap, poses=poses,
+                     config=LoopClosureConfig(search="pose", joined_keyframes=1))
+    accepted = {k: [c.match for c in cs if c.accepted and c.prior] for k, cs in every.items()}
+    assert sum(map(bool, accepted.values())) >= 4  # a revisit of several keyframes
+    for key in sorted(joined):
+        checked = [c.match for c in joined[key] if c.prior]
+        before = [c.match for c in joined.get(key - 1, []) if c.accepted and c.prior]
+        # Never a candidate within one key of what the previous keyframe joined ...
+        assert not any(abs(c - b) <= 1 for c in checked for b in before)
+        # ... and the same checks as without the rule when the previous joined nothing.
+        if not before:
+            assert checked == [c.match for c in every[key] if c.prior]
+    # Along the revisit the loops then alternate: checked, skipped, checked.
+    with_loop = [k for k, cs in joined.items() if any(c.accepted for c in cs)]
+    assert with_loop and all(b - a >= 2 for a, b in itertools.pairwise(with_loop))
+    with pytest.raises(UserError):
+        LoopClosureConfig(joined_keyframes=-1)
