@@ -292,6 +292,7 @@ class AdmissionPass:
         self.undo = undo
         self.confirm = confirm  # step-2 admissions re-checked by their nonlinear cost
         self.refused = 0  # step-2 admissions the nonlinear check turned back
+        self._held = False  # the last admission stopped the iSAM2 prefix converging
         self._block = block
         self.loop_start = np.array([min(self.position[lp.i], self.position[lp.j])
                                     for lp in graph.loops], dtype=int)
@@ -486,19 +487,23 @@ class AdmissionPass:
                     continue
                 waiting = rest[weak] if not final else waiting
                 break
+            before = factors.error(current) if self.confirm else 0.0
             accepted[rest[admitted]] = True
             factors = _with(fixed, unit, pending[accepted])
-            solved, isam = self._prefix_solve(factors, current, pending[rest[admitted]])
+            solved, isam = self._prefix_solve(factors, current, pending[rest[admitted]],
+                                              hold=self.confirm)
             if self.confirm:
-                back = self._unconfirmed(fixed, pending, accepted, rest[admitted], solved)
+                held, self._held = self._held, False
+                back = self._unconfirmed(fixed, pending, accepted, rest[admitted], solved,
+                                         before, current)
                 if len(back):
                     refused[back] = True
                     accepted[back] = False
                     self.refused += len(back)
                     factors = _with(fixed, unit, pending[accepted])
-                    # the iSAM2 prefix holds the refused loops: batch solves from here on
-                    self._isam, isam = None, None
-                    solved = self._solve(factors, current)
+                    solved, isam = self._turned_back(factors, current, pending[back], held)
+                elif held:
+                    self.folded = True
             current = solved
         self.current = current
         self.weights[pending] = accepted
@@ -513,6 +518,7 @@ class AdmissionPass:
     def _unconfirmed(
         self, fixed: gtsam.NonlinearFactorGraph, pending: NDArray[np.int64],
         accepted: NDArray[np.bool_], admitted: NDArray[np.int64], current: gtsam.Values,
+        before: float, start: gtsam.Values,
     ) -> NDArray[np.int64]:
         """Positions in `pending` among `admitted` (by the innovation gate) to turn back:
         the actual cost of keeping a loop is the accepted prefix's error at its solution
@@ -521,21 +527,37 @@ class AdmissionPass:
         ``delta`` is its linearisation at the prefix before the loop, which a loop that
         bends a long stretch of odometry can leave well below it.  The costliest loop
         above ``c`` is turned back and the rest judged again without it (two loops that
-        contradict each other both cost more than ``c`` while both are kept)."""
+        contradict each other both cost more than ``c`` while both are kept).
+
+        `before`: the error of the accepted prefix without the `admitted` loops at its
+        solution (the prefix the gate decided against).  Taking factors out of a least
+        squares problem can only lower its minimum, so no admitted loop costs more than
+        the joint cost ``J(current) - before`` of all of them: when that is at most ``c``
+        none is turned back, and a lone admitted loop's cost is exactly that.  Only
+        rounds that admitted several loops at a joint cost above ``c`` re-solve the
+        prefix without each, from whichever of `current` and `start` (the solution
+        `before` was taken at) it is lower at: a false loop's removal undoes the bend it
+        caused, so the solution before it is the nearer start.
+        """
         unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
         out: list[int] = []
         while left:
             kept = _with(fixed, unit, pending[accepted])
             total = kept.error(current)
-            costs = []
-            for q in left:
-                others = accepted.copy()
-                others[q] = False
-                without = _with(fixed, unit, pending[others])
-                try:
-                    costs.append(total - without.error(self._solve(without, current)))
-                except RuntimeError:  # a failed solve: the admission stands
-                    costs.append(-np.inf)
+            if not total - before > self._c:
+                break
+            costs = [total - before]
+            if len(left) > 1:
+                costs = []
+                for q in left:
+                    others = accepted.copy()
+                    others[q] = False
+                    without = _with(fixed, unit, pending[others])
+                    x0 = start if without.error(start) < without.error(current) else current
+                    try:
+                        costs.append(total - without.error(self._solve(without, x0)))
+                    except RuntimeError:  # a failed solve: the admission stands
+                        costs.append(-np.inf)
             worst = int(np.argmax(costs))
             if not costs[worst] > self._c:
                 break
@@ -545,6 +567,27 @@ class AdmissionPass:
             if left:
                 current = self._solve(_with(fixed, unit, pending[accepted]), current)
         return np.array(out, dtype=np.int64)
+
+    def _turned_back(
+        self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        removed: NDArray[np.int64], held: bool = False,
+    ) -> tuple[gtsam.Values, IsamPrefix | None]:
+        """The accepted prefix `factors` solved after the loops `removed` (indices into
+        `graph.loops`, admitted by the last `_prefix_solve`) were turned back: they are
+        taken out of the iSAM2 prefix, which goes on incrementally; when their admission
+        had stopped its updates converging (`held`), a new iSAM2 is built from `factors`
+        at `current`, the prefix's solution before they were admitted.  Batch solves
+        from `current` when there is no iSAM2 prefix or its updates stop converging."""
+        if held:
+            self._isam = IsamPrefix.of(factors, current)
+        elif self._isam is None:
+            return self._solve(factors, current), None
+        else:
+            self._isam.remove(int(k) for k in removed)
+        current, self._isam = isam_or_batch(self._isam, self._solve, factors, current)
+        if self._isam is None:
+            self.folded = True
+        return current, self._isam
 
     def _decided_cost(self, values: gtsam.Values) -> float:
         """TLS objective at `values` of the part decided so far: anchors and odometry of
@@ -573,16 +616,22 @@ class AdmissionPass:
 
     def _prefix_solve(
         self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
-        added: NDArray[np.int64],
+        added: NDArray[np.int64], hold: bool = False,
     ) -> tuple[gtsam.Values, IsamPrefix | None]:
-        """The accepted prefix `factors` solved from `current` after the loops `added`."""
+        """The accepted prefix `factors` solved from `current` after the loops `added`.
+
+        `hold`: when the iSAM2 prefix stops converging the pass is not marked folded yet
+        (`_held` says so instead): the nonlinear check may turn the loops back."""
         if self._isam is None:
             return self._solve(factors, current), None
         for k in added:
-            self._isam.add(self.unit[k])
+            self._isam.add(self.unit[k], int(k))
         current, self._isam = isam_or_batch(self._isam, self._solve, factors, current)
         if self._isam is None:
-            self.folded = True
+            if hold:
+                self._held = True
+            else:
+                self.folded = True
         return current, self._isam
 
     def prefix_cost(

@@ -48,7 +48,9 @@ def test_the_check_returns_the_loop_whose_actual_cost_is_above_c() -> None:
     without = with_loops(run._base, run.unit, pending[:1])
     cost = kept.error(current) - without.error(run._solve(without, current))
     assert cost > run._c
-    back = run._unconfirmed(run._base, pending, accepted, np.arange(2), current)
+    before = run._base.error(run._solve(run._base, run.current))
+    back = run._unconfirmed(run._base, pending, accepted, np.arange(2), current, before,
+                            run.current)
     np.testing.assert_array_equal(back, [1])
 
 

@@ -1,0 +1,117 @@
+"""Diagnosis: the nonlinear check of innovation-gate admissions (``confirm``) off, as
+first written (every admission re-solved one loop left out, batch solves for the rest
+of a pass after a refusal) and as it is now (`slam.admission.AdmissionPass._unconfirmed`:
+the joint cost bounds each loop's; `_turned_back`: the refused loops are taken out of the
+iSAM2 prefix), on one corrupted pose graph, in one process.
+
+Run from the repository root::
+
+    python benchmarks/robust_confirm_ab.py input_MITb_g2o.g2o [--data DIR] [--scale 1]
+        [--policy random] [--ratio 50] [--seed 0] [--modes off,old,new] [--cache DIR]
+
+One line per mode: ATE against the outlier-free optimum [m], false loops obeyed (of
+them, consistent with the outlier-free graph), true loops rejected, the TLS objective's
+gap to the clean optimum, CPU seconds of this process and the ratio to the first mode's;
+then, for each later mode, whether it kept the same loops as the mode before it and the
+largest distance between their poses [m].  `slam.optimize.optimize` as `benchmarks/robust_modes.py`
+calls it (``gnc``, incremental, from the odometry chain, undo on).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.robust_cell import cell_parser, read_cell
+from evaluation.robustness import aligned_position_error, consistent_with_clean
+from slam.admission import AdmissionPass
+from slam.admission_undo import with_loops
+from slam.consistency import tls_cost
+from slam.optimize import default_outlier_residual, optimize
+from slam.pose_graph import whitened_residual
+
+NEW = (AdmissionPass._unconfirmed, AdmissionPass._turned_back)
+
+
+def _old_unconfirmed(self, fixed, pending, accepted, admitted, current, before, start):
+    """The check as first written: every admitted loop's cost by a batch solve without it."""
+    unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
+    out: list[int] = []
+    while left:
+        total = with_loops(fixed, unit, pending[accepted]).error(current)
+        costs = []
+        for q in left:
+            others = accepted.copy()
+            others[q] = False
+            without = with_loops(fixed, unit, pending[others])
+            try:
+                costs.append(total - without.error(self._solve(without, current)))
+            except RuntimeError:
+                costs.append(-np.inf)
+        worst = int(np.argmax(costs))
+        if not costs[worst] > self._c:
+            break
+        q = left.pop(worst)
+        out.append(q)
+        accepted[q] = False
+        if left:
+            current = self._solve(with_loops(fixed, unit, pending[accepted]), current)
+    return np.array(out, dtype=np.int64)
+
+
+def _old_turned_back(self, factors, current, removed, held=False):
+    """As first written: the iSAM2 prefix dropped, batch solves for the rest of the pass
+    (a pass whose admission stopped iSAM2 converging marked folded, refusal or not)."""
+    self.folded = self.folded or held
+    self._isam = None
+    return self._solve(factors, current), None
+
+
+def _position(pose: np.ndarray) -> np.ndarray:
+    """Position of a planar (x, y, theta) or spatial (4x4) pose [m]."""
+    return pose[:2] if pose.ndim == 1 else pose[:3, 3]
+
+
+def main() -> None:
+    parser = cell_parser(__doc__.split("\n")[0])
+    parser.add_argument("--modes", default="off,old,new")
+    args = parser.parse_args()
+    graph, reference, corrupted, is_false = read_cell(args)
+    clean_cost = tls_cost(corrupted, corrupted.gtsam_values(reference))
+    threshold = default_outlier_residual(graph.dim)
+    first = None
+    for mode in args.modes.split(","):
+        AdmissionPass._unconfirmed, AdmissionPass._turned_back = (
+            (_old_unconfirmed, _old_turned_back) if mode == "old" else NEW)
+        cpu = time.process_time()
+        result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
+                          confirm=mode != "off")
+        cpu = time.process_time() - cpu
+        residuals = np.array([whitened_residual(c, result.poses, graph.dim)
+                              for c in corrupted.loops])
+        obeyed = residuals <= threshold
+        false_obeyed = np.flatnonzero(obeyed & is_false)
+        consistent = consistent_with_clean(graph, reference,
+                                           [corrupted.loops[k] for k in false_obeyed])
+        gap = tls_cost(corrupted, corrupted.gtsam_values(result.poses)) - clean_cost
+        if first is None:
+            first = previous = (cpu, obeyed, result.poses)
+        apart = max(float(np.linalg.norm(_position(result.poses[k])
+                                         - _position(previous[2][k]))) for k in result.poses)
+        ate = aligned_position_error(result.poses, reference, graph.dim)
+        print(f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed} "
+              f"confirm={mode}: ATE {ate:.3g} m, {len(false_obeyed)} F ({consistent}), "
+              f"{int((~obeyed & ~is_false).sum())} T, gap {gap:+.1f}, {cpu:.1f} s CPU "
+              f"(x{cpu / first[0]:.2f}), same loops as before: "
+              f"{bool((obeyed == previous[1]).all())}, {apart:.2g} m apart", flush=True)
+        previous = (cpu, obeyed, result.poses)
+    AdmissionPass._unconfirmed, AdmissionPass._turned_back = NEW
+
+
+if __name__ == "__main__":
+    main()
