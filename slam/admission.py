@@ -535,9 +535,7 @@ class AdmissionPass:
         the joint cost ``J(current) - before`` of all of them: when that is at most ``c``
         none is turned back, and a lone admitted loop's cost is exactly that.  Only
         rounds that admitted several loops at a joint cost above ``c`` re-solve the
-        prefix without each, from whichever of `current` and `start` (the solution
-        `before` was taken at) it is lower at: a false loop's removal undoes the bend it
-        caused, so the solution before it is the nearer start.
+        prefix without each (`_minimum`).
         """
         unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
         out: list[int] = []
@@ -553,9 +551,9 @@ class AdmissionPass:
                     others = accepted.copy()
                     others[q] = False
                     without = _with(fixed, unit, pending[others])
-                    x0 = start if without.error(start) < without.error(current) else current
                     try:
-                        costs.append(total - without.error(self._solve(without, x0)))
+                        costs.append(total - self._minimum(without, current, start,
+                                                           pending[[*out, q]]))
                     except RuntimeError:  # a failed solve: the admission stands
                         costs.append(-np.inf)
             worst = int(np.argmax(costs))
@@ -567,6 +565,29 @@ class AdmissionPass:
             if left:
                 current = self._solve(_with(fixed, unit, pending[accepted]), current)
         return np.array(out, dtype=np.int64)
+
+    def _minimum(
+        self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        start: gtsam.Values, removed: NDArray[np.int64],
+    ) -> float:
+        """The error of `without` (the accepted prefix less the loops `removed`) at its
+        solution: by a copy of the iSAM2 prefix (which holds the prefix with every loop
+        of the round) with `removed` taken out, or, when there is none or its updates do
+        not converge, by a batch solve from whichever of `current` (the solution with
+        them) and `start` (the solution before the round's admissions) it is lower at: a
+        false loop's removal undoes the bend it caused, so the solution before it is
+        the nearer start."""
+        if self._isam is not None:
+            trial = self._isam.copy()
+            trial.remove(int(k) for k in removed)
+            try:
+                estimate = trial.solve()
+            except RuntimeError:  # gtsam IndeterminateLinearSystemException
+                estimate = None
+            if estimate is not None and trial.converged:
+                return float(without.error(estimate))
+        x0 = start if without.error(start) < without.error(current) else current
+        return float(without.error(self._solve(without, x0)))
 
     def _turned_back(
         self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,
