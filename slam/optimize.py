@@ -166,7 +166,7 @@ def optimize(
     defer: str = "off",
     undo: bool = True,
     screen: bool = False,
-    confirm: bool = False,
+    confirm: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -212,8 +212,10 @@ def optimize(
     leave most loops above ``c`` (`slam.fast_path_screen`); off by default, since on a
     consistent graph whose solve from the odometry chain converges slowly it skips a
     fast path that holds.
-    `confirm`: the admission passes turn back an innovation-gate admission whose actual
-    cost of being kept is above ``c`` (`slam.admission.AdmissionPass`); off by default.
+    `confirm` (on by default): the admission passes turn back an innovation-gate
+    admission whose actual cost of being kept is above ``c``
+    (`slam.admission.AdmissionPass`): the linearised cost the gate judges by can fall
+    below ``c`` while the prefix re-solved without the loop says otherwise.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
