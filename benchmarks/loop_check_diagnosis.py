@@ -50,7 +50,7 @@ from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
 FIELDS = ("fitness", "inlier_ratio", "rms", "degeneracy", "margin", "consistency",
-          "matched_length")
+          "matched_length", "axis_length", "axis_hold", "pinned_length")
 
 
 def checks_of(path: str, relations: str | None, tol: Tolerances) -> tuple[list[dict], Counter]:
@@ -120,10 +120,14 @@ def accepts(rows: list[dict], **cfg: float) -> np.ndarray:
         setattr(c, name, value)
     f = {k: np.array([r[k] for r in rows], float) for k in FIELDS}
     partial = (f["fitness"] < c.min_fitness) | (f["inlier_ratio"] < c.min_inlier_ratio)
+    held = c.pinned_degenerate & (np.nan_to_num(f["pinned_length"], nan=-1.0)
+                                  >= c.min_matched_length)
     return ((f["matched_length"] >= c.min_matched_length)
             & (f["consistency"] >= c.min_consistency)
-            & (f["rms"] <= c.max_rms) & (f["degeneracy"] >= c.min_degeneracy)
-            & ~(partial & (f["degeneracy"] < c.min_degeneracy_partial))
+            & (f["rms"] <= c.max_rms) & ((f["degeneracy"] >= c.min_degeneracy) | held)
+            & ~(partial & (f["degeneracy"] < c.min_degeneracy_partial) & ~held)
+            & ~(c.pinned_required & (f["degeneracy"] < c.min_degeneracy_partial)
+                & ~(np.nan_to_num(f["pinned_length"], nan=-1.0) >= c.min_matched_length))
             & (f["margin"] >= c.min_fitness_margin))
 
 
@@ -132,6 +136,9 @@ WHAT_IF = {
     "min_fitness_margin": (0.15, 0.1, 0.05, 0.0),
     "min_matched_length": (8.0, 4.0, 2.0, 1.0),
     "min_degeneracy_partial": (0.15, 0.1, 0.05, 0.04),
+    "pinned_degenerate": (False, True),
+    "pinned_required": (False, True),
+    "pinned_degenerate+pinned_required": (True,),
 }
 
 
@@ -175,7 +182,7 @@ def main() -> None:
           "accepted")
     for name, values in WHAT_IF.items():
         for value in values:
-            ok = accepts(every, **{name: value})
+            ok = accepts(every, **{n: value for n in name.split("+")})
             print(f"  {name} = {value:<5}  {int((ok & correct).sum()):6d} "
                   f"{int((ok & ~correct).sum()):6d} {int((ok & off).sum()):6d}")
 

@@ -34,7 +34,7 @@ RECALL_KS: tuple[int, ...] = (1, 10, 50)
 """K of the prefilter's recall@K."""
 #: The geometric check's figures recorded for each query's final place.
 CHECK_FIGURES: tuple[str, ...] = ("fitness", "consistency", "matched_length", "margin",
-                                  "degeneracy")
+                                  "degeneracy", "axis_length", "axis_hold", "pinned_length")
 ALONE = "-alone"
 """Suffix of a row that runs one matcher over the whole database (``flirt-alone``)."""
 

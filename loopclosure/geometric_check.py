@@ -77,7 +77,11 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
 - ``degeneracy >= min_degeneracy``: no direction left unconstrained (a corridor
   seen twice matches anywhere along its axis; with ``longer_keyframes`` the loop
   detector checks a prior-free candidate rejected by this rule or the next again on
-  longer submaps, `loopclosure.longer_check`);
+  longer submaps, `loopclosure.longer_check`).  With ``pinned_degenerate`` a
+  correlative check below either degeneracy bar is judged instead by what pins it
+  along its weak axis: the surface that stops matching when the fit slides one
+  ambiguity distance along that axis (`pinned_length`) must reach
+  `min_matched_length`, the floor the whole fit must match;
 - when a prior relative pose with covariance is given (a pose-gated, local
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
@@ -206,6 +210,20 @@ class GeometricCheckConfig:
             a few decimetres off whose first, short fit was already that far off
             across the corridor (the longer one agrees with it), and a few metres of
             path still fit a look-alike corridor elsewhere.
+        pinned_degenerate: a correlative check below `min_degeneracy` (or, for a
+            partial overlap, `min_degeneracy_partial`) is judged instead by the
+            surface that pins it along its weak axis: accepted by that rule when
+            sliding the fit one ambiguity distance along the axis un-matches at least
+            `min_matched_length` of surface (`pinned_length`).  The degeneracy is a
+            ratio: a partial overlap of a long corridor whose walls match over tens of
+            metres has a small one although a door jamb or a corner pins it.  Off by
+            default.
+        pinned_required: a correlative check below `min_degeneracy_partial` that the
+            degeneracy rules let through (a full overlap) must be pinned as well
+            (`pinned_length` at least `min_matched_length`): a corridor turned round
+            or slid to a look-alike stretch fits its walls fully and pins nothing.
+            With `pinned_degenerate`, the pin alone judges every fit below
+            `min_degeneracy_partial`.  Off by default.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -241,6 +259,8 @@ class GeometricCheckConfig:
     )
     longer_keyframes: int = 0
     longer_path_m: float = 0.0
+    pinned_degenerate: bool = False
+    pinned_required: bool = False
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:
@@ -268,6 +288,14 @@ class LoopVerification:
             check, `GeometricCheckConfig.min_matched_length`; NaN otherwise).
         degenerate_axis: ``(2,)`` unit direction of the best run's least translational
             information, the candidate's frame (zeros when no ICP ran).
+        axis_length: length of matched surface facing `degenerate_axis` [m]
+            (`axis_length`; correlative check, NaN otherwise).
+        axis_hold: the hits of the free-space test with the fit slid by the search's
+            ``axis_shift`` along `degenerate_axis` (the larger of the two ways) over
+            the hits at the fit (`loopclosure.prior_free.axis_profile`; correlative
+            check, NaN otherwise).
+        pinned_length: the surface that stops matching when the fit is so slid [m]
+            (`pinned_length`; correlative check, NaN otherwise).
     """
 
     accepted: bool
@@ -284,6 +312,50 @@ class LoopVerification:
     conflict_ratio: float = float("nan")
     matched_length: float = float("nan")
     degenerate_axis: Array = field(default_factory=lambda: np.zeros(2))
+    axis_length: float = float("nan")
+    axis_hold: float = float("nan")
+    pinned_length: float = float("nan")
+
+
+def pinned_length(hits: int, slid_hits: ArrayLike, voxel: float) -> float:
+    """Length of surface that pins a fit along its weakest direction [m].
+
+    ``hits``: the free-space test's hits at the fit (points of either submap within
+    the tolerance of the other, both directions, `loopclosure.free_space` (2));
+    ``slid_hits``: the same with the fit slid one ambiguity distance either way along
+    its degenerate axis (`loopclosure.prior_free.axis_profile`).  The hits the better
+    slide loses, each a point standing for ``voxel`` [m] of surface, halved (both
+    directions count each matched stretch once per submap):
+
+        pinned = (hits - max(slid_hits)) * voxel / 2
+
+    A plain corridor loses only its walls' ends (the slide per wall end); a corner,
+    a door jamb or a gap between walls that the other pass saw at the same place
+    loses all its hits.  NaN without slid hits.
+    """
+    slid = np.asarray(slid_hits, dtype=float).reshape(-1)
+    if len(slid) == 0:
+        return float("nan")
+    return float((hits - slid.max()) * voxel / 2)
+
+
+def axis_length(hessian: ArrayLike, voxel: float) -> float:
+    """Length of matched surface facing the fit's weakest direction [m].
+
+    ``hessian`` is ICP's ``3x3`` data Hessian ``sum_i w_i J_i^T J_i`` of its
+    point-to-line rows (``J_i = [n_i^T, n_i^T R' p_i]``, unit normals, robust weights
+    ``w_i``); the translational information with the rotation marginalised (its Schur
+    complement) has smallest eigenvalue ``lambda = sum_i w_i (n_i . a)^2`` along the
+    weakest direction ``a``: a weighted count of matched points whose surface faces
+    ``a``.  Each point stands for ``voxel`` [m] of surface (the query is voxelised so),
+    so ``lambda * voxel`` is that surface's length.  Unlike the degeneracy (``lambda``
+    over the trace), it does not fall when more of the other direction's walls match.
+    """
+    h = np.asarray(hessian, dtype=float).reshape(3, 3)
+    h_tt = h[:2, :2]
+    if h[2, 2] > 1e-12:
+        h_tt = h_tt - np.outer(h[:2, 2], h[2, :2]) / h[2, 2]
+    return float(max(np.linalg.eigvalsh(0.5 * (h_tt + h_tt.T))[0], 0.0) * voxel)
 
 
 def _offset_grid(step: float) -> Array:
@@ -360,6 +432,11 @@ def _verify_correlative(
     reason = "accepted"
     partial = best.fitness < cfg.min_fitness or best.inlier_ratio < cfg.min_inlier_ratio
     matched = best.fitness * multi.source_points * cfg.source_voxel
+    pinned = pinned_length(free.hits, multi.axis_hits,
+                           0.5 * (cfg.source_voxel + cfg.search.submap_voxel))
+    # A fit the slide along its weak axis un-matches as much surface as the check's
+    # floor is pinned there, however large its other direction's information.
+    held = cfg.pinned_degenerate and pinned >= cfg.min_matched_length
     if not best.ok:
         reason = "registration failed"
     elif matched < cfg.min_matched_length:
@@ -369,11 +446,15 @@ def _verify_correlative(
         reason = f"inconsistent free space ({free.consistency:.2f} < {cfg.min_consistency})"
     elif best.rms > cfg.max_rms:
         reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"
-    elif best.degeneracy < cfg.min_degeneracy:
+    elif best.degeneracy < cfg.min_degeneracy and not held:
         reason = f"{DEGENERATE} (corridor-like, {best.degeneracy:.3f})"
-    elif partial and best.degeneracy < cfg.min_degeneracy_partial:
+    elif partial and best.degeneracy < cfg.min_degeneracy_partial and not held:
         reason = (f"{PARTIAL_DEGENERATE} {best.fitness:.2f} and degenerate "
                   f"(corridor-like, {best.degeneracy:.3f})")
+    elif (cfg.pinned_required and best.degeneracy < cfg.min_degeneracy_partial
+          and not pinned >= cfg.min_matched_length):
+        reason = (f"{DEGENERATE} and not pinned (corridor-like, {best.degeneracy:.3f}, "
+                  f"{pinned:.1f} m pinned)")
     elif margin < required_margin(best.fitness, cfg):
         reason = f"ambiguous (fitness margin {margin:.2f})"
     elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
@@ -387,6 +468,10 @@ def _verify_correlative(
         hypotheses=len(multi.results), consistency=float(free.consistency),
         conflict_ratio=float(free.conflict_ratio), matched_length=float(matched),
         degenerate_axis=np.asarray(best.degenerate_axis, dtype=float).copy(),
+        axis_length=axis_length(best.hessian, cfg.source_voxel) if best.ok else float("nan"),
+        axis_hold=(float(np.max(multi.axis_hits)) / free.hits
+                   if len(multi.axis_hits) and free.hits else float("nan")),
+        pinned_length=pinned,
     )
 
 

@@ -85,6 +85,9 @@ class PriorFreeConfig:
         free_margin: free space ends this far before an observed range [m].
         free_bins: bearing sectors of the free-space model.
         submap_voxel: voxel of the candidate's points in the consistency test [m].
+        axis_shift: slide of the best run along its degenerate axis in `axis_profile`
+            [m]: the check's ``ambiguity_distance``, beyond which a pose is another
+            answer.
     """
 
     angle_window_deg: float = 10.0
@@ -110,6 +113,7 @@ class PriorFreeConfig:
     free_margin: float = 0.3
     free_bins: int = 720
     submap_voxel: float = 0.1
+    axis_shift: float = 0.5
 
 
 @dataclass(slots=True)
@@ -122,12 +126,37 @@ class PriorFreeMatch:
         peak_scores: ``(k,)`` fine lattice score of each run's start.
         source_points: points of the query given to ICP (voxelised to the check's
             ``source_voxel``): a run's fitness times this is its matched point count.
+        axis_hits: ``(2,)`` hits of (2) (`loopclosure.free_space`) with the best run's
+            pose moved by ``-axis_shift`` and ``+axis_shift`` [m] along its degenerate
+            axis (`axis_profile`; empty when the best run failed); at the pose itself
+            they are ``consistency[0].hits``.
     """
 
     results: list[IcpResult] = field(default_factory=list)
     consistency: list[Consistency] = field(default_factory=list)
     peak_scores: Array = field(default_factory=lambda: np.zeros(0))
     source_points: int = 0
+    axis_hits: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
+
+
+def axis_profile(query: Submap, candidate: Submap, pose: ArrayLike, axis: ArrayLike,
+                 shift: float, tolerance: float, margin: float) -> NDArray[np.intp]:
+    """``(2,)`` hits of the fit slid along its weakest direction.
+
+    The hits of `loopclosure.free_space` (2) (points within `tolerance` [m] of the
+    other submap, both directions) at `pose` (query in the candidate's frame) moved by
+    ``-shift`` and ``+shift`` [m] along the unit `axis` (candidate frame).  Against
+    the hits at `pose` itself: about as many where the submaps match as well one slide
+    away (nothing pins the position along the axis; a plain corridor loses only its
+    walls' ends), fewer by the surface that crosses the axis (a corner, a door jamb,
+    an end wall, a gap between walls) and holds the fit where it is.
+    """
+    t = np.asarray(pose, dtype=float).reshape(3)
+    a = np.asarray(axis, dtype=float).reshape(2)
+    moved = np.repeat(t[None], 2, axis=0)
+    moved[:, :2] += np.outer([-shift, shift], a)
+    return np.array([consistency(query, candidate, m, tolerance, margin).hits
+                     for m in moved], dtype=np.intp)
 
 
 def _cached(target: RegistrationTarget, key: tuple, make):
@@ -245,4 +274,9 @@ def match_prior_free(
     query_submap = Submap.of(source, cfg.free_bins)
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
-    return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source))
+    best = results[order[0]]
+    hits = (axis_profile(query_submap, cand_submap, best.pose, best.degenerate_axis,
+                         cfg.axis_shift, cfg.consistency_tolerance, cfg.free_margin)
+            if best.ok else np.zeros(0, np.intp))
+    return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source),
+                          hits)

@@ -257,6 +257,7 @@ def test_report_outputs(bench: lb.LoopBench, tmp_path: Path) -> None:
     assert lines[0].endswith("prefilter_rank,nearest_key,nearest_m,nearest_dtheta_deg,"
                              "nearest_overlap,check_fitness,check_consistency,"
                              "check_matched_length,check_margin,check_degeneracy,"
+                             "check_axis_length,check_axis_hold,check_pinned_length,"
                              "accepted_places,reference_sigma_m,reference_sigma_deg,"
                              "unverifiable")
     rows = list(csv.DictReader(io.StringIO(paths["queries"].read_text())))
