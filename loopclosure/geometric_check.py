@@ -293,9 +293,9 @@ class LoopVerification:
         axis_hold: the hits of the free-space test with the fit slid by the search's
             ``axis_shift`` along `degenerate_axis` (the larger of the two ways) over
             the hits at the fit (`loopclosure.prior_free.axis_profile`; correlative
-            check, NaN otherwise).
+            check below a degeneracy bar, NaN otherwise).
         pinned_length: the surface that stops matching when the fit is so slid [m]
-            (`pinned_length`; correlative check, NaN otherwise).
+            (`pinned_length`; correlative check below a degeneracy bar, NaN otherwise).
     """
 
     accepted: bool
@@ -416,7 +416,8 @@ def _verify_correlative(
     """The prior-free check by correlative search (`loopclosure.prior_free`)."""
     multi = match_prior_free(query_points, candidate, headings=headings,
                              max_distance=max_distance, source_voxel=cfg.source_voxel,
-                             icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp)
+                             icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp,
+                             profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial))
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),

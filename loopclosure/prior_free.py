@@ -219,6 +219,7 @@ def match_prior_free(
     icp: IcpConfig,
     config: PriorFreeConfig | None = None,
     compiled: bool = False,
+    profile_below: float = 1.0,
 ) -> PriorFreeMatch:
     """Search, peaks, ICP and consistency (module docstring).
 
@@ -232,6 +233,8 @@ def match_prior_free(
         config: the search's parameters (default `PriorFreeConfig()`).
         compiled: ICP by `loopclosure.fast_icp.register_target` (the same maths,
             numba) instead of `loopclosure.registration.register`.
+        profile_below: the best run's `axis_profile` only when its degeneracy is
+            below this (the default: always; the check asks below its bars only).
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -277,6 +280,6 @@ def match_prior_free(
     best = results[order[0]]
     hits = (axis_profile(query_submap, cand_submap, best.pose, best.degenerate_axis,
                          cfg.axis_shift, cfg.consistency_tolerance, cfg.free_margin)
-            if best.ok else np.zeros(0, np.intp))
+            if best.ok and best.degeneracy < profile_below else np.zeros(0, np.intp))
     return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source),
                           hits)
