@@ -50,12 +50,12 @@ def test_lm_budget_hands_an_unconverged_solve_to_dogleg() -> None:
     assert abs(factors.error(result) - factors.error(free)) < 1e-6 * max(1.0, factors.error(free))
 
 
-def _chain_with_loop(false_loop: bool):
-    """The square graph's anchor and odometry in an `IsamPrefix`, one loop added after
-    the chain is solved: the given first loop, or the same loop moved 5 m off."""
+def square_chain_prefix(isam: IsamPrefix):
+    """The square graph (three laps, 0.02 noise), its anchor and odometry added to
+    `isam` with the odometry chain's poses: ``(graph, factors)``, `factors` the same
+    anchor and odometry factors."""
     graph, _ = _square_graph(noise=0.02, laps=3)
     values = graph.gtsam_values(initial_guess(graph, "odometry"))
-    isam = IsamPrefix(max_updates=1)
     factors = gtsam.NonlinearFactorGraph()
     for key in graph.anchor_keys():
         factors.add(graph.prior_factor(key))
@@ -65,6 +65,14 @@ def _chain_with_loop(false_loop: bool):
         isam.add(factors.at(k))
     for key in graph.keys:
         isam.insert(key, values.atPose2(key))
+    return graph, factors
+
+
+def _chain_with_loop(false_loop: bool):
+    """The square graph's anchor and odometry in an `IsamPrefix`, one loop added after
+    the chain is solved: the given first loop, or the same loop moved 5 m off."""
+    isam = IsamPrefix(max_updates=1)
+    graph, factors = square_chain_prefix(isam)
     current = isam.solve()
     loop = graph.loops[0]
     if false_loop:

@@ -12,24 +12,14 @@ from slam.least_squares import StickySolver
 from slam.optimize import initial_guess
 from slam.pose_graph import Constraint, PoseGraph
 from tests.test_admission_confirm import _square
-from tests.test_backend import _square_graph
+from tests.test_consistency_prefix import square_chain_prefix
 
 
 def _chain() -> tuple[IsamPrefix, gtsam.NonlinearFactorGraph, gtsam.Values, object]:
     """The square graph's anchor and odometry solved in an `IsamPrefix`, and its first
     loop moved 5 m off (a false loop)."""
-    graph, _ = _square_graph(noise=0.02, laps=3)
-    values = graph.gtsam_values(initial_guess(graph, "odometry"))
     isam = IsamPrefix()
-    factors = gtsam.NonlinearFactorGraph()
-    for key in graph.anchor_keys():
-        factors.add(graph.prior_factor(key))
-    for o in graph.odometry:
-        factors.add(graph.between_factor(o))
-    for k in range(factors.size()):
-        isam.add(factors.at(k))
-    for key in graph.keys:
-        isam.insert(key, values.atPose2(key))
+    graph, factors = square_chain_prefix(isam)
     loop = graph.loops[0]
     false = Constraint(loop.i, loop.j, loop.measurement + np.array([5.0, 0.0, 1.0]),
                        loop.information)
