@@ -3,8 +3,8 @@
 Run from the repository root::
 
     python benchmarks/place_query_scaling.py [--data DIR] [--scans N]
-        [--sizes 1000,2500,5000,10000] [--queries Q] [--viewpoints V [--query-viewpoints]]
-        [--baseline REV [--repeat R]]
+        [--sizes 1000,2500,5000,10000] [--queries Q] [--viewpoints V [--query-viewpoints]
+        [--no-stored-viewpoints] [--viewpoint-order min|interleave]] [--baseline REV [--repeat R]]
 
 Every 5th of the Intel log's scans (``carmen/intel.clf.bz2``), up to N of them, is
 made a place (`loopclosure.polygon.polygon_from_scan`) and described once with the
@@ -26,7 +26,9 @@ in for them; the cost is the same), and with ``--query-viewpoints`` every query
 carries V of its own and the database compares them too
 (`PlaceDatabaseConfig.query_viewpoints`); ``--no-stored-viewpoints`` then leaves the
 entries' viewpoints unscreened (`PlaceDatabaseConfig.stored_viewpoints`: the
-viewpoints on the query's side only).
+viewpoints on the query's side only), and ``--viewpoint-order interleave`` ranks by
+the own description's list and the viewpoints' smallest interleaved
+(`PlaceDatabaseConfig.viewpoint_order`).
 
 With ``--baseline REV`` the same measurement runs R times (default 3) in fresh
 processes with the code of revision REV (``git archive``) and with the working tree,
@@ -50,8 +52,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
             verbose: bool = True, viewpoints: int = 0,
-            query_viewpoints: bool = False, stored_viewpoints: bool = True
-            ) -> dict[int, float]:
+            query_viewpoints: bool = False, stored_viewpoints: bool = True,
+            viewpoint_order: str = "min") -> dict[int, float]:
     """CPU ms per query for every database size (module docstring), with the code
     on ``sys.path``."""
     import numpy as np
@@ -95,7 +97,8 @@ def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
     out: dict[int, float] = {}
     for m in sizes:
         db = PlaceDatabase(PlaceDatabaseConfig(query_viewpoints=query_viewpoints,
-                                               stored_viewpoints=stored_viewpoints))
+                                               stored_viewpoints=stored_viewpoints,
+                                               viewpoint_order=viewpoint_order))
         for key in range(m):
             db.add_descriptors(key, with_views(described[key % n], key), stamp=float(key))
         db.query(asked[0], headings=False)  # warm-up: scales, stacks, compiled kernels
@@ -144,6 +147,7 @@ def main() -> None:
     parser.add_argument("--query-viewpoints", action="store_true")
     parser.add_argument("--no-stored-viewpoints", action="store_true",
                         help="the stored keyframes' viewpoints are not screened")
+    parser.add_argument("--viewpoint-order", default="min", choices=("min", "interleave"))
     parser.add_argument("--baseline", help="a revision to compare with (git archive)")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -159,7 +163,8 @@ def main() -> None:
         return
     measure(args.data, args.scans, sizes, args.queries, viewpoints=args.viewpoints,
             query_viewpoints=args.query_viewpoints,
-            stored_viewpoints=not args.no_stored_viewpoints)
+            stored_viewpoints=not args.no_stored_viewpoints,
+            viewpoint_order=args.viewpoint_order)
 
 
 if __name__ == "__main__":

@@ -234,8 +234,10 @@ def _cascade_rows(
 
     With the detector's wide view (`wide`, when the query has a wide description):
     a prefilter row orders the keyframes by their two views' ranks interleaved
-    (`interleaved_order`), and ``fused`` is the union of the two views' queries
-    (`loopclosure.place_choice.merge_views`), as the detector asks."""
+    (`interleaved_order`; the own view's two lists with
+    ``viewpoint_order="interleave"``, `PlaceDatabase.prefilter_lists`), and ``fused``
+    is the union of the two views' queries (`loopclosure.place_choice.merge_views`),
+    as the detector asks."""
     cfg = db.config
     verifier_rows = [f"{v}@{cfg.top_k}" for v in cfg.verifiers]
     db.scales  # noqa: B018 -- a due re-estimate of the scales runs here, outside the timers
@@ -257,6 +259,8 @@ def _cascade_rows(
             scattered[at] = d
             views[r].append(scattered)
     t_pre = time.perf_counter() - t
+    if cfg.viewpoint_order != "min":  # the own view ranks by two lists (place_shortlist)
+        views["prefilter"][:1] = db.prefilter_lists(desc, sel)
     for r, per_view in views.items():
         order, d = interleaved_order(per_view)
         top = order[:kmax]

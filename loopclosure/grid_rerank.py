@@ -103,10 +103,14 @@ def dilated_similarity(query_dilated: ArrayLike, stored_dilated: ArrayLike,
 
 
 def union_of_rankings(prefilter: ArrayLike, similarity: ArrayLike, k: int, extra: int,
-                      weight: float) -> NDArray[np.intp]:
+                      weight: float, ordered: bool = False) -> NDArray[np.intp]:
     """Positions of the candidates among a shortlist (module docstring): the `k`
     smallest `prefilter` distances p and, of the rest, the `extra` smallest
     ``p - weight * similarity``; returned in increasing p (ties by position).
+    `ordered`: the shortlist is in the query's own order already (an interleave of
+    rankings, `loopclosure.place_shortlist.rank_interleave`): its first `k`
+    positions take the place of the `k` smallest p, and the result is in position
+    order.
 
     Raises:
         UserError: the two arrays differ in length, or k, extra or weight is negative.
@@ -117,7 +121,7 @@ def union_of_rankings(prefilter: ArrayLike, similarity: ArrayLike, k: int, extra
         raise UserError(f"shortlist distances {p.shape} and similarities {c.shape} disagree")
     if k < 0 or extra < 0 or not weight >= 0:
         raise UserError("k, extra and weight must be >= 0")
-    by_p = np.lexsort((np.arange(len(p)), p))
+    by_p = np.arange(len(p)) if ordered else np.lexsort((np.arange(len(p)), p))
     base = by_p[:k]
     rest = by_p[k:]
     if extra and len(rest):
@@ -126,6 +130,8 @@ def union_of_rankings(prefilter: ArrayLike, similarity: ArrayLike, k: int, extra
         base = np.concatenate([base, rest])
     else:
         base = base.copy()
+    if ordered:
+        return np.sort(base)
     return base[np.lexsort((base, p[base]))]
 
 

@@ -23,6 +23,9 @@ PREFILTER_STAGES = ("fft", "ring", "pairs")
 
 FUSION_MODES = ("logistic", "rank", "verifier", "prefilter", "auto")
 
+VIEWPOINT_ORDERS = ("min", "interleave")
+"""How a query's viewpoints rank the stored keyframes (`PlaceDatabaseConfig`)."""
+
 # Default logistic model of the place database (stages "pairs" and "flirt"): fitted by
 # `loopclosure.fusion.fit_logistic` (ridge 1) on the 10 prefilter candidates of every
 # query (no pose prior; same place = within 2 m) of the simulated Box world (seed 0)
@@ -116,6 +119,14 @@ class PlaceDatabaseConfig:
             stored own descriptions only: with ``query_viewpoints`` the viewpoints
             then stand on the query's side alone, one screen of the database per
             query viewpoint instead of one per stored and query viewpoint pair).
+        viewpoint_order: how a query's own description and its viewpoints rank the
+            stored keyframes (with ``query_viewpoints``, for a query that carries
+            viewpoints): ``"min"``, by the smallest p over all the query's
+            descriptions; ``"interleave"``, the order by p of the query's own
+            description and the order by that smallest p interleaved by rank
+            (`loopclosure.place_shortlist.rank_interleave`), so the own
+            description's best places keep their ranks among the first and the
+            viewpoints' best fill the places between them.
     """
 
     prefilter: tuple[str, ...] = ("pairs",)
@@ -142,8 +153,14 @@ class PlaceDatabaseConfig:
     query_viewpoints: bool = False
     viewpoint_scores: bool = False
     stored_viewpoints: bool = True
+    viewpoint_order: str = "min"
 
     def __post_init__(self) -> None:
+        if self.viewpoint_order not in VIEWPOINT_ORDERS:
+            raise UserError(
+                f"place database: viewpoint_order must be one of "
+                f"{', '.join(VIEWPOINT_ORDERS)}, got {self.viewpoint_order!r}"
+            )
         if not self.prefilter:
             raise UserError("place database: at least one prefilter stage is needed")
         for s in self.prefilter:
@@ -221,6 +238,7 @@ __all__ = [
     "FUSION_MODES",
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
+    "VIEWPOINT_ORDERS",
     "WIDE_LOGISTIC",
     "PlaceDatabaseConfig",
 ]

@@ -93,7 +93,7 @@ from loopclosure.place_headings import HEADING, as_hypotheses, candidate_heading
 from loopclosure.place_match import CandidateSet, Descriptors, PlaceMatch
 from loopclosure.place_rows import FloatRows, KeyIndex
 from loopclosure.place_scales import stage_scales
-from loopclosure.place_shortlist import Shortlist, rows_mask
+from loopclosure.place_shortlist import Shortlist, rank_interleave, rows_mask
 from loopclosure.place_views import (
     VIEWPOINTS,
     ViewpointRows,
@@ -334,8 +334,15 @@ class PlaceDatabase:
         with ``query_viewpoints`` (`loopclosure.place_views`).  `scored`: the raw
         distances the fused score sees, which are those of the two own descriptions
         unless ``viewpoint_scores``."""
+        return self._exact_both(q, rows, scored)[1:]
+
+    def _exact_both(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
+                    ) -> tuple[Array, Array, dict[str, Array]]:
+        """`_exact_prefilter` with, first, p of the query's own description alone (over
+        the rows' own descriptions and stored viewpoints)."""
         best: tuple[Array, dict[str, Array]] | None = None
         own_raw: dict[str, Array] | None = None
+        p_own: Array | None = None
         for vectors in self._query_vectors(q):
             raw = {s: self._stores[s].exact_distances(v, rows) for s, v in vectors.items()}
             own_raw = raw if own_raw is None else own_raw
@@ -343,10 +350,27 @@ class PlaceDatabase:
             if len(self._views):
                 cur = with_viewpoints(cur, self._views.exact(vectors, rows, self._combine))
             best = cur if best is None else with_viewpoints(best, cur)
-        assert best is not None and own_raw is not None
+            p_own = best[0] if p_own is None else p_own
+        assert best is not None and own_raw is not None and p_own is not None
         if scored and not self.config.viewpoint_scores:
-            return best[0], own_raw
-        return best
+            return p_own, best[0], own_raw
+        return p_own, best[0], best[1]
+
+    def _interleaved(self, q: Descriptors) -> bool:
+        """Whether query `q` ranks by two lists (``viewpoint_order="interleave"``)."""
+        return (self.config.viewpoint_order == "interleave" and self.config.query_viewpoints
+                and q.get(VIEWPOINTS) is not None)
+
+    def prefilter_lists(self, query: Polygon | Descriptors, rows: NDArray[np.intp] | None = None
+                        ) -> list[Array]:
+        """The exact distance lists a query ranks `rows` (default: all) by: ``[p]``,
+        or with ``viewpoint_order="interleave"`` ``[p of the own description, p]``
+        (`loopclosure.place_shortlist.rank_interleave` orders them)."""
+        q = self._query_descriptors(query)
+        self._refresh_scales()
+        rows = np.arange(len(self)) if rows is None else rows
+        p_own, p, _ = self._exact_both(q, rows)
+        return [p_own, p] if self._interleaved(q) else [p]
 
     def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
         """The query's prefilter vectors: its own, then (``query_viewpoints``) those of
@@ -385,6 +409,21 @@ class PlaceDatabase:
             np.minimum(combined, self._views.screen(sets, factors, m), out=combined)
         return combined
 
+    def _screen_lists(self, q: Descriptors) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """`_screen` of the query's own description alone and of all its descriptions
+        (fresh arrays, no scratch buffer)."""
+        self._refresh_scales()
+        m = len(self)
+        factors = {s: self._weights[i] / self._scales[i]
+                   for i, s in enumerate(self.config.prefilter)}
+        sets = self._query_vectors(q)
+        own = screen_sets(self._stores, sets[:1], factors)
+        others = screen_sets(self._stores, sets[1:], factors)
+        if len(self._views):
+            np.minimum(own, self._views.screen(sets[:1], factors, m), out=own)
+            np.minimum(others, self._views.screen(sets[1:], factors, m), out=others)
+        return own, np.minimum(own, others)
+
     def candidates(
         self,
         polygon_or_descriptors: Polygon | Descriptors,
@@ -422,6 +461,8 @@ class PlaceDatabase:
         and stage distances, in increasing p (ties by row)."""
         m = len(self)
         n = self._shortlist_size(q, k)
+        if self._interleaved(q):
+            return self._interleaved_shortlist(q, mask, n, keep_prefilter)
         if mask is not None and mask.sum() * 4 < m:
             rows = np.flatnonzero(mask)
             part, _ = self.prefilter_distances(q, rows)
@@ -440,6 +481,31 @@ class PlaceDatabase:
         similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
         return Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
                           similarity, combined)
+
+    def _interleaved_shortlist(self, q: Descriptors, mask: NDArray[np.bool_] | None, n: int,
+                               keep_prefilter: bool) -> Shortlist:
+        """`_shortlist` of a query ranking by two lists: the first `n` rows of the
+        interleave (`rank_interleave`) of its own description's p and the smallest
+        p, taken from the union of each list's `n` smallest (screened, then exact)."""
+        m = len(self)
+        if mask is not None and mask.sum() * 4 < m:
+            rows = np.flatnonzero(mask)
+            part_own, part, _ = self._exact_both(q, rows)
+            own, every = np.full(m, np.inf), np.full(m, np.inf)
+            own[rows], every[rows] = part_own, part
+        else:
+            own, every = self._screen_lists(q)
+            if mask is not None:
+                own[~mask] = np.inf
+                every[~mask] = np.inf
+        n = min(n, m if mask is None else int(mask.sum()))
+        pick = np.union1d(smallest_k(own, n), smallest_k(every, n)).astype(np.intp)
+        p_own, pre, raw = self._exact_both(q, pick, scored=True)
+        order = rank_interleave([p_own, pre])[:n]
+        pick = pick[order]
+        similarity = self._grid_similarity(q, pick) if self._extra_on(q) else None
+        return Shortlist(pick, pre[order], {s: d[order] for s, d in raw.items()}, similarity,
+                         every.astype(np.float64) if keep_prefilter else None, ordered=True)
 
     def _shortlist_size(self, q: Descriptors, k: int) -> int:
         """Rows a query with K candidates ranks exactly: K, or the grids' shortlist."""
@@ -518,6 +584,7 @@ class PlaceDatabase:
         k = self.config.top_k
         last = self._last_stored
         if (last is None or last[0] != key or last[1] != self._scales_at
+                or self._interleaved(q)
                 or not np.isin(last[2], rows, assume_unique=True).all()):
             short = self._shortlist(q, rows_mask(rows, len(self)), k, False)
             known: dict[int, PlaceMatch] = {}

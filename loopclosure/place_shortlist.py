@@ -7,6 +7,17 @@ similarities c; `Shortlist.chosen` picks the candidates among them
 (`loopclosure.grid_rerank.union_of_rankings`: the K smallest p and up to
 ``grid_extra`` more by p - w c), and `Shortlist.merged` joins the shortlists of two
 disjoint row sets (`PlaceDatabase.query_stored` screening only newly allowed rows).
+
+A query that ranks the rows by two lists of distances (its own description's p and
+the smallest p over its offset viewpoints, `PlaceDatabaseConfig.viewpoint_order`)
+orders them by `rank_interleave`: row j's place is its best rank in any list,
+
+    r(j) = min_l rank_l(j)        (rank_l: 0 for list l's smallest distance),
+
+ties by the smaller distance of the lists ranking it so, then by row.  The first
+2 n rows of two lists hold both lists' n best, whatever the lists' distances are:
+a list whose distances run lower (a minimum over more descriptions) cannot crowd
+the other's best rows out.
 """
 
 from __future__ import annotations
@@ -22,6 +33,20 @@ from loopclosure.place_config import PlaceDatabaseConfig
 Array = NDArray[np.float64]
 
 
+def rank_interleave(per_list: list[NDArray[np.floating]] | NDArray[np.floating]
+                    ) -> NDArray[np.intp]:
+    """Positions ordered by their best rank over several distance lists (module
+    docstring; ``inf``: the list does not hold the row, never ranked by it)."""
+    d = np.atleast_2d(np.asarray(per_list, dtype=float))
+    ranks = np.full(d.shape, np.inf)
+    for i, dist in enumerate(d):
+        finite = np.flatnonzero(np.isfinite(dist))
+        ranks[i, finite[np.argsort(dist[finite], kind="stable")]] = np.arange(len(finite))
+    best = ranks.min(axis=0)
+    distance = np.where(ranks == best, d, np.inf).min(axis=0)
+    return np.lexsort((np.arange(d.shape[1]), distance, best))
+
+
 def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
     """Boolean mask ``(m,)`` over insertion order holding `rows`."""
     mask = np.zeros(m, bool)
@@ -32,23 +57,26 @@ def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
 @dataclass(slots=True, frozen=True)
 class Shortlist:
     """The rows a query chooses its candidates from (`PlaceDatabase._shortlist`), in
-    increasing p (ties by row): insertion rows, exact p, exact raw prefilter stage
-    distances, grid similarity c (None without the grids' candidates), and p of
-    every row when asked (`CandidateSet.prefilter_all`)."""
+    increasing p (ties by row), or in `rank_interleave` order when `ordered`:
+    insertion rows, exact p, exact raw prefilter stage distances, grid similarity c
+    (None without the grids' candidates), and p of every row when asked
+    (`CandidateSet.prefilter_all`)."""
 
     rows: NDArray[np.intp]
     prefilter: Array
     raw: dict[str, Array]
     similarity: Array | None
     prefilter_all: Array | None
+    ordered: bool = False
 
     def chosen(self, k: int, config: PlaceDatabaseConfig) -> NDArray[np.intp]:
         """Positions of the candidates (`loopclosure.grid_rerank.union_of_rankings`;
-        the first K without grid similarities), in increasing p."""
+        the first K without grid similarities), in increasing p (in the shortlist's
+        order when `ordered`)."""
         if self.similarity is None:
             return np.arange(min(k, len(self.rows)))
         return union_of_rankings(self.prefilter, self.similarity, k, config.grid_extra,
-                                 config.grid_weight)
+                                 config.grid_weight, ordered=self.ordered)
 
     def merged(self, other: Shortlist, size: int) -> Shortlist:
         """The shortlist of both shortlists' rows (disjoint): the `size` smallest p."""
@@ -62,4 +90,4 @@ class Shortlist:
                           similarity, None)
 
 
-__all__ = ["Shortlist", "rows_mask"]
+__all__ = ["Shortlist", "rank_interleave", "rows_mask"]

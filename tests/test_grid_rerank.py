@@ -127,3 +127,12 @@ def test_similarity_skips_the_rings_the_query_leaves_empty() -> None:
                                atol=1e-5)
     empty = np.zeros_like(query)
     np.testing.assert_array_equal(dilated_similarity(empty, stored, counts), 0.0)
+
+
+def test_union_of_rankings_in_the_shortlists_own_order() -> None:
+    p = np.array([0.5, 0.1, 0.3, 0.2])
+    c = np.array([0.0, 0.0, 0.0, 1.0])
+    # ordered: the first two positions, then the best of the rest by p - c (position 3)
+    np.testing.assert_array_equal(union_of_rankings(p, c, 2, 1, 1.0, ordered=True), [0, 1, 3])
+    # by p: positions 1 and 3, then position 2 (0.3 < 0.5), in increasing p
+    np.testing.assert_array_equal(union_of_rankings(p, c, 2, 1, 1.0), [1, 3, 2])

@@ -8,6 +8,7 @@ import pytest
 
 from data.errors import UserError
 from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_shortlist import rank_interleave
 from loopclosure.place_views import VIEWPOINTS, ViewpointRows
 from loopclosure.polygon import Polygon
 from loopclosure.viewpoints import (
@@ -183,3 +184,37 @@ def test_viewpoints_on_the_query_side_only() -> None:
     p, _ = db.prefilter_distances(query)
     assert p[2] == pytest.approx(0.0, abs=1e-9) and p[1] > 0.1
     assert db.candidates(query).indices[0] == 2
+
+
+def test_rank_interleave_orders_by_best_rank_then_distance() -> None:
+    a = np.array([0.1, 0.5, 0.3, np.inf])
+    b = np.array([0.9, 0.2, 0.8, 0.05])
+    # ranks in a: rows 0, 2, 1; in b: rows 3, 1, 2, 0 -> best ranks 0, 1, 1, 0
+    np.testing.assert_array_equal(rank_interleave([a, b]), [3, 0, 1, 2])
+    np.testing.assert_array_equal(rank_interleave([a]), [0, 2, 1, 3])
+
+
+def test_interleaved_viewpoint_order_keeps_the_own_descriptions_best() -> None:
+    """Two query viewpoints identical to rooms 3 and 4 take the first two places by the
+    smallest distance; interleaved, the own description's nearest (room 0) keeps one."""
+    rooms = [_square(s) for s in (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)]
+    found = {}
+    for order in ("min", "interleave"):
+        db = PlaceDatabase(prefilter=("pairs",), verifiers=(), fusion="prefilter",
+                           grid_headings=0, n_headings=0, top_k=2, query_viewpoints=True,
+                           viewpoint_order=order)
+        for key, room in enumerate(rooms):
+            db.add(key, room)
+        query = db.describe(_square(2.1))
+        query[VIEWPOINTS] = {"pairs": np.stack([np.asarray(db.describe(rooms[i])["pairs"])
+                                                for i in (3, 4)])}
+        lists = db.prefilter_lists(query)
+        assert len(lists) == (2 if order == "interleave" else 1)
+        assert int(np.argmin(lists[0])) == (0 if order == "interleave" else 3)
+        found[order] = sorted(int(i) for i in db.candidates(query).indices)
+        # a masked query (few rows allowed: exact distances, no screening) agrees
+        few = db.candidates(query, allowed=[0, 3, 4, 5]).indices
+        assert sorted(int(i) for i in few) == found[order]
+    assert found == {"min": [3, 4], "interleave": [0, 3]}
+    with pytest.raises(UserError):
+        PlaceDatabase(prefilter=("pairs",), verifiers=(), viewpoint_order="mean")
