@@ -83,13 +83,31 @@ def stored_factors(keys: np.ndarray, own_m: np.ndarray, has_own: np.ndarray,
     return out
 
 
+def grids_of(scans: dict, config: PipelineConfig) -> dict[int, np.ndarray]:
+    """Dilated polar occupancy grid of every scan that makes a polygon, as the place
+    database stores it (`loopclosure.place_grids.polar_grid`)."""
+    from loopclosure.grid_rerank import dilate_polar
+    from loopclosure.place_grids import polar_grid, unpack_grid
+    from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
+
+    cfg = config.loops.database
+    out = {}
+    for k, scan in scans.items():
+        try:
+            poly = polygon_from_scan(scan, config.loops.polygon)
+        except DegeneratePolygonError:
+            continue
+        out[k] = dilate_polar(unpack_grid(polar_grid(poly, cfg), cfg))
+    return out
+
+
 def first_hit(order: np.ndarray, near: np.ndarray, finite: np.ndarray) -> int:
     hit = np.flatnonzero(near[order] & finite[order])
     return int(hit[0]) if len(hit) else pm.BIG
 
 
 def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: int,
-          explain: bool) -> dict[str, np.ndarray]:
+          explain: bool, grid: bool = False) -> dict[str, np.ndarray]:
     matcher = PairHistogramMatcher()
     own = pm.describe_all(data["own"], config, matcher)
     wide = pm.describe_all(data["wide"], config, matcher)
@@ -99,6 +117,8 @@ def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: in
     own_m = np.array([own.get(int(k), np.zeros(dim)) for k in keys])
     has_own = np.array([int(k) in own for k in keys])
     factors = stored_factors(keys, own_m, has_own, vecs, owner, knn)
+    grid_own = grids_of(data["own"], config) if grid else None
+    grid_wide = grids_of(data["wide"], config) if grid else None
     wide_keys = np.array(sorted(wide), np.intp)
     wide_m = np.array([wide[int(k)] for k in wide_keys]) if len(wide_keys) else None
     out: dict[str, list[int]] = {}
@@ -145,6 +165,13 @@ def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: in
         for name, per in variants.items():
             order = interleaved_order(per)[0]
             out.setdefault(name, []).append(first_hit(order, near, finite))
+        if grid:
+            for name, per in (("three lists, grid re-rank", [d0, qmin, other]),
+                              ("own, grid re-rank", [d0, other])):
+                order = interleaved_order(per)[0]
+                out.setdefault(name, []).append(first_hit(
+                    _grid_rerank(order, per, k, asked, keys[rows], grid_own, grid_wide),
+                    near, finite))
         if explain:
             r0 = out["own"][-1]
             for name in ("query min", "query min, scaled", "stored min",
@@ -154,6 +181,31 @@ def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: in
                     _explain(name, q, d0, dq, q_scale, smin, smin_s, other, r0, r, keys,
                              rows, near)
     return {n: np.array(v) for n, v in out.items()}
+
+
+def _grid_rerank(order, per, k, asked, row_keys, grid_own, grid_wide, pool=10):
+    """The union of each list's `pool` best re-ranked by the polar grids' similarity
+    (the larger of the own grids' and the wide grids'), then the rest of `order`."""
+    from loopclosure.grid_rerank import dilated_similarity
+
+    ranks = np.full((len(per), len(order)), pm.BIG)
+    for i, d in enumerate(per):
+        f = np.flatnonzero(np.isfinite(d))
+        ranks[i, f[np.argsort(d[f], kind="stable")]] = np.arange(len(f))
+    union = np.flatnonzero(ranks.min(axis=0) < pool)
+    c = np.zeros(len(union))
+    for mine, grids in ((k, grid_own), (asked, grid_wide)):
+        if mine is None or mine not in grids:
+            continue
+        have = [j for j, kk in enumerate(row_keys[union].tolist()) if kk in grids]
+        if not have:
+            continue
+        g = np.stack([grids[int(row_keys[union[j]])] for j in have])
+        sim = dilated_similarity(grids[mine], g, np.count_nonzero(g, axis=(1, 2)))
+        c[have] = np.maximum(c[have], sim)
+    top = union[np.argsort(-c, kind="stable")]
+    rest = order[~np.isin(order, top)]
+    return np.concatenate([top, rest])
 
 
 def _explain(name, q, d0, dq, q_scale, smin, smin_s, other, r0, r, keys, rows, near):
@@ -189,13 +241,15 @@ def main() -> None:
     ap.add_argument("--count", type=int, default=4)
     ap.add_argument("--knn", type=int, default=10)
     ap.add_argument("--explain", action="store_true")
+    ap.add_argument("--grid", action="store_true",
+                    help="also re-rank each list's 10 best by the polar grids' similarity")
     args = ap.parse_args()
     config = PipelineConfig()
     for spec in args.logs:
         t = time.perf_counter()
         data = pm.mapped(spec, config, args.cache)
         print(f"{data['name']}: {len(data['queries'])} revisits", flush=True)
-        r = study(data, config, args.radius, args.count, args.knn, args.explain)
+        r = study(data, config, args.radius, args.count, args.knn, args.explain, args.grid)
         for name, ranks in r.items():
             print(f"  {name:20s} " + " / ".join(f"{np.mean(ranks < k):.3f}" for k in KS),
                   flush=True)

@@ -119,14 +119,16 @@ class PlaceDatabaseConfig:
             stored own descriptions only: with ``query_viewpoints`` the viewpoints
             then stand on the query's side alone, one screen of the database per
             query viewpoint instead of one per stored and query viewpoint pair).
-        viewpoint_order: how a query's own description and its viewpoints rank the
-            stored keyframes (with ``query_viewpoints``, for a query that carries
-            viewpoints): ``"min"``, by the smallest p over all the query's
-            descriptions; ``"interleave"``, the order by p of the query's own
-            description and the order by that smallest p interleaved by rank
-            (`loopclosure.place_shortlist.rank_interleave`), so the own
-            description's best places keep their ranks among the first and the
-            viewpoints' best fill the places between them.
+        viewpoint_order: how the offset viewpoints (the query's, with
+            ``query_viewpoints``, and the stored keyframes') rank the stored
+            keyframes: ``"min"``, by the smallest p over every pair of descriptions;
+            ``"interleave"``, by up to three lists interleaved by rank
+            (`loopclosure.place_shortlist.rank_interleave`): p of the two own
+            descriptions, the smallest of it and the query viewpoints' p, and the
+            smallest of it and the stored viewpoints' p
+            (`PlaceDatabase.prefilter_lists`), so the own descriptions' best places
+            keep their ranks among the first and each side's viewpoints' best fill
+            the places between them.
     """
 
     prefilter: tuple[str, ...] = ("pairs",)

@@ -334,43 +334,57 @@ class PlaceDatabase:
         with ``query_viewpoints`` (`loopclosure.place_views`).  `scored`: the raw
         distances the fused score sees, which are those of the two own descriptions
         unless ``viewpoint_scores``."""
-        return self._exact_both(q, rows, scored)[1:]
+        return self._exact_lists(q, rows, scored)[1:]
 
-    def _exact_both(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
-                    ) -> tuple[Array, Array, dict[str, Array]]:
-        """`_exact_prefilter` with, first, p of the query's own description alone (over
-        the rows' own descriptions and stored viewpoints)."""
-        best: tuple[Array, dict[str, Array]] | None = None
-        own_raw: dict[str, Array] | None = None
-        p_own: Array | None = None
-        for vectors in self._query_vectors(q):
+    def _exact_lists(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
+                     ) -> tuple[list[Array], Array, dict[str, Array]]:
+        """`_exact_prefilter` with, first, the lists of `prefilter_lists`."""
+        sets = self._query_vectors(q)
+        own_raw = {s: self._stores[s].exact_distances(v, rows) for s, v in sets[0].items()}
+        own = (self._combine(own_raw), own_raw)
+        lists = [own[0]]
+        best = own
+        stored = None
+        if len(self._views):
+            stored = self._views.exact(sets[0], rows, self._combine)
+            best = with_viewpoints(own, stored)
+        from_query = own
+        for vectors in sets[1:]:
             raw = {s: self._stores[s].exact_distances(v, rows) for s, v in vectors.items()}
-            own_raw = raw if own_raw is None else own_raw
             cur = (self._combine(raw), raw)
+            from_query = with_viewpoints(from_query, cur)
             if len(self._views):
                 cur = with_viewpoints(cur, self._views.exact(vectors, rows, self._combine))
-            best = cur if best is None else with_viewpoints(best, cur)
-            p_own = best[0] if p_own is None else p_own
-        assert best is not None and own_raw is not None and p_own is not None
+            best = with_viewpoints(best, cur)
+        if self._interleaved(q):
+            if len(sets) > 1:
+                lists.append(from_query[0])
+            if stored is not None:
+                lists.append(np.minimum(own[0], stored[0]))
         if scored and not self.config.viewpoint_scores:
-            return p_own, best[0], own_raw
-        return p_own, best[0], best[1]
+            return lists, best[0], own_raw
+        return lists, best[0], best[1]
 
     def _interleaved(self, q: Descriptors) -> bool:
-        """Whether query `q` ranks by two lists (``viewpoint_order="interleave"``)."""
-        return (self.config.viewpoint_order == "interleave" and self.config.query_viewpoints
-                and q.get(VIEWPOINTS) is not None)
+        """Whether query `q` ranks by several lists (``viewpoint_order="interleave"``,
+        and viewpoints on either side)."""
+        return self.config.viewpoint_order == "interleave" and (
+            len(self._views) > 0
+            or (self.config.query_viewpoints and q.get(VIEWPOINTS) is not None))
 
     def prefilter_lists(self, query: Polygon | Descriptors, rows: NDArray[np.intp] | None = None
                         ) -> list[Array]:
-        """The exact distance lists a query ranks `rows` (default: all) by: ``[p]``,
-        or with ``viewpoint_order="interleave"`` ``[p of the own description, p]``
+        """The exact distance lists a query ranks `rows` (default: all) by: ``[p]``;
+        with ``viewpoint_order="interleave"`` p of the own descriptions, then (with
+        the query's viewpoints) the smallest of it and the query's viewpoints' p to
+        the stored own descriptions, then (with stored viewpoints) the smallest of
+        it and the query's own description's p to the stored viewpoints
         (`loopclosure.place_shortlist.rank_interleave` orders them)."""
         q = self._query_descriptors(query)
         self._refresh_scales()
         rows = np.arange(len(self)) if rows is None else rows
-        p_own, p, _ = self._exact_both(q, rows)
-        return [p_own, p] if self._interleaved(q) else [p]
+        lists, p, _ = self._exact_lists(q, rows)
+        return lists if self._interleaved(q) else [p]
 
     def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
         """The query's prefilter vectors: its own, then (``query_viewpoints``) those of
@@ -409,20 +423,20 @@ class PlaceDatabase:
             np.minimum(combined, self._views.screen(sets, factors, m), out=combined)
         return combined
 
-    def _screen_lists(self, q: Descriptors) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """`_screen` of the query's own description alone and of all its descriptions
-        (fresh arrays, no scratch buffer)."""
+    def _screen_lists(self, q: Descriptors) -> list[NDArray[np.float32]]:
+        """Float32 screens of the lists of `prefilter_lists` (fresh arrays)."""
         self._refresh_scales()
         m = len(self)
         factors = {s: self._weights[i] / self._scales[i]
                    for i, s in enumerate(self.config.prefilter)}
         sets = self._query_vectors(q)
         own = screen_sets(self._stores, sets[:1], factors)
-        others = screen_sets(self._stores, sets[1:], factors)
+        lists = [own]
+        if len(sets) > 1:
+            lists.append(np.minimum(own, screen_sets(self._stores, sets[1:], factors)))
         if len(self._views):
-            np.minimum(own, self._views.screen(sets[:1], factors, m), out=own)
-            np.minimum(others, self._views.screen(sets[1:], factors, m), out=others)
-        return own, np.minimum(own, others)
+            lists.append(np.minimum(own, self._views.screen(sets[:1], factors, m)))
+        return lists
 
     def candidates(
         self,
@@ -484,28 +498,31 @@ class PlaceDatabase:
 
     def _interleaved_shortlist(self, q: Descriptors, mask: NDArray[np.bool_] | None, n: int,
                                keep_prefilter: bool) -> Shortlist:
-        """`_shortlist` of a query ranking by two lists: the first `n` rows of the
-        interleave (`rank_interleave`) of its own description's p and the smallest
-        p, taken from the union of each list's `n` smallest (screened, then exact)."""
+        """`_shortlist` of a query ranking by several lists: the first `n` rows of the
+        lists' interleave (`rank_interleave`), taken from the union of each list's
+        `n` smallest (screened, then exact)."""
         m = len(self)
         if mask is not None and mask.sum() * 4 < m:
             rows = np.flatnonzero(mask)
-            part_own, part, _ = self._exact_both(q, rows)
-            own, every = np.full(m, np.inf), np.full(m, np.inf)
-            own[rows], every[rows] = part_own, part
+            lists = []
+            for part in self._exact_lists(q, rows)[0]:
+                full = np.full(m, np.inf)
+                full[rows] = part
+                lists.append(full)
         else:
-            own, every = self._screen_lists(q)
+            lists = self._screen_lists(q)
             if mask is not None:
-                own[~mask] = np.inf
-                every[~mask] = np.inf
+                for d in lists:
+                    d[~mask] = np.inf
         n = min(n, m if mask is None else int(mask.sum()))
-        pick = np.union1d(smallest_k(own, n), smallest_k(every, n)).astype(np.intp)
-        p_own, pre, raw = self._exact_both(q, pick, scored=True)
-        order = rank_interleave([p_own, pre])[:n]
+        pick = np.unique(np.concatenate([smallest_k(d, n) for d in lists])).astype(np.intp)
+        exact, pre, raw = self._exact_lists(q, pick, scored=True)
+        order = rank_interleave(exact)[:n]
         pick = pick[order]
         similarity = self._grid_similarity(q, pick) if self._extra_on(q) else None
+        every = np.min(np.vstack(lists), axis=0).astype(np.float64) if keep_prefilter else None
         return Shortlist(pick, pre[order], {s: d[order] for s, d in raw.items()}, similarity,
-                         every.astype(np.float64) if keep_prefilter else None, ordered=True)
+                         every, ordered=True)
 
     def _shortlist_size(self, q: Descriptors, k: int) -> int:
         """Rows a query with K candidates ranks exactly: K, or the grids' shortlist."""

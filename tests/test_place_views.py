@@ -218,3 +218,24 @@ def test_interleaved_viewpoint_order_keeps_the_own_descriptions_best() -> None:
     assert found == {"min": [3, 4], "interleave": [0, 3]}
     with pytest.raises(UserError):
         PlaceDatabase(prefilter=("pairs",), verifiers=(), viewpoint_order="mean")
+
+
+def test_interleave_ranks_stored_viewpoints_as_their_own_list() -> None:
+    """Stored viewpoints of rooms 4 and 5 identical to the query take the first two
+    places by the smallest distance; interleaved, the own descriptions' nearest
+    (room 0) keeps one of the two."""
+    rooms = [_square(s) for s in (2.0, 3.0, 4.0, 5.0, 6.0, 7.0)]
+    found = {}
+    for order in ("min", "interleave"):
+        db = PlaceDatabase(prefilter=("pairs",), verifiers=(), fusion="prefilter",
+                           grid_headings=0, n_headings=0, top_k=2, viewpoint_order=order)
+        query = db.describe(_square(2.1))
+        for key, room in enumerate(rooms):
+            desc = db.describe(room)
+            if key in (4, 5):
+                desc[VIEWPOINTS] = {"pairs": np.asarray(query["pairs"])[None]}
+            db.add_descriptors(key, desc)
+        lists = db.prefilter_lists(query)
+        assert len(lists) == (2 if order == "interleave" else 1)
+        found[order] = sorted(int(i) for i in db.candidates(query).indices)
+    assert found == {"min": [4, 5], "interleave": [0, 4]}
