@@ -338,3 +338,29 @@ def test_command_with_relations_reports_the_reference_uncertainty(
     accepted = [r for r in rows if r["check_verdict"] == "accepted"]
     assert accepted and all(float(r["reference_sigma_deg"]) > 0 for r in accepted)
     assert all(r["reference_sigma_m"] == "" for r in rows if r["check_verdict"] != "accepted")
+
+
+def test_prefilter_row_interleaves_the_viewpoint_lists(
+    sim: SimulatedRun, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With the query's viewpoints interleaved (`viewpoint_order`), the prefilter row
+    orders the own view by the database's lists (`PlaceDatabase.prefilter_lists`)."""
+    from slam.config_io import apply_overrides
+
+    config = apply_overrides(PipelineConfig(), [
+        "loops.viewpoints.radii=1.5", "loops.viewpoints.count=2",
+        "loops.database.query_viewpoints=true", "loops.database.stored_viewpoints=false",
+        "loops.database.viewpoint_order=interleave"])
+    asked = []
+    real = PlaceDatabase.prefilter_lists
+
+    def lists(self, query, rows=None):
+        out = real(self, query, rows)
+        asked.append(len(out))
+        return out
+
+    monkeypatch.setattr(PlaceDatabase, "prefilter_lists", lists)
+    bench = lb.run_loop_bench("sim", sim.scans[:200], config, _truth(sim), max_queries=8)
+    assert asked and max(asked) == 2
+    r = bench.recall_at_k["prefilter"]
+    assert 0.0 <= r[1] <= r[10] <= r[50] <= 1.0
