@@ -26,6 +26,18 @@ iterations than the screen runs although the converged optimum holds every loop;
 screen then skips a fast path that the full check accepts, and the result is the
 admission's instead of the plain optimum.  The total error's decrease over the screen's
 iterations does not tell the two apart either.
+
+`stalled_solve` is the other way to spend less on that solve: it is
+`slam.least_squares.solve` itself (the same Levenberg-Marquardt run, iteration for
+iteration, and dogleg with QR where LM fails), watched after every LM iteration, and
+given up (None) as soon as LM has stalled with most loops still above ``c``: the last
+iteration lowered the total error by less than `STALL_DECREASE` of it (relative) while
+more than half of the loops exceed ``c``.  When it is not given up it returns what
+`solve` returns, bit for bit (the watch only reads the optimizer's state).  It is not a
+proof that the converged solve fails: LM's relative decrease is not monotone (it dips
+when the damping rises and recovers after), so a graph whose loops all fall below ``c``
+only after such a dip would be given up.  Measured per cell by
+`benchmarks/fast_path_stall.py` (the full solve's trajectory and where the rule fires).
 """
 
 from __future__ import annotations
@@ -33,9 +45,54 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from slam.least_squares import dogleg_qr, lm_params
+from slam.least_squares import DOGLEG_QR, LM, dogleg_qr, lm_params
 
 SCREEN_ITERATIONS = 5  # solver iterations of the screen at most
+STALL_DECREASE = 1e-3  # `stalled_solve`: relative decrease of one LM iteration that is a stall
+
+
+class _Stalled(Exception):
+    """Raised from LM's iteration hook to end a stalled solve (`stalled_solve`)."""
+
+
+def stalled_solve(
+    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
+    loop_index: list[int], c: float, decrease: float = STALL_DECREASE,
+) -> tuple[gtsam.Values, int, str] | None:
+    """`slam.least_squares.solve(factors, values, max_iterations)`, or None when an LM
+    iteration lowers the total error by less than `decrease` (relative) while more than
+    half of the loop factors ``factors.at(k)``, k in `loop_index`, have an error above `c`
+    (gtsam units; module docstring).  Returns ``(solution, iterations, solver)`` as
+    `solve` does, bit for bit, whenever it does not give up."""
+    params = lm_params(max_iterations)
+    state: dict[str, gtsam.LevenbergMarquardtOptimizer] = {}
+
+    def watch(iteration: int, before: float, after: float) -> None:
+        if not (before > 0.0 and (before - after) / before < decrease):
+            return
+        now = state["lm"].values()
+        above = sum(factors.at(k).error(now) > c for k in loop_index)
+        if 2 * above > len(loop_index):
+            raise _Stalled
+
+    params.iterationHook = watch
+    start_error = factors.error(values)
+    best, iterations = values, 0
+    try:
+        lm = gtsam.LevenbergMarquardtOptimizer(factors, values, params)
+        state["lm"] = lm
+        result = lm.optimize()
+        iterations = lm.iterations()
+        if factors.error(result) < start_error:
+            best = result
+        if 0 < iterations < max_iterations:
+            return result, iterations, LM
+    except _Stalled:
+        return None
+    except RuntimeError:  # gtsam IndeterminantLinearSystemException
+        pass
+    dogleg = dogleg_qr(factors, best, max_iterations)
+    return dogleg.optimize(), iterations + dogleg.iterations(), DOGLEG_QR
 
 
 def majority_fails(

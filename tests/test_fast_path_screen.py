@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from data import se2
-from slam.fast_path_screen import majority_fails
+from slam.fast_path_screen import majority_fails, stalled_solve
 from slam.innovation import tls_threshold
+from slam.least_squares import solve
 from slam.optimize import initial_guess, optimize
 from tests.test_backend import INFO, _square_graph
 
@@ -78,3 +79,30 @@ def test_a_slowly_converging_consistent_graph_fails_the_screen() -> None:
     assert majority_fails(stiff, loop_index, start, c)
     optimum = solve(stiff, start, 100)[0]
     assert max(factors.at(k).error(optimum) for k in loop_index) <= c
+
+
+def _stalled(graph, decrease: float):  # type: ignore[no-untyped-def]
+    factors, loop_index = graph.factor_graph()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    return (stalled_solve(factors, values, 100, loop_index, tls_threshold(2), decrease),
+            solve(factors, values, 100))
+
+
+def test_stalled_solve_is_solve_bit_for_bit_when_it_does_not_give_up() -> None:
+    # decrease 1.0: every iteration that lowers the error is a stall, so only the
+    # majority rule keeps the consistent graph's solve going; it must then be `solve`'s.
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    for decrease in (1e-3, 1.0):
+        new, old = _stalled(graph, decrease)
+        assert new is not None
+        assert new[1:] == old[1:]
+        assert new[0].equals(old[0], 0.0)
+
+
+def test_stalled_solve_gives_up_on_a_stall_with_most_loops_above_c() -> None:
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    graph, _ = _with_false_loops(len(graph.loops) + 8)
+    new, old = _stalled(graph, 1.0)
+    assert new is None
+    factors, loop_index = graph.factor_graph()
+    assert any(factors.at(k).error(old[0]) > tls_threshold(2) for k in loop_index)
