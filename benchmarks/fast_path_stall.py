@@ -99,7 +99,8 @@ def main() -> None:
               f"the end {sum(rung.at(k).error(result) > c for k in loop_index)} "
               f"({'fails' if fails else 'passes'} this rung)", flush=True)
         for x in decreases:
-            fire = next((r for r in rows if r[3] < x and 2 * r[4] > len(loop_index)), None)
+            fire = next((r for r in rows if r[0] >= 1 and 0.0 < r[3] < x
+                         and 2 * r[4] > len(loop_index)), None)
             if fire is None:
                 print(f"  decrease {x:g}: never fires (result unchanged)")
             else:

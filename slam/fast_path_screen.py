@@ -31,13 +31,17 @@ iterations does not tell the two apart either.
 `slam.least_squares.solve` itself (the same Levenberg-Marquardt run, iteration for
 iteration, and dogleg with QR where LM fails), watched after every LM iteration, and
 given up (None) as soon as LM has stalled with most loops still above ``c``: the last
-iteration lowered the total error by less than `STALL_DECREASE` of it (relative) while
-more than half of the loops exceed ``c``.  When it is not given up it returns what
-`solve` returns, bit for bit (the watch only reads the optimizer's state).  It is not a
-proof that the converged solve fails: LM's relative decrease is not monotone (it dips
-when the damping rises and recovers after), so a graph whose loops all fall below ``c``
-only after such a dip would be given up.  Measured per cell by
-`benchmarks/fast_path_stall.py` (the full solve's trajectory and where the rule fires).
+iteration took a step that lowered the total error, but by less than `STALL_DECREASE` of
+it (relative), while more than half of the loops exceed ``c``.  An iteration without a
+step (LM giving up before its first, as on near-singular information where Cholesky
+fails at every damping) is not a stall: `solve` then goes on with dogleg.  When it is not
+given up it returns what `solve` returns, bit for bit (the watch only reads the
+optimizer's state).  It is not a proof that the converged solve fails: LM's relative
+decrease is not monotone (it dips when the damping rises and recovers after), and LM could
+crawl on to its iteration cap, after which `solve` goes on with dogleg; a graph whose
+loops all fall below ``c`` only after such a dip or by that dogleg would be given up.
+Measured per cell by `benchmarks/fast_path_stall.py` (the full solve's trajectory and
+where the rule fires).
 """
 
 from __future__ import annotations
@@ -60,7 +64,7 @@ def stalled_solve(
     loop_index: list[int], c: float, decrease: float = STALL_DECREASE,
 ) -> tuple[gtsam.Values, int, str] | None:
     """`slam.least_squares.solve(factors, values, max_iterations)`, or None when an LM
-    iteration lowers the total error by less than `decrease` (relative) while more than
+    step lowers the total error by less than `decrease` (relative) while more than
     half of the loop factors ``factors.at(k)``, k in `loop_index`, have an error above `c`
     (gtsam units; module docstring).  Returns ``(solution, iterations, solver)`` as
     `solve` does, bit for bit, whenever it does not give up."""
@@ -68,7 +72,9 @@ def stalled_solve(
     state: dict[str, gtsam.LevenbergMarquardtOptimizer] = {}
 
     def watch(iteration: int, before: float, after: float) -> None:
-        if not (before > 0.0 and (before - after) / before < decrease):
+        # Only a step LM took: an iteration that found none (``after == before``, no
+        # iteration counted) is LM giving up, after which `solve` goes on with dogleg.
+        if not (iteration >= 1 and 0.0 < before - after < decrease * before):
             return
         now = state["lm"].values()
         above = sum(factors.at(k).error(now) > c for k in loop_index)
