@@ -59,6 +59,14 @@ class _Stalled(Exception):
     """Raised from LM's iteration hook to end a stalled solve (`stalled_solve`)."""
 
 
+def is_stall(iteration: int, before: float, after: float, decrease: float) -> bool:
+    """True when LM's `iteration` (its count after the iteration) took a step that lowered
+    the total error from `before` to `after` (gtsam units) by less than `decrease` of
+    `before`.  An iteration that found no step (no decrease, iteration count 0) is LM
+    giving up, after which `slam.least_squares.solve` goes on with dogleg: not a stall."""
+    return iteration >= 1 and 0.0 < before - after < decrease * before
+
+
 def stalled_solve(
     factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
     loop_index: list[int], c: float, decrease: float = STALL_DECREASE,
@@ -72,9 +80,7 @@ def stalled_solve(
     state: dict[str, gtsam.LevenbergMarquardtOptimizer] = {}
 
     def watch(iteration: int, before: float, after: float) -> None:
-        # Only a step LM took: an iteration that found none (``after == before``, no
-        # iteration counted) is LM giving up, after which `solve` goes on with dogleg.
-        if not (iteration >= 1 and 0.0 < before - after < decrease * before):
+        if not is_stall(iteration, before, after, decrease):
             return
         now = state["lm"].values()
         above = sum(factors.at(k).error(now) > c for k in loop_index)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from data import se2
-from slam.fast_path_screen import majority_fails, stalled_solve
+from slam.fast_path_screen import is_stall, majority_fails, stalled_solve
 from slam.innovation import tls_threshold
 from slam.least_squares import solve
 from slam.optimize import initial_guess, optimize
@@ -106,3 +106,10 @@ def test_stalled_solve_gives_up_on_a_stall_with_most_loops_above_c() -> None:
     assert new is None
     factors, loop_index = graph.factor_graph()
     assert any(factors.at(k).error(old[0]) > tls_threshold(2) for k in loop_index)
+
+
+def test_a_stall_is_a_small_step_taken() -> None:
+    assert is_stall(5, 1000.0, 999.5, 1e-3)  # 5e-4 of the error
+    assert not is_stall(5, 1000.0, 998.0, 1e-3)  # 2e-3: still converging
+    assert not is_stall(5, 1000.0, 1000.0, 1e-3)  # no decrease: no step
+    assert not is_stall(0, 1000.0, 999.9, 1e-3)  # LM has not counted a step yet
