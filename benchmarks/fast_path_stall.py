@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.robust_cell import read_cell
 from slam.consistency import ODOMETRY_LADDER
-from slam.fast_path_screen import STALL_DECREASE, stalled_solve
+from slam.fast_path_screen import STALL_DECREASE, STALL_LAMBDA, stalled_solve
 from slam.innovation import tls_threshold
 from slam.least_squares import lm_params, solve
 from slam.optimize import initial_guess
@@ -45,8 +45,9 @@ from slam.variance_components import with_information_scaled
 
 def recorded_solve(factors, values, max_iterations, loop_index, c):  # type: ignore[no-untyped-def]
     """`solve` with the LM iterations recorded: (result, rows); each row is (iteration,
-    error before, error after, relative decrease, loops above c, CPU seconds so far)."""
-    rows: list[tuple[int, float, float, float, int, float]] = []
+    error before, error after, relative decrease, loops above c, CPU seconds so far, LM's
+    lambda)."""
+    rows: list[tuple[int, float, float, float, int, float, float]] = []
     start = time.process_time()
     holder: dict[str, gtsam.LevenbergMarquardtOptimizer] = {}
     original = gtsam.LevenbergMarquardtOptimizer
@@ -55,7 +56,7 @@ def recorded_solve(factors, values, max_iterations, loop_index, c):  # type: ign
         now = holder["lm"].values()
         above = int(sum(factors.at(k).error(now) > c for k in loop_index))
         rows.append((iteration, before, after, (before - after) / before, above,
-                     time.process_time() - start))
+                     time.process_time() - start, holder["lm"].lambda_()))
 
     def make(graph, vals, params):  # type: ignore[no-untyped-def]
         params.iterationHook = hook
@@ -100,11 +101,12 @@ def main() -> None:
               f"({'fails' if fails else 'passes'} this rung)", flush=True)
         for x in decreases:
             fire = next((r for r in rows if r[0] >= 1 and 0.0 < r[3] < x
-                         and 2 * r[4] > len(loop_index)), None)
+                         and r[6] <= STALL_LAMBDA and 2 * r[4] > len(loop_index)), None)
             if fire is None:
                 print(f"  decrease {x:g}: never fires (result unchanged)")
             else:
                 print(f"  decrease {x:g}: fires at LM iteration {fire[0]} ({fire[4]} above c, "
+                      f"lambda {fire[6]:.2g}, "
                       f"{fire[5]:.2f} s CPU of {old_cpu:.2f}); "
                       f"{'same outcome (rung fails)' if fails else 'CHANGES THE OUTCOME'}")
         t0 = time.process_time()

@@ -34,7 +34,10 @@ given up (None) as soon as LM has stalled with most loops still above ``c``: the
 iteration took a step that lowered the total error, but by less than `STALL_DECREASE` of
 it (relative), while more than half of the loops exceed ``c``.  An iteration without a
 step (LM giving up before its first, as on near-singular information where Cholesky
-fails at every damping) is not a stall: `solve` then goes on with dogleg.  When it is not
+fails at every damping) is not a stall: `solve` then goes on with dogleg; nor is a small
+step under heavy damping (LM's lambda above `STALL_LAMBDA`: LM crawling, e.g. Intel with
+its odometry information x0.01, whose LM runs to its cap at relative decreases of 1e-2
+and whose dogleg then reaches an optimum that holds every loop).  When it is not
 given up it returns what `solve` returns, bit for bit (the watch only reads the
 optimizer's state).  It is not a proof that the converged solve fails: LM's relative
 decrease is not monotone (it dips when the damping rises and recovers after), and LM could
@@ -53,6 +56,10 @@ from slam.least_squares import DOGLEG_QR, LM, dogleg_qr, lm_params
 
 SCREEN_ITERATIONS = 5  # solver iterations of the screen at most
 STALL_DECREASE = 1e-3  # `stalled_solve`: relative decrease of one LM iteration that is a stall
+# `stalled_solve`: LM's damping (gtsam's lambda, added to the normal equations' diagonal)
+# above which a small decrease is the damping's, not a stall (LM crawling, as on
+# near-singular information: it may run to its cap, after which `solve` goes on with dogleg).
+STALL_LAMBDA = 1.0
 
 
 class _Stalled(Exception):
@@ -81,6 +88,8 @@ def stalled_solve(
 
     def watch(iteration: int, before: float, after: float) -> None:
         if not is_stall(iteration, before, after, decrease):
+            return
+        if state["lm"].lambda_() > STALL_LAMBDA:
             return
         now = state["lm"].values()
         above = sum(factors.at(k).error(now) > c for k in loop_index)
