@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from data import se2
+from data.types import Scan
 from slam.odometry.facing import facing, scan_normals
 from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry
 
@@ -63,3 +64,38 @@ def test_icp2d_map_leaves_out_the_far_face_of_a_thin_wall() -> None:
     assert (maps[False][:, 0] < 0).any() and (maps[False][:, 0] > 0).any()
     assert (maps[True][:, 0] > 0).sum() == (maps[False][:, 0] > 0).sum()
     assert not (maps[True][:, 0] < 0).any()
+
+
+def test_icp2d_facing_view_prediction_culls_from_where_the_scan_is() -> None:
+    """Keyframes A (-2, 0) and B (2, 0) on either side of a 0.1 m wall along y, as
+    above; then a scan from (-2, 0.5), facing +x, that sees the left face (x = -0.05)
+    with its odometry exact.  Culled from the newest keyframe B the map holds only the
+    right face (x = +0.05), which the scan cannot see: its registration is pulled
+    across, the wall's thickness, to x = -1.9.  With ``facing_view="prediction"`` the map is culled
+    from the prediction (-2, 0.5): only the left face, and the pose stays at x = -2."""
+    y = np.arange(-3.0, 3.01, 0.05)
+    a_pose, b_pose = np.array([-2.0, 0.0, 0.0]), np.array([2.0, 0.0, np.pi])
+    c_pose = np.array([-2.0, 0.5, 0.0])
+    left = np.column_stack([np.full(len(y), -0.05), y])
+    right = np.column_stack([np.full(len(y), 0.05), y])
+    # The scan of the left face from C: a 180-degree laser, 361 beams, exact ranges.
+    angles = np.radians(np.linspace(-90.0, 90.0, 361))
+    ranges = np.full(len(angles), np.inf)
+    ahead = np.cos(angles) > 0.05
+    ranges[ahead] = (left[0, 0] - c_pose[0]) / np.cos(angles[ahead])
+    ranges[ranges > 20.0] = np.inf
+    scan = Scan(stamp=1.0, ranges=ranges, angles=angles, max_range=20.0, odom=c_pose,
+                index=2)
+    xs = {}
+    for view in ("keyframe", "prediction"):
+        cfg = Icp2dConfig(cull_back_faces=True, facing_view=view, max_step=10.0,
+                          max_step_rotation=4.0)
+        odo = Icp2dOdometry(cfg)
+        for pose, face in ((a_pose, left), (b_pose, right)):
+            odo._accept(pose, np.zeros(3), se2.transform_points(se2.inverse(pose), face),
+                        {}, force_keyframe=True)
+        odo._odom = b_pose.copy()
+        est = odo.process(scan)
+        xs[view] = (est.pose[0], est.status)
+    assert abs(xs["prediction"][0] + 2.0) < 0.005, xs
+    assert abs(xs["keyframe"][0] + 1.9) < 0.005, xs

@@ -207,6 +207,14 @@ class Icp2dConfig:
         facing_bend: largest turn [rad] between the steps to the two neighbours of a
             keyframe point that has a normal (more: no normal, the point is kept);
             pi: no such test.
+        facing_view: where the culled faces are seen from: ``"keyframe"``, the
+            newest keyframe's position (the map is culled when it is rebuilt), or
+            ``"prediction"``, the predicted position of the scan being registered
+            (the map is culled again before a scan whose prediction lies more than
+            `facing_refresh` from the position it was last culled from; not on an
+            odometry jump, whose prediction may be false).
+        facing_refresh: distance [m] of the prediction from the last culling
+            position that makes ``facing_view="prediction"`` cull again.
     """
 
     icp: IcpConfig = field(
@@ -251,6 +259,8 @@ class Icp2dConfig:
     cull_back_faces: bool = False
     facing_gap: float = 0.25
     facing_bend: float = float(np.pi)
+    facing_view: str = "keyframe"
+    facing_refresh: float = 0.1
 
     def __post_init__(self) -> None:
         positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
@@ -266,6 +276,11 @@ class Icp2dConfig:
         if self.jump_scale not in ("median", "largest"):
             raise UserError(f"icp2d jump_scale must be median or largest, "
                             f"got {self.jump_scale!r}")
+        if self.facing_view not in ("keyframe", "prediction"):
+            raise UserError(f"icp2d facing_view must be keyframe or prediction, "
+                            f"got {self.facing_view!r}")
+        if not (np.isfinite(self.facing_refresh) and self.facing_refresh >= 0):
+            raise UserError(f"icp2d facing_refresh must be >= 0, got {self.facing_refresh}")
         if self.covariance_inflation not in ("none", "inliers"):
             raise UserError(f"icp2d covariance_inflation must be none or inliers, "
                             f"got {self.covariance_inflation!r}")
@@ -313,6 +328,7 @@ class Icp2dOdometry:
         self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._normals: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._keyframe_pose: Array | None = None
+        self._view: Array | None = None
         self._grid: GridTarget | None = None
         self.map_rebuilds = 0
 
@@ -362,6 +378,16 @@ class Icp2dOdometry:
             self._accept(pred, u, points, extra, force_keyframe=enough)
             return self._estimate(scan, pred, u, cov, 0.0, status, t0, extra)
 
+        if (cfg.cull_back_faces and cfg.facing_view == "prediction" and not jump
+                and self._view is not None
+                and np.hypot(*(pred[:2] - self._view)) > cfg.facing_refresh):
+            self._rebuild_map(pred[:2])
+            if self._grid is None:  # nothing left to match: the keyframe's view
+                self._rebuild_map()
+            if self._grid is None:
+                cov = u_cov * cfg.fallback_inflation
+                self._accept(pred, u, points, extra)
+                return self._estimate(scan, pred, u, cov, 0.0, "failed", t0, extra)
         if jump:  # the odometry may lie: no prior, try the prediction and standing still
             res = self._multi(points, np.vstack([pred, prev])).best
         else:
@@ -560,14 +586,19 @@ class Icp2dOdometry:
                                      @ np.array([[c, s], [-s, c]]))
             self._rebuild_map()
 
-    def _rebuild_map(self) -> None:
+    def _rebuild_map(self, view: Array | None = None) -> None:
+        """Merge the keyframes into the local map; with `cull_back_faces`, the faces
+        seen from `view` (``(2,)`` odometry frame [m]; the newest keyframe's position
+        if None)."""
         cfg = self.config
         fast = _fast()
         voxel = fast.voxel_downsample_fast if cfg.compiled else voxel_downsample
         assert self._keyframe_pose is not None
         frames = list(self._keyframes)
+        self._view = (self._keyframe_pose[:2] if view is None
+                      else np.asarray(view, dtype=float)[:2]).copy()
         if cfg.cull_back_faces and len(self._normals) == len(frames):
-            frames = [p[facing(p, n, self._keyframe_pose[:2])]
+            frames = [p[facing(p, n, self._view)]
                       for p, n in zip(frames, self._normals, strict=True)]
         pts = voxel(np.vstack(frames), cfg.map_voxel)
         near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
