@@ -8,10 +8,11 @@ clutter (vegetation, furniture) matched point to point (the maths of
 ``compiled=False``) onto a local map: the points of the last `map_keyframes` map
 keyframes, in the odometry frame, merged and voxel-downsampled to `map_voxel`,
 cropped to `map_radius` around the newest keyframe (with `cull_back_faces`, each
-keyframe's points whose surface faces away from the newest keyframe's position are
-left out: `slam.odometry.facing`, normals from neighbours within `facing_gap`; the
-other face of a thin wall seen earlier from its far side cannot pull a scan that
-sees only the near one).  A scan becomes a map keyframe
+keyframe's points whose surface faces away from the newest keyframe's position, or
+with ``facing_view="prediction"`` from the scan's predicted position, are left out:
+`slam.odometry.facing`, normals from neighbours within `facing_gap`; the other face
+of a thin wall seen earlier from its far side cannot pull a scan that sees only the
+near one).  A scan becomes a map keyframe
 when the pose has moved `keyframe_distance` or turned `keyframe_rotation` since the
 last one; only then is the map's cell grid (`fast_icp.GridTarget`) rebuilt.  Its
 normals are lazy (`loopclosure.grid_target`): a map point's normal is computed
