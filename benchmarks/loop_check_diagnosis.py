@@ -50,7 +50,7 @@ from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
 FIELDS = ("fitness", "inlier_ratio", "rms", "degeneracy", "margin", "consistency",
-          "matched_length", "axis_length", "axis_hold", "pinned_length")
+          "matched_length", "axis_length", "axis_hold", "pinned_length", "cross_hold")
 
 
 def checks_of(path: str, relations: str | None, tol: Tolerances) -> tuple[list[dict], Counter]:
@@ -122,6 +122,9 @@ def accepts(rows: list[dict], **cfg: float) -> np.ndarray:
     partial = (f["fitness"] < c.min_fitness) | (f["inlier_ratio"] < c.min_inlier_ratio)
     held = c.pinned_degenerate & (np.nan_to_num(f["pinned_length"], nan=-1.0)
                                   >= c.min_matched_length)
+    # pinned_cross, where the check recorded its cross slide: kept along > across
+    crossed = np.isfinite(f["cross_hold"])
+    held &= ~(c.pinned_cross & crossed) | (f["axis_hold"] > f["cross_hold"])
     return ((f["matched_length"] >= c.min_matched_length)
             & (f["consistency"] >= c.min_consistency)
             & (f["rms"] <= c.max_rms) & ((f["degeneracy"] >= c.min_degeneracy) | held)

@@ -81,7 +81,11 @@ It is accepted when all of these hold (defaults in `GeometricCheckConfig`):
   correlative check below either degeneracy bar is judged instead by what pins it
   along its weak axis: the surface that stops matching when the fit slides one
   ambiguity distance along that axis (`pinned_length`) must reach
-  `min_matched_length`, the floor the whole fit must match;
+  `min_matched_length`, the floor the whole fit must match, and (``pinned_cross``)
+  that slide must keep more of the hits than the same slide across the axis
+  (`slide_anisotropy` above 1): the hits must show the axis the information calls
+  weak, or what the slide un-matches is scattered points (vegetation) that match at
+  one pose only whichever way the fit moves;
 - when a prior relative pose with covariance is given (a pose-gated, local
   search), the result lies within `max_prior_mahalanobis` of it;
 - the best hypothesis beats the runner-up that lands at a *different* pose
@@ -224,6 +228,13 @@ class GeometricCheckConfig:
             or slid to a look-alike stretch fits its walls fully and pins nothing.
             With `pinned_degenerate`, the pin alone judges every fit below
             `min_degeneracy_partial`.  Off by default.
+        pinned_cross: with `pinned_degenerate`, a fit is held by its pin only when
+            the slide along its weak axis keeps more hits than the same slide across
+            it (`slide_anisotropy` > 1).  A corridor's walls keep matching along the
+            corridor and none across; a fit held by scattered points (trees, poles,
+            vegetation) loses them in every direction, so its slide loss says nothing
+            about the weak axis.  Two more free-space tests per fit below a
+            degeneracy bar, only when `pinned_degenerate` is on.
         compiled_icp: every ICP of the check by the compiled kernel
             (`loopclosure.fast_icp`: the same maths as
             `loopclosure.registration.register`, nearest neighbours in a cell grid
@@ -261,6 +272,7 @@ class GeometricCheckConfig:
     longer_path_m: float = 0.0
     pinned_degenerate: bool = False
     pinned_required: bool = False
+    pinned_cross: bool = True
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:
@@ -296,6 +308,9 @@ class LoopVerification:
             check below a degeneracy bar, NaN otherwise).
         pinned_length: the surface that stops matching when the fit is so slid [m]
             (`pinned_length`; correlative check below a degeneracy bar, NaN otherwise).
+        cross_hold: the hits kept when the fit slides the same distance across the
+            axis (the better way) over the hits at the fit (NaN unless the check
+            asked, `GeometricCheckConfig.pinned_cross`).
     """
 
     accepted: bool
@@ -315,6 +330,47 @@ class LoopVerification:
     axis_length: float = float("nan")
     axis_hold: float = float("nan")
     pinned_length: float = float("nan")
+    cross_hold: float = float("nan")
+
+
+def slide_anisotropy(slid_hits: ArrayLike, cross_hits: ArrayLike) -> float:
+    """How much better a fit's hits hold along its weak axis than across it.
+
+    ``slid_hits``: the free-space test's hits (`loopclosure.free_space` (2)) with the
+    fit slid one ambiguity distance either way along its degenerate axis;
+    ``cross_hits``: the same slides along the perpendicular axis
+    (`loopclosure.prior_free.axis_profile` with each axis).  The ratio of the better
+    slide's hits:
+
+        anisotropy = max(slid_hits) / max(cross_hits)
+
+    Above 1 when the matched surface runs along the weak axis (a corridor keeps its
+    walls' hits along it and loses them across); about 1 or below when the hits are
+    lost whichever way the fit moves (isolated points).  Infinite when the cross
+    slides keep no hit and the axis slide keeps some; NaN without both profiles or
+    with no hit kept at all.
+    """
+    slid = np.asarray(slid_hits, dtype=float).reshape(-1)
+    cross = np.asarray(cross_hits, dtype=float).reshape(-1)
+    if len(slid) == 0 or len(cross) == 0:
+        return float("nan")
+    a, c = slid.max(), cross.max()
+    if c <= 0:
+        return float("inf") if a > 0 else float("nan")
+    return float(a / c)
+
+
+def held_by_pin(pinned: float, slid_hits: ArrayLike, cross_hits: ArrayLike,
+                cfg: GeometricCheckConfig) -> bool:
+    """Whether a correlative fit below a degeneracy bar is accepted by what pins it.
+
+    With ``pinned_degenerate``: `pinned` [m] (`pinned_length`) reaches
+    ``min_matched_length`` and, with ``pinned_cross``, the slide along the weak axis
+    keeps more hits than the same slide across it (`slide_anisotropy` > 1).
+    """
+    if not (cfg.pinned_degenerate and pinned >= cfg.min_matched_length):
+        return False
+    return not cfg.pinned_cross or slide_anisotropy(slid_hits, cross_hits) > 1.0
 
 
 def pinned_length(hits: int, slid_hits: ArrayLike, voxel: float) -> float:
@@ -417,7 +473,8 @@ def _verify_correlative(
     multi = match_prior_free(query_points, candidate, headings=headings,
                              max_distance=max_distance, source_voxel=cfg.source_voxel,
                              icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp,
-                             profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial))
+                             profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial),
+                             cross_profile=cfg.pinned_degenerate and cfg.pinned_cross)
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),
@@ -437,7 +494,7 @@ def _verify_correlative(
                            0.5 * (cfg.source_voxel + cfg.search.submap_voxel))
     # A fit the slide along its weak axis un-matches as much surface as the check's
     # floor is pinned there, however large its other direction's information.
-    held = cfg.pinned_degenerate and pinned >= cfg.min_matched_length
+    held = held_by_pin(pinned, multi.axis_hits, multi.cross_hits, cfg)
     if not best.ok:
         reason = "registration failed"
     elif matched < cfg.min_matched_length:
@@ -473,6 +530,8 @@ def _verify_correlative(
         axis_hold=(float(np.max(multi.axis_hits)) / free.hits
                    if len(multi.axis_hits) and free.hits else float("nan")),
         pinned_length=pinned,
+        cross_hold=(float(np.max(multi.cross_hits)) / free.hits
+                    if len(multi.cross_hits) and free.hits else float("nan")),
     )
 
 

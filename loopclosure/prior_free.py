@@ -130,6 +130,9 @@ class PriorFreeMatch:
             pose moved by ``-axis_shift`` and ``+axis_shift`` [m] along its degenerate
             axis (`axis_profile`; empty when the best run failed); at the pose itself
             they are ``consistency[0].hits``.
+        cross_hits: ``(2,)`` the same with the pose moved across that axis (along its
+            perpendicular, the best-constrained direction; `axis_profile`); empty
+            unless asked (``cross_profile``).
     """
 
     results: list[IcpResult] = field(default_factory=list)
@@ -137,6 +140,7 @@ class PriorFreeMatch:
     peak_scores: Array = field(default_factory=lambda: np.zeros(0))
     source_points: int = 0
     axis_hits: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
+    cross_hits: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
 
 
 def axis_profile(query: Submap, candidate: Submap, pose: ArrayLike, axis: ArrayLike,
@@ -220,6 +224,7 @@ def match_prior_free(
     config: PriorFreeConfig | None = None,
     compiled: bool = False,
     profile_below: float = 1.0,
+    cross_profile: bool = False,
 ) -> PriorFreeMatch:
     """Search, peaks, ICP and consistency (module docstring).
 
@@ -235,6 +240,8 @@ def match_prior_free(
             numba) instead of `loopclosure.registration.register`.
         profile_below: the best run's `axis_profile` only when its degeneracy is
             below this (the default: always; the check asks below its bars only).
+        cross_profile: with the axis profile, the same slides across the axis
+            (`PriorFreeMatch.cross_hits`).
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -278,8 +285,12 @@ def match_prior_free(
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
     best = results[order[0]]
-    hits = (axis_profile(query_submap, cand_submap, best.pose, best.degenerate_axis,
-                         cfg.axis_shift, cfg.consistency_tolerance, cfg.free_margin)
-            if best.ok and best.degeneracy < profile_below else np.zeros(0, np.intp))
+    profiled = best.ok and best.degeneracy < profile_below
+    axis = np.asarray(best.degenerate_axis, dtype=float).reshape(2)
+    hits, cross = (
+        axis_profile(query_submap, cand_submap, best.pose, a, cfg.axis_shift,
+                     cfg.consistency_tolerance, cfg.free_margin)
+        if profiled and ask else np.zeros(0, np.intp)
+        for a, ask in ((axis, True), (np.array([-axis[1], axis[0]]), cross_profile)))
     return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source),
-                          hits)
+                          hits, cross)

@@ -120,3 +120,39 @@ def test_pinned_required_rejects_a_full_overlap_pinned_by_too_little() -> None:
     w = verify(short, RegistrationTarget(wide), headings=[0.0], max_distance=2.0,
                config=required)
     assert w.degeneracy >= 0.1 and w.accepted, w.reason
+
+
+def test_slide_anisotropy_is_the_axis_slide_over_the_cross_slide() -> None:
+    from loopclosure.geometric_check import slide_anisotropy
+
+    ended = Submap.of(_corridor(True))
+    along = axis_profile(ended, ended, [0, 0, 0], [1.0, 0.0], 0.5, 0.04, 0.3)
+    across = axis_profile(ended, ended, [0, 0, 0], [0.0, 1.0], 0.5, 0.04, 0.3)
+    # Slid 0.5 m up: of the end wall's 19 points (y = -0.9..0.9) 14 still land on it
+    # and one (y = 0.5 -> 1.0) on the upper side wall; of the side walls only the
+    # lower one's point at x = 3 (y = -1 -> -0.5) lands on the end wall: 16 hits,
+    # both directions 32 (the same slid down).
+    np.testing.assert_array_equal(across, [32, 32])
+    assert slide_anisotropy(along, across) == pytest.approx(460 / 32)
+    assert slide_anisotropy([3, 5], [0, 10]) == pytest.approx(0.5)
+    assert slide_anisotropy([3, 5], [0, 0]) == np.inf
+    assert np.isnan(slide_anisotropy([0, 0], [0, 0]))
+    assert np.isnan(slide_anisotropy([], [1, 2]))
+
+
+
+def test_held_by_pin_asks_the_cross_slide_only_with_pinned_cross() -> None:
+    from loopclosure.geometric_check import GeometricCheckConfig, held_by_pin
+
+    on = GeometricCheckConfig(pinned_degenerate=True)
+    blind = GeometricCheckConfig(pinned_degenerate=True, pinned_cross=False)
+    # A corridor held by its end wall: 460 hits kept along it, 32 across.
+    assert held_by_pin(2.9, [460, 460], [32, 32], on)
+    # Scattered points lost whichever way: 30 / 46 kept along, 60 / 67 across (the
+    # pin of 9 m says nothing of the weak axis).
+    assert not held_by_pin(9.0, [30, 46], [60, 67], on)
+    assert held_by_pin(9.0, [30, 46], [60, 67], blind)
+    # Under the floor of matched surface, or with the rule off: never.
+    assert not held_by_pin(1.9, [460, 460], [32, 32], on)
+    assert not held_by_pin(9.0, [460, 460], [32, 32], GeometricCheckConfig())
+    assert not held_by_pin(float("nan"), [], [], on)
