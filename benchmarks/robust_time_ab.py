@@ -6,7 +6,7 @@ Run from the repository root::
 
     python benchmarks/robust_time_ab.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--repeat 1] [--cache DIR]
-        [--compare screen|memo|stiff]
+        [--compare screen|memo|stiff|undo-isam]
 
 ``--compare screen``: ``old`` is `slam.optimize.optimize` (``gnc``, incremental, from
 the odometry chain) with ``screen=False`` (the fast path's check solved in full); ``new``:
@@ -14,7 +14,9 @@ the odometry chain) with ``screen=False`` (the fast path's check solved in full)
 with no solution remembered by the least-squares solvers
 (``slam.least_squares.MEMO_ENTRIES = 0``), ``new`` with the default. ``--compare stiff``:
 ``old`` the default, ``new`` with ``slam.least_squares.STIFF_CHOLESKY = True`` (dogleg by
-Cholesky, stiff factors' poses first). Prints for each the
+Cholesky, stiff factors' poses first). ``--compare undo-isam``: ``old`` with the undo
+hypotheses batch-solved, ``new`` with ``slam.admission_undo.BY_ISAM = True`` (solved on a
+copy of the pass's iSAM2 prefix). Prints for each the
 CPU seconds of this process, the memo's hits among the solvers' calls, the ATE against the
 outlier-free optimum [m], false loops obeyed and true loops rejected (as
 `benchmarks/robust_modes.py`), then whether both kept the same loops, the largest position
@@ -32,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import slam.admission_undo as admission_undo
 import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_parser, read_cell
 from evaluation.robustness import aligned_position_error
@@ -46,6 +49,8 @@ COMPARISONS = {
              "new": {"screen": False, "memo": MEMO, "stiff": False}},
     "stiff": {"old": {"screen": False, "memo": MEMO, "stiff": False},
               "new": {"screen": False, "memo": MEMO, "stiff": True}},
+    "undo-isam": {"old": {"screen": False, "memo": MEMO, "stiff": False, "undo_isam": False},
+                  "new": {"screen": False, "memo": MEMO, "stiff": False, "undo_isam": True}},
 }
 
 
@@ -77,6 +82,7 @@ def main() -> None:
         for name, setting in variants.items():
             least_squares.MEMO_ENTRIES = setting["memo"]
             least_squares.STIFF_CHOLESKY = setting["stiff"]
+            admission_undo.BY_ISAM = setting.get("undo_isam", admission_undo.BY_ISAM)
             LOOKUPS.update(hits=0, lookups=0)
             start = time.process_time()
             result = optimize(corrupted, "none", "gnc", init="odometry",

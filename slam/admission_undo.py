@@ -17,6 +17,13 @@ plain rules and no hypotheses of its own) for `LOOKAHEAD` more loop-bearing bloc
 `settle` then compares the two on the same decided part (each prefix re-solved by the
 same batch solver) and goes back to the rival when it is cheaper.  A hypothesis kept
 while a window is open extends it; the rival stays the pass before the first.
+
+With `BY_ISAM` (off) a pass whose prefix is kept by iSAM2 solves its hypotheses on a
+copy of that iSAM2: the undone loops taken out (gtsam's ``removeFactorIndices``), the
+re-decided ones added back by updates, and both the block's outcome and the hypothesis
+compared at iSAM2's estimates (the same tolerance on both sides); a kept hypothesis's
+copy becomes the pass's prefix.  A copy whose updates stop converging hands that
+hypothesis to the batch solves.
 """
 
 from __future__ import annotations
@@ -38,6 +45,9 @@ UNDO_BLOCKS = 2  # an undo hypothesis re-decides loops admitted this many loop-b
 UNDO_SUPPORT = 2  # rejected loops near an admitted one's two ends that open a hypothesis
 UNDO_TRIES = 2  # undo hypotheses tested per block
 LOOKAHEAD = 2  # loop-bearing blocks after a kept hypothesis before it is compared again
+# Hypotheses solved by a copy of the pass's iSAM2 prefix (loops taken out by their tags)
+# instead of batch solves of the whole prefix (option).
+BY_ISAM = False
 
 
 def with_loops(
@@ -100,21 +110,27 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
         # any other that bent the prefix since.
         undone = np.flatnonzero(
             (run.weights > 0.5) & (run._admitted_at >= run.blocks - UNDO_BLOCKS))
-        # The block's outcome solved by the same batch solver as the hypothesis (an
-        # iSAM2 estimate stops at another tolerance), so the costs compare decisions.
+        admitted = np.flatnonzero(run.weights > 0.5)
+        keep = np.setdiff1d(admitted, np.union1d(undone, arrived))
+        trial = _trial_prefix(run, np.setdiff1d(admitted, keep))
+        # The block's outcome solved as the hypothesis will be (an iSAM2 estimate stops
+        # at another tolerance than a batch solve), so the costs compare decisions.
         try:
-            before = run._decided_cost(run._solve(run._fixed, run.current))
+            before = run._decided_cost(
+                run.current if trial is not None else run._solve(run._fixed, run.current))
         except RuntimeError:
             return
         run.tried += 1
-        keep = np.flatnonzero(run.weights > 0.5)
-        keep = np.setdiff1d(keep, np.union1d(undone, arrived))
         try:
-            values = run._solve(with_loops(run._base, run.unit, keep), run.current)
-            first, values = plain_rounds(run, support, keep, values, prefix)
+            if trial is not None:
+                values, trial = _isam_solved(run, trial, with_loops(run._base, run.unit, keep),
+                                             run.current)
+            else:
+                values = run._solve(with_loops(run._base, run.unit, keep), run.current)
+            first, values, trial = plain_rounds(run, support, keep, values, prefix, trial)
             keep = np.union1d(keep, first)
             rest = np.setdiff1d(np.union1d(arrived, undone), first)
-            then, values = plain_rounds(run, rest, keep, values, prefix)
+            then, values, trial = plain_rounds(run, rest, keep, values, prefix, trial)
         except RuntimeError:  # singular information or a failed solve: no hypothesis
             continue
         weights = run.weights.copy()
@@ -134,10 +150,14 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
         if run.gate == "stated" and run.calibrated_step is None:
             # a calibrated pass resumed after this block would not have tested it
             run.calibrated_step = run._step
-        if run._isam is not None:
+        if trial is not None:
+            run._isam = trial
+        elif run._isam is not None:
             isam = IsamPrefix()
-            for n in range(run._fixed.size()):
-                isam.add(run._fixed.at(n))
+            for n in range(run._base.size()):
+                isam.add(run._base.at(n))
+            for k in np.flatnonzero(weights > 0.5):  # tagged: a later hypothesis removes them
+                isam.add(run.unit[k], int(k))
             for k in prefix:
                 isam.insert(k, to_gtsam_pose(pose_of(values, k, run.graph.dim), run.graph.dim))
             # A rebuilt iSAM2 that does not converge hands over to batch solves; the
@@ -145,13 +165,35 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
             run.current, run._isam = isam_or_batch(isam, run._solve, run._fixed, values)
 
 
+def _trial_prefix(run: AdmissionPass, out: NDArray[np.int64]) -> IsamPrefix | None:
+    """With `BY_ISAM`: a copy of the pass's iSAM2 prefix with the admitted loops `out`
+    taken out (at its next solve); None (batch solves) without `BY_ISAM`, without an
+    iSAM2 prefix, or when one of them is not held by its tag."""
+    if not BY_ISAM or run._isam is None or not run._isam.holds(int(k) for k in out):
+        return None
+    trial = run._isam.copy()
+    trial.remove(int(k) for k in out)
+    return trial
+
+
+def _isam_solved(
+    run: AdmissionPass, trial: IsamPrefix, factors: gtsam.NonlinearFactorGraph,
+    current: gtsam.Values,
+) -> tuple[gtsam.Values, IsamPrefix | None]:
+    """`factors` (what `trial` holds) solved by `trial`, or by the pass's batch solver
+    when its updates stop converging (`isam_or_batch`; None: batch from then on)."""
+    return isam_or_batch(trial, run._solve, factors, current)
+
+
 def plain_rounds(
     run: AdmissionPass, pending: NDArray[np.int64], accepted: NDArray[np.int64],
-    current: gtsam.Values, prefix: list[int],
-) -> tuple[NDArray[np.int64], gtsam.Values]:
-    """The block's rounds (residual rule, then the greedy innovation gate; batch
-    solves, no deferral) deciding `pending` against the prefix of the loops
-    `accepted`, solved at `current`; the loops of `pending` admitted and the solution."""
+    current: gtsam.Values, prefix: list[int], trial: IsamPrefix | None = None,
+) -> tuple[NDArray[np.int64], gtsam.Values, IsamPrefix | None]:
+    """The block's rounds (residual rule, then the greedy innovation gate; no deferral)
+    deciding `pending` against the prefix of the loops `accepted`, solved at `current`;
+    the loops of `pending` admitted, the solution and the iSAM2 left.  Each round's
+    admissions are added to the iSAM2 `trial` (which holds the prefix of `accepted`),
+    else batch solves."""
     unit, c = run.unit, run._c
     taken = np.zeros(len(pending), dtype=bool)
     factors = with_loops(run._base, unit, accepted)
@@ -172,8 +214,13 @@ def plain_rounds(
             newly[rest[chosen]] = True
         taken |= newly
         factors = with_loops(run._base, unit, np.union1d(accepted, pending[taken]))
-        current = run._solve(factors, current)
-    return pending[taken], current
+        if trial is not None:
+            for k in pending[newly]:
+                trial.add(unit[k], int(k))
+            current, trial = _isam_solved(run, trial, factors, current)
+        else:
+            current = run._solve(factors, current)
+    return pending[taken], current, trial
 
 
 def open_window(run: AdmissionPass) -> None:

@@ -97,6 +97,12 @@ class IsamPrefix:
         """Take the factors of `tags` (given to `add`) out at the next `solve`."""
         self._remove.extend(tags)
 
+    def holds(self, tags: object) -> bool:
+        """True when every factor of `tags` was handed over with its tag and is still
+        held (so `remove` can take it out)."""
+        pending = set(self._tags)
+        return all(t in self._index or t in pending for t in tags)
+
     def insert(self, key: int, pose: object) -> None:
         self._values.insert(key, pose)
 

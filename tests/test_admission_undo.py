@@ -126,3 +126,22 @@ def test_a_hypothesis_the_next_blocks_confirm_is_kept() -> None:
     run = _pass(graph, undo=True)
     assert run.undone >= 1 and run.examined >= 1 and run.reverted == 0
     assert run.weights[false] == 0.0
+
+
+def test_hypotheses_solved_on_the_isam2_prefix_decide_as_the_batch_solves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`BY_ISAM`: the undo hypothesis of the early false return solved on a copy of the
+    pass's iSAM2 prefix keeps the same loops as the batch-solved one, and the pass goes
+    on with that copy as its prefix (the accepted graph's solution)."""
+    graph, false = _false_return_a_block_early()
+    batch = _pass(graph, undo=True)
+    monkeypatch.setattr(admission_undo, "BY_ISAM", True)
+    by_isam = _pass(graph, undo=True)
+    assert by_isam.undone == batch.undone >= 1
+    np.testing.assert_array_equal(by_isam.weights, batch.weights)
+    assert by_isam.weights[false] == 0.0
+    assert by_isam._isam is not None
+    positions = np.array([by_isam.current.atPose2(k).translation() for k in graph.keys])
+    expected = np.array([batch.current.atPose2(k).translation() for k in graph.keys])
+    assert np.abs(positions - expected).max() < 1e-3

@@ -109,3 +109,15 @@ def test_a_pass_that_turns_loops_back_keeps_its_isam2_prefix_and_decides_as_batc
     assert runs["isam2"].result().prefix == "isam2"  # never handed over to batch solves
     gap = runs["isam2"].result().tls_cost - runs["batch"].result().tls_cost
     assert abs(gap) < 1e-6
+
+
+def test_holds_says_whether_every_tag_can_be_taken_out() -> None:
+    isam, _, _, false = _chain()
+    isam.add(false, 3)
+    assert isam.holds([3])  # handed over, not solved yet
+    isam.solve()
+    assert isam.holds([3]) and isam.holds([])
+    assert not isam.holds([3, 4])  # 4 was never handed over with its tag
+    isam.remove([3])
+    isam.solve()
+    assert not isam.holds([3])
