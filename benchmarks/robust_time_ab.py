@@ -16,7 +16,7 @@ with no solution remembered by the least-squares solvers
 ``old`` the default, ``new`` with ``slam.least_squares.STIFF_CHOLESKY = True`` (dogleg by
 Cholesky, stiff factors' poses first). ``--compare undo-isam``: ``old`` with the undo
 hypotheses batch-solved, ``new`` with ``slam.admission_undo.BY_ISAM = True`` (solved on a
-copy of the pass's iSAM2 prefix). Prints for each the
+copy of the pass's iSAM2 prefix; the default). Prints for each the
 CPU seconds of this process, the memo's hits among the solvers' calls, the ATE against the
 outlier-free optimum [m], false loops obeyed and true loops rejected (as
 `benchmarks/robust_modes.py`), then whether both kept the same loops, the largest position

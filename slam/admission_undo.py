@@ -18,8 +18,8 @@ plain rules and no hypotheses of its own) for `LOOKAHEAD` more loop-bearing bloc
 same batch solver) and goes back to the rival when it is cheaper.  A hypothesis kept
 while a window is open extends it; the rival stays the pass before the first.
 
-With `BY_ISAM` (off) a pass whose prefix is kept by iSAM2 solves its hypotheses on a
-copy of that iSAM2: the undone loops taken out (gtsam's ``removeFactorIndices``), the
+With `BY_ISAM` (on by default) a pass whose prefix is kept by iSAM2 solves its hypotheses
+on a copy of that iSAM2: the undone loops taken out (gtsam's ``removeFactorIndices``), the
 re-decided ones added back by updates, and both the block's outcome and the hypothesis
 compared at iSAM2's estimates (the same tolerance on both sides); a kept hypothesis's
 copy becomes the pass's prefix.  A copy whose updates stop converging hands that
@@ -46,8 +46,8 @@ UNDO_SUPPORT = 2  # rejected loops near an admitted one's two ends that open a h
 UNDO_TRIES = 2  # undo hypotheses tested per block
 LOOKAHEAD = 2  # loop-bearing blocks after a kept hypothesis before it is compared again
 # Hypotheses solved by a copy of the pass's iSAM2 prefix (loops taken out by their tags)
-# instead of batch solves of the whole prefix (option).
-BY_ISAM = False
+# instead of batch solves of the whole prefix (False: batch solves).
+BY_ISAM = True
 
 
 def with_loops(

@@ -135,6 +135,7 @@ def test_hypotheses_solved_on_the_isam2_prefix_decide_as_the_batch_solves(
     pass's iSAM2 prefix keeps the same loops as the batch-solved one, and the pass goes
     on with that copy as its prefix (the accepted graph's solution)."""
     graph, false = _false_return_a_block_early()
+    monkeypatch.setattr(admission_undo, "BY_ISAM", False)
     batch = _pass(graph, undo=True)
     monkeypatch.setattr(admission_undo, "BY_ISAM", True)
     by_isam = _pass(graph, undo=True)
