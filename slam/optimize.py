@@ -42,7 +42,7 @@ from slam.consistency import (
     refine_tls,
     tls_threshold,
 )
-from slam.fast_path_screen import majority_fails
+from slam.fast_path_screen import majority_fails, stalled_solve
 from slam.least_squares import StickySolver, conditioning, dogleg_qr, lm_params, solve
 from slam.loop_recheck import recheck_loops
 from slam.offer_back import choose_and_offer_back
@@ -167,6 +167,7 @@ def optimize(
     undo: bool = True,
     screen: bool = False,
     confirm: bool = True,
+    stall: bool = False,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -216,6 +217,11 @@ def optimize(
     admission whose actual cost of being kept is above ``c``
     (`slam.admission.AdmissionPass`): the linearised cost the gate judges by can fall
     below ``c`` while the prefix re-solved without the loop says otherwise.
+    `stall`: the fast path's first solve (stiffest rung) is given up when an LM step
+    lowers the error by under a relative `slam.fast_path_screen.STALL_DECREASE` at low
+    damping while most loops are above ``c`` (`slam.fast_path_screen.stalled_solve`);
+    otherwise its result is `solve`'s bit for bit.  Off by default: a measured rule,
+    not a proof that the fast path would fail.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -233,7 +239,8 @@ def optimize(
         clean = None
         if fast_path and gnc_start == "incremental" and segments and len(graph.loops):
             clean = _clean_optimum(graph, factors, loop_index, values, gnc_probability,
-                                   max_iterations, groups, tuple(odometry_ladder), screen)
+                                   max_iterations, groups, tuple(odometry_ladder), screen,
+                                   stall)
         if clean is not None:
             result, iterations = clean
             weights = np.ones(len(graph.loops))
@@ -309,7 +316,7 @@ def optimize(
 def _clean_optimum(
     graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
     values: gtsam.Values, probability: float, max_iterations: int, groups: bool,
-    ladder: tuple[float, ...] = ODOMETRY_LADDER, screen: bool = False,
+    ladder: tuple[float, ...] = ODOMETRY_LADDER, screen: bool = False, stall: bool = False,
 ) -> tuple[gtsam.Values, int] | None:
     """The plain least-squares optimum over every loop (polished as the admission's
     result is, `slam.consistency.polish`) and its iterations, when it is also the TLS
@@ -337,6 +344,8 @@ def _clean_optimum(
     `screen`: that solve is not started at all when a few iterations of it at the
     stiffest rung leave most loops above ``c`` (`slam.fast_path_screen.majority_fails`):
     with many false loops it is the dearest solve of the robust back end.
+    `stall`: that first solve is abandoned at an LM stall with most loops above ``c``
+    (`slam.fast_path_screen.stalled_solve`).
     """
     c = tls_threshold(graph.dim, probability)
     result, iterations = values, 0
@@ -345,7 +354,13 @@ def _clean_optimum(
             graph, factor).factor_graph(RobustKernel("none"))[0]
         if screen and n == 0 and majority_fails(rung, loop_index, result, c):
             return None
-        result, used_iterations, used = solve(rung, result, max_iterations)
+        if stall and n == 0:
+            solved = stalled_solve(rung, result, max_iterations, loop_index, c)
+            if solved is None:
+                return None
+        else:
+            solved = solve(rung, result, max_iterations)
+        result, used_iterations, used = solved
         iterations += used_iterations
         # The loops' factors are the same on every rung (only odometry is scaled).
         if any(factors.at(k).error(result) > c for k in loop_index):

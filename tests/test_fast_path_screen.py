@@ -59,6 +59,17 @@ def test_the_screen_changes_no_result() -> None:
         assert max(np.abs(on.poses[k] - off.poses[k]).max() for k in on.poses) < 1e-12
 
 
+
+def test_the_stall_rule_changes_no_result() -> None:
+    """`optimize(stall=True)`: a fast path that holds is taken as without the rule; a
+    graph of mostly false loops reaches the same admission either way."""
+    for graph in (_square_graph(noise=0.02, laps=3)[0], _with_false_loops(60)[0]):
+        on = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental",
+                      stall=True)
+        off = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental")
+        assert on.solver == off.solver and on.loop_outliers == off.loop_outliers
+        assert max(np.abs(on.poses[k] - off.poses[k]).max() for k in on.poses) < 1e-12
+
 def test_a_slowly_converging_consistent_graph_fails_the_screen() -> None:
     # Why the screen is off by default: Intel with its odometry information x0.01 and no
     # false loop holds every loop at the stiffest rung's optimum (the fast path's full
