@@ -43,7 +43,6 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from data import se2
 from data.errors import UserError
 from loopclosure.grid_target import (
     ANCHORS,
@@ -436,6 +435,76 @@ def register_fast(
 
 
 _NO_JOINS = np.zeros((0, 3))
+_NO_PRIOR = np.zeros(3)
+_NO_PRIOR_COV = np.eye(3)
+
+
+@numba.njit(cache=True)
+def _inv3(a):
+    """``a^-1`` of a ``3x3`` matrix as `np.linalg.inv` computes it: LAPACK ``gesv``
+    on the identity (numba's `np.linalg.inv` takes ``getrf`` + ``getri``, whose
+    roundings differ)."""
+    return np.linalg.solve(a, np.eye(3))
+
+
+@numba.njit(cache=True)
+def _register_kernel(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind,
+                     params, prior_cov, x_prior, has_prior, max_iterations, gate0, min_gate,
+                     gate_sigmas, kernel, kconst, min_scale, clutter_weight, t_tol, r_tol,
+                     min_corr, fitness_tol, joins, join_t, join_r):
+    """`_icp` and the figures of its result in one compiled call.
+
+    Returns ``(status, joined, iterations, converged, points, x, cov, h_data, sigma2,
+    inliers, rms, fitness, degeneracy, axis)``; ``status`` 0: a solution, 1: failed
+    (too few correspondences; only ``iterations`` and ``points`` are set), 2: joined
+    row ``joined`` of `joins` (only ``iterations`` is set).  The figures (module
+    docstring of `loopclosure.registration`): ``sigma^2 = max(sum w r^2 / max(sum w
+    - 3, 1), min_scale^2)``; covariance ``(H / sigma^2 + Lambda + 1e-12 tr(.) I)^-1``,
+    symmetrised; degeneracy the smallest eigenvalue of the translation block of
+    ``H`` with the rotation eliminated (Schur complement), over ``sum w``, in
+    ``[0, 0.5]``, and its eigenvector.  Each step is the numpy expression of the
+    reference with the same operations in the same order, and the inverses and the
+    eigen-decomposition call the LAPACK routines numpy calls (``gesv``, ``syevd``
+    on the lower triangle), so every figure is the same to the bit."""
+    lam = np.zeros((3, 3))
+    if has_prior:
+        lam = _inv3(prior_cov)
+    x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx, joined = _icp(
+        src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, params, lam,
+        x_prior, has_prior, max_iterations, gate0, min_gate, gate_sigmas, kernel, kconst,
+        min_scale, clutter_weight, t_tol, r_tol, min_corr, joins, join_t, join_r)
+    cov = np.zeros((3, 3))
+    h_data = np.zeros((3, 3))
+    axis = np.zeros(2)
+    if joined >= 0:
+        return (2, joined, iterations, False, points, x, cov, h_data, 0.0, 0, 0.0, 0.0, 0.0,
+                axis)
+    if not ok or points < min_corr:
+        return (1, -1, iterations, False, points, x, cov, h_data, 0.0, 0, 0.0, 0.0, 0.0,
+                axis)
+    h_data, wsum, wr2, inliers, rms, fitness = _figures(
+        src, x, rows, lines, points, sel, jdx, pts, anchors, normals, kernel, kconst,
+        min_scale, clutter_weight, fitness_tol)
+    sigma2 = max(wr2 / max(wsum - 3.0, 1.0), min_scale**2)
+    info = h_data / sigma2 + lam
+    trace = info[0, 0] + info[1, 1] + info[2, 2]
+    cov = _inv3(info + 1e-12 * max(trace, 1e-12) * np.eye(3))
+    cov = 0.5 * (cov + cov.T)
+    h_tt = np.empty((2, 2))
+    for a in range(2):
+        for b in range(2):
+            h_tt[a, b] = h_data[a, b]
+    if h_data[2, 2] > 1e-12:
+        for a in range(2):
+            for b in range(2):
+                h_tt[a, b] = h_tt[a, b] - h_data[a, 2] * h_data[2, b] / h_data[2, 2]
+    evals, evecs = np.linalg.eigh(h_tt)
+    degeneracy = min(max(evals[0] / wsum, 0.0), 0.5) if wsum > 0 else 0.0
+    axis[0] = evecs[0, 0]
+    axis[1] = evecs[1, 0]
+    x[2] = _wrap(x[2])
+    return (0, -1, iterations, converged, points, x, cov, h_data, sigma2, inliers, rms,
+            fitness, degeneracy, axis)
 
 
 def _register_grid(
@@ -445,53 +514,38 @@ def _register_grid(
 ) -> IcpResult | tuple[int, int]:
     """`register_fast`, or ``(row of joins, iterations)`` when the run came within
     (`join_t` [m], `join_r` [rad]) of one of the poses `joins` (``(K, 3)``) and
-    stopped there (`register_target`)."""
+    stopped there (`register_target`).  One compiled call (`_register_kernel`): the
+    few small numpy calls of the figures cost as much as the iterations."""
     cfg = config or target.config
     src = np.ascontiguousarray(as_points(source, "source points"))
     x0 = np.asarray(initial, dtype=float).reshape(3).copy()
-    lam = np.zeros((3, 3))
-    x_prior = np.zeros(3)
-    prior_cov = None
+    x_prior, prior_cov = _NO_PRIOR, _NO_PRIOR_COV
     if prior is not None:
         if prior_covariance is None:
             raise UserError("register: a prior needs its prior_covariance (got None)")
         x_prior = np.asarray(prior, dtype=float).reshape(3).copy()
-        prior_cov = np.asarray(prior_covariance, dtype=float).reshape(3, 3)
-        lam = np.linalg.inv(prior_cov)
+        prior_cov = np.ascontiguousarray(np.asarray(prior_covariance, dtype=float).reshape(3, 3))
     if len(src) < cfg.min_correspondences or not target.matchable():
-        return _failed(x0, 0, 0, prior_cov)
+        return _failed(x0, 0, 0, None if prior is None else prior_cov)
     kernel, kconst = _KERNELS[cfg.kernel], KERNEL_CONSTANTS[cfg.kernel]
     nx, ny = target.shape
-    grid = (float(target.origin[0]), float(target.origin[1]), target.cell, nx, ny,
-            target.start, target.points)
-    x, iterations, converged, ok, _gate, rows, lines, points, sel, jdx, joined = _icp(
-        src, x0, *grid, target.anchors, target.normals, target.kind, target.params, lam,
-        x_prior, prior is not None,
+    (status, joined, iterations, converged, points, x, cov, h_data, sigma2, inliers, rms,
+     fitness, degeneracy, axis) = _register_kernel(
+        src, x0, float(target.origin[0]), float(target.origin[1]), target.cell, nx, ny,
+        target.start, target.points, target.anchors, target.normals, target.kind,
+        target.params, prior_cov, x_prior, prior is not None,
         cfg.max_iterations, cfg.max_correspondence_distance, cfg.min_correspondence_distance,
         cfg.gate_sigmas, kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight,
         cfg.translation_tolerance, cfg.rotation_tolerance, cfg.min_correspondences,
-        joins, join_t, join_r)
-    if joined >= 0:
+        cfg.fitness_tolerance, joins, join_t, join_r)
+    if status == 2:
         return int(joined), int(iterations)
-    if not ok or points < cfg.min_correspondences:
-        return _failed(x0, iterations, points, prior_cov)
-    h_data, wsum, wr2, inliers, rms, fitness = _figures(
-        src, x, rows, lines, points, sel, jdx, target.points, target.anchors, target.normals,
-        kernel, kconst, cfg.min_residual_scale, cfg.clutter_weight, cfg.fitness_tolerance)
-    sigma2 = max(wr2 / max(wsum - 3.0, 1.0), cfg.min_residual_scale**2)
-    info = h_data / sigma2 + lam
-    cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
-    cov = 0.5 * (cov + cov.T)
-    h_tt = h_data[:2, :2]
-    if h_data[2, 2] > 1e-12:
-        h_tt = h_tt - np.outer(h_data[:2, 2], h_data[2, :2]) / h_data[2, 2]
-    evals, evecs = np.linalg.eigh(h_tt)
-    degeneracy = float(np.clip(evals[0] / wsum, 0.0, 0.5)) if wsum > 0 else 0.0
-    x[2] = float(se2.wrap_angle(x[2]))
+    if status == 1:
+        return _failed(x0, iterations, points, None if prior is None else prior_cov)
     return IcpResult(
         pose=x, covariance=cov, hessian=h_data, sigma=float(np.sqrt(sigma2)),
         inlier_ratio=inliers / len(src), rms=float(rms), fitness=float(fitness),
-        degeneracy=degeneracy, degenerate_axis=evecs[:, 0].copy(), iterations=int(iterations),
+        degeneracy=float(degeneracy), degenerate_axis=axis, iterations=int(iterations),
         converged=bool(converged), correspondences=int(points), ok=True, initial=x0.copy(),
     )
 

@@ -93,8 +93,9 @@ def cache_is_cold() -> bool:
     from loopclosure import virtual_scan_kernel
     from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, flirt_peak_kernel, pair_kernel
 
-    kernels = (fast_icp._icp, fast_icp._screen_kernel, fast_icp._voxel_kernel,
+    kernels = (fast_icp._register_kernel, fast_icp._screen_kernel, fast_icp._voxel_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
+               flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts, flirt_peak_kernel.local_maxima_kernel,
                pair_kernel._pair_kernel, pair_kernel.surface_samples_kernel,
                virtual_scan_kernel.candidates,

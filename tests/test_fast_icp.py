@@ -430,3 +430,41 @@ def test_upper_median_by_selection_is_the_sorted_one() -> None:
         v[: n // 3] = np.round(v[: n // 3], 1)  # ties
         assert _upper_median_abs(v, n) == np.sort(np.abs(v[:n]))[n // 2]
     assert _upper_median_abs(np.array([-3.0, 1.0, 2.0]), 3) == 2.0  # |.| = 3, 1, 2
+
+
+
+def test_inv3_is_numpys_inverse_to_the_bit() -> None:
+    """`_inv3` (LAPACK gesv on the identity, as `np.linalg.inv`) on symmetric positive
+    definite 3x3 matrices of widely different scales, and on a non-symmetric one."""
+    from loopclosure.fast_icp import _inv3
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-3, 6, size=(3, 1))
+        a = a @ a.T + 1e-3 * np.eye(3)
+        assert np.array_equal(_inv3(a), np.linalg.inv(a))
+    b = np.array([[2.0, 1.0, 0.5], [0.25, 3.0, 1.0], [0.1, 0.2, 4.0]])
+    assert np.array_equal(_inv3(b), np.linalg.inv(b))
+
+
+def test_figures_are_the_numpy_expressions() -> None:
+    """The kernel's covariance and degenerate axis are the reference's numpy
+    expressions on the result's Hessian and sigma (the axis to the bit: the Hessian
+    is returned as computed; the covariance to rounding: sigma is returned as the
+    square root of the variance the kernel used), with and without a prior."""
+    pts = room()
+    grid = GridTarget(pts)
+    source = se2.transform_points(se2.inverse(np.array([0.1, -0.05, 0.03])), pts[::3])
+    prior = np.array([0.08, -0.04, 0.02])
+    prior_cov = np.array([[0.02, 0.003, 0.0], [0.003, 0.03, 0.001], [0.0, 0.001, 0.01]])
+    for kw in ({}, {"prior": prior, "prior_covariance": prior_cov}):
+        res = register_fast(source, grid, (0.0, 0.0, 0.0), **kw)
+        assert res.ok and res.converged
+        lam = np.linalg.inv(prior_cov) if kw else np.zeros((3, 3))
+        h = res.hessian
+        info = h / res.sigma**2 + lam
+        cov = np.linalg.inv(info + 1e-12 * max(np.trace(info), 1e-12) * np.eye(3))
+        np.testing.assert_allclose(res.covariance, 0.5 * (cov + cov.T), rtol=1e-9)
+        h_tt = h[:2, :2] - np.outer(h[:2, 2], h[2, :2]) / h[2, 2]
+        assert np.array_equal(res.degenerate_axis, np.linalg.eigh(h_tt)[1][:, 0])
+        assert -np.pi <= res.pose[2] < np.pi

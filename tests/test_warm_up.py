@@ -24,9 +24,10 @@ def test_room_scan_hits_the_nearest_wall_or_the_pillar():
 
 def test_warm_up_compiles_every_kernel_the_mapper_calls():
     warm_up()
-    kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._icp,
-               fast_icp._figures, fast_icp._screen_kernel, fast_icp._bound_kernel,
+    kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._register_kernel,
+               fast_icp._screen_kernel, fast_icp._bound_kernel,
                correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries,
+               flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts]
     assert all(k.signatures for k in kernels)
 
