@@ -332,3 +332,32 @@ def test_compiled_peak_mask_equals_the_numpy_one() -> None:
     a = np.zeros((2, 5))
     a[1, 0], a[1, 4] = 2.0, 1.0
     assert np.argwhere(_local_maxima(a)).tolist() == [[1, 0]]
+
+
+def test_compiled_euclidean_descriptor_distances_are_numpys_to_the_bit() -> None:
+    """`euclidean_distances` from numpy's norms and products equals the numpy
+    broadcast expression of `_descriptor_distances` bit for bit, including the
+    clamp of a slightly negative squared distance (a feature compared with itself)
+    to 0, and a hand case: occupancies (1, 0) and (0, 1) are sqrt(2) apart."""
+    from loopclosure.matchers.flirt_kernel import euclidean_distances
+
+    rng = np.random.default_rng(5)
+    matcher = FlirtMatcher()
+    bins = matcher.config.rings * matcher.config.sectors
+    occ = rng.uniform(0.0, 1.0, (6, 9, bins))
+    query = rng.uniform(0.0, 1.0, (7, bins))
+    query[0] = occ[2, 4]  # identical descriptors: the expression may round below 0
+
+    class _Query:
+        occupancy = query
+
+    ref = matcher._descriptor_distances(_Query, occ)
+    got = euclidean_distances(np.einsum("qb,qb->q", query, query),
+                              np.einsum("mfb,mfb->mf", occ, occ), np.matmul(occ, query.T))
+    assert got.shape == (6, 7, 9)
+    assert np.array_equal(got, ref)
+    assert got[2, 0, 4] == ref[2, 0, 4] and got[2, 0, 4] < 1e-6
+    a, b = np.array([[[1.0, 0.0]]]), np.array([[0.0, 1.0]])
+    hand = euclidean_distances(np.einsum("qb,qb->q", b, b), np.einsum("mfb,mfb->mf", a, a),
+                               np.matmul(a, b.T))
+    assert hand[0, 0, 0] == np.sqrt(2.0)

@@ -487,10 +487,16 @@ class FlirtMatcher(Matcher):
         want_pairs: bool,
     ) -> tuple[Array, Array, list[IntArray], Array]:
         """`_run_chunk` by the numba kernel of `flirt_kernel` (same steps, same results)."""
-        from loopclosure.matchers.flirt_kernel import flirt_entries
+        from loopclosure.matchers.flirt_kernel import euclidean_distances, flirt_entries
 
         cfg = self.config
-        dd = self._descriptor_distances(query, st.occupancy[sl])
+        occ = st.occupancy[sl]
+        if cfg.descriptor_distance == "euclidean":
+            q = query.occupancy
+            dd = euclidean_distances(np.einsum("qb,qb->q", q, q),
+                                     np.einsum("mfb,mfb->mf", occ, occ), np.matmul(occ, q.T))
+        else:
+            dd = self._descriptor_distances(query, occ)
         hi, ha, hj, hb = (np.ascontiguousarray(h, dtype=np.intp) for h in hyp)
         dist, pose, mean_e, e, match, inl, best_e = flirt_entries(
             np.ascontiguousarray(query.points, dtype=float).reshape(-1, 2),

@@ -113,6 +113,24 @@ def _procrustes(qp, pts, match, inl, weight, th, tx, ty):
     return new_th, mqx - (c * mpx - s * mpy), mqy - (s * mpx + c * mpy)
 
 
+@numba.njit(cache=True)
+def euclidean_distances(qq, dn, cross):
+    """``(M, Q, F)`` Euclidean beta-grid distances ``sqrt(max(|a|^2 + |b|^2 - 2 a.b,
+    0))`` from the query's squared norms ``qq`` (Q,), the stacked features' ``dn``
+    (M, F) and the products ``cross`` (M, F, Q) (`flirt.FlirtMatcher`'s descriptor
+    distance, step 1): numpy's broadcast expression in one pass, the same operations
+    in the same order (``(qq + dn) - 2 cross``, the maximum keeping a NaN), so the
+    same bits, without its four temporaries and the transposed copy."""
+    m, width, n_q = cross.shape
+    out = np.empty((m, n_q, width))
+    for r in range(m):
+        for q in range(n_q):
+            for f in range(width):
+                x = qq[q] + dn[r, f] - 2.0 * cross[r, f, q]
+                out[r, q, f] = math.sqrt(x if (x >= 0.0 or x != x) else 0.0)
+    return out
+
+
 @numba.njit(cache=True, inline="always")
 def _compatible(x, gate, lo_in, hi_in, lo_out, hi_out):
     """``|log x| <= gate``: decided by comparisons where `x` lies clearly inside
@@ -335,4 +353,4 @@ def flirt_entries(
     return dist, pose, mean_e, e_out, match_out, inl_out, best_out
 
 
-__all__ = ["flirt_entries"]
+__all__ = ["euclidean_distances", "flirt_entries"]
