@@ -140,13 +140,23 @@ def _scan_cell(c, px, py, start, pts, best, best_d2):
     return best, best_d2
 
 
+#: Slack [m] taken off a cell's gap to a query before the gap may skip the cell
+#: (`_nearest`): far above the rounding of a cell border or a point's offset (a
+#: point's cell is found by flooring its offset over the cell side), far below any
+#: distance that decides a match.
+_BOX_SLACK = 1e-9
+
+
 @numba.njit(cache=True)
 def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
     """Index of the nearest grid point within `gate` of ``(px, py)`` (-1: none) and its
     distance.  Cells are visited ring by ring (Chebyshev distance from the query's cell);
     after ring ``r`` nothing nearer than ``r * cell + m`` can remain (``m``: distance of
     the query to its own cell's border), so the search stops there once a point at most
-    that far is found."""
+    that far is found.  A cell whose box lies farther from the query than the best
+    point so far (its gaps ``g_x, g_y`` to the query less `_BOX_SLACK` each, ``g_x^2
+    + g_y^2 > d_best^2``) is not scanned: none of its points could replace the best,
+    not even by a tie, so the answer is the full scan's."""
     ci = int(np.floor((px - ox) / cell))
     cj = int(np.floor((py - oy) / cell))
     fx = px - ox - ci * cell
@@ -158,12 +168,29 @@ def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
         for i in range(ci - r, ci + r + 1):
             if i < 0 or i >= nx:
                 continue
+            if i < ci:
+                gx = max(fx + (ci - i - 1) * cell - _BOX_SLACK, 0.0)
+            elif i > ci:
+                gx = max((i - ci) * cell - fx - _BOX_SLACK, 0.0)
+            else:
+                gx = 0.0
+            gx2 = gx * gx
+            if gx2 > best_d2:
+                continue
             edge = i == ci - r or i == ci + r
             step = 1 if edge else 2 * r
             j = cj - r
             while j <= cj + r:
                 if 0 <= j < ny:
-                    best, best_d2 = _scan_cell(i * ny + j, px, py, start, pts, best, best_d2)
+                    if j < cj:
+                        gy = max(fy + (cj - j - 1) * cell - _BOX_SLACK, 0.0)
+                    elif j > cj:
+                        gy = max((j - cj) * cell - fy - _BOX_SLACK, 0.0)
+                    else:
+                        gy = 0.0
+                    if gx2 + gy * gy <= best_d2:
+                        best, best_d2 = _scan_cell(i * ny + j, px, py, start, pts, best,
+                                                   best_d2)
                 if step == 0:
                     break
                 j += step
