@@ -1,0 +1,118 @@
+"""Benchmark: the front end's `register_fast` calls, old `fast_icp` against new, in one
+process.
+
+Run from the repository root (the working tree's code on ``PYTHONPATH``)::
+
+    python benchmarks/register_speed.py --baseline REV [--data DIR]
+        [--log carmen/intel.clf.bz2] [--limit N] [--repeat R]
+
+The default ``icp2d`` front end processes the first N scans of the log (working tree
+code) and its `register_fast` calls (points, local map grid, initial pose, prior)
+are recorded.  Revision REV's ``loopclosure/fast_icp.py`` (``git show``) is loaded
+beside the working tree's, on the working tree's other modules (so only changes to
+that file are compared), and both replay every call: the script prints whether every
+`IcpResult` field is bit-identical, with the prior and without it, and the CPU
+microseconds per call of either (R alternate passes, best of each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+ROOT = Path(__file__).resolve().parents[1]
+FIELDS = ("pose", "covariance", "hessian", "sigma", "inlier_ratio", "rms", "fitness",
+          "degeneracy", "degenerate_axis", "iterations", "converged", "correspondences",
+          "ok", "initial")
+
+
+def load_revision(rev: str, folder: Path):
+    """Revision `rev`'s ``fast_icp`` as module ``fast_icp_<rev>``."""
+    text = subprocess.run(["git", "show", f"{rev}:loopclosure/fast_icp.py"], cwd=ROOT,
+                          check=True, capture_output=True, text=True).stdout
+    path = folder / "fast_icp_baseline.py"
+    path.write_text(text)
+    name = "fast_icp_baseline"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def record(log: Path, limit: int) -> list:
+    """``(source, grid, initial, kwargs)`` of the front end's `register_fast` calls."""
+    import loopclosure.fast_icp as fast
+    from data.sources import open_source
+    from slam.config import PipelineConfig
+    from slam.odometry import make_odometry
+
+    scans = list(open_source(log))
+    scans = scans[:limit] if limit > 0 else scans
+    cfg = PipelineConfig()
+    odo = make_odometry(cfg.odometry, cfg.front_end_config())
+    calls: list = []
+    original = fast.register_fast
+
+    def recorder(source, target, initial=(0.0, 0.0, 0.0), **kwargs):
+        calls.append((source, target, initial, kwargs))
+        return original(source, target, initial, **kwargs)
+
+    fast.register_fast = recorder
+    try:
+        for scan in scans:
+            odo.process(scan)
+    finally:
+        fast.register_fast = original
+    return calls
+
+
+def same(a, b) -> bool:
+    return all(np.asarray(getattr(a, f)).tobytes() == np.asarray(getattr(b, f)).tobytes()
+               for f in FIELDS)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--baseline", required=True, help="a revision")
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    parser.add_argument("--log", default="carmen/intel.clf.bz2", help="under --data")
+    parser.add_argument("--limit", type=int, default=3000, help="first N scans (0: all)")
+    parser.add_argument("--repeat", type=int, default=2, help="timed passes per code")
+    args = parser.parse_args()
+    import loopclosure.fast_icp as now
+
+    with tempfile.TemporaryDirectory() as tmp:
+        old = load_revision(args.baseline, Path(tmp))
+        calls = record(args.data / args.log, args.limit)
+        differ = 0
+        for source, grid, initial, kwargs in calls:
+            bare = {k: v for k, v in kwargs.items() if k not in ("prior", "prior_covariance")}
+            for kw in (kwargs, bare):
+                differ += not same(old.register_fast(source, grid, initial, **kw),
+                                   now.register_fast(source, grid, initial, **kw))
+        best = {"baseline": np.inf, "now": np.inf}
+        for _ in range(args.repeat):
+            for label, module in (("baseline", old), ("now", now)):
+                t0 = time.process_time()
+                for source, grid, initial, kwargs in calls:
+                    module.register_fast(source, grid, initial, **kwargs)
+                best[label] = min(best[label], time.process_time() - t0)
+    n = max(len(calls), 1)
+    old_us, new_us = 1e6 * best["baseline"] / n, 1e6 * best["now"] / n
+    print(f"{args.log}: {len(calls)} calls, {differ} of {2 * len(calls)} results differ; "
+          f"{old_us:.1f} -> {new_us:.1f} us per call ({old_us / new_us:.2f}x)")
+
+
+if __name__ == "__main__":
+    main()
