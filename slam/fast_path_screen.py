@@ -52,7 +52,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from slam.least_squares import DOGLEG_QR, LM, dogleg_qr, lm_params
+from slam.least_squares import dogleg_qr, lm_params, solve
 
 SCREEN_ITERATIONS = 5  # solver iterations of the screen at most
 STALL_DECREASE = 1e-3  # `stalled_solve`: relative decrease of one LM iteration that is a stall
@@ -83,37 +83,21 @@ def stalled_solve(
     half of the loop factors ``factors.at(k)``, k in `loop_index`, have an error above `c`
     (gtsam units; module docstring).  Returns ``(solution, iterations, solver)`` as
     `solve` does, bit for bit, whenever it does not give up."""
-    params = lm_params(max_iterations)
-    state: dict[str, gtsam.LevenbergMarquardtOptimizer] = {}
-
-    def watch(iteration: int, before: float, after: float) -> None:
+    def watch(lm: gtsam.LevenbergMarquardtOptimizer, iteration: int, before: float,
+              after: float) -> None:
         if not is_stall(iteration, before, after, decrease):
             return
-        if state["lm"].lambda_() > STALL_LAMBDA:
+        if lm.lambda_() > STALL_LAMBDA:
             return
-        now = state["lm"].values()
+        now = lm.values()
         above = sum(factors.at(k).error(now) > c for k in loop_index)
         if 2 * above > len(loop_index):
             raise _Stalled
 
-    params.iterationHook = watch
-    start_error = factors.error(values)
-    best, iterations = values, 0
     try:
-        lm = gtsam.LevenbergMarquardtOptimizer(factors, values, params)
-        state["lm"] = lm
-        result = lm.optimize()
-        iterations = lm.iterations()
-        if factors.error(result) < start_error:
-            best = result
-        if 0 < iterations < max_iterations:
-            return result, iterations, LM
+        return solve(factors, values, max_iterations, watch=watch)
     except _Stalled:
         return None
-    except RuntimeError:  # gtsam IndeterminantLinearSystemException
-        pass
-    dogleg = dogleg_qr(factors, best, max_iterations)
-    return dogleg.optimize(), iterations + dogleg.iterations(), DOGLEG_QR
 
 
 def majority_fails(

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import OrderedDict
+from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -120,18 +121,27 @@ def dogleg_stiff_first(
 def solve(
     factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
     lm_budget: int | None = None,
+    watch: Callable[[gtsam.LevenbergMarquardtOptimizer, int, float, float], None]
+    | None = None,
 ) -> tuple[gtsam.Values, int, str]:
     """LM, then dogleg with QR if LM fails (module docstring).
 
     `lm_budget`: LM's iteration cap (default `max_iterations`); LM fails when it
     reaches it.  Returns the solution, the iteration count and the solver used (`LM`
-    or `DOGLEG_QR`).
+    or `DOGLEG_QR`).  `watch(lm, iteration, error_before, error_after)`: called after
+    each LM iteration with the running optimiser (gtsam's ``iterationHook``); an
+    exception it raises, other than RuntimeError, ends the solve and propagates.
     """
     budget = max_iterations if lm_budget is None else min(lm_budget, max_iterations)
+    params = lm_params(budget)
+    running: list[gtsam.LevenbergMarquardtOptimizer] = []
+    if watch is not None:
+        params.iterationHook = lambda i, before, after: watch(running[0], i, before, after)
     start_error = factors.error(values)
     best, iterations = values, 0
     try:
-        lm = gtsam.LevenbergMarquardtOptimizer(factors, values, lm_params(budget))
+        lm = gtsam.LevenbergMarquardtOptimizer(factors, values, params)
+        running.append(lm)
         result = lm.optimize()
         iterations = lm.iterations()
         if factors.error(result) < start_error:
