@@ -148,6 +148,18 @@ _BOX_SLACK = 1e-9
 
 
 @numba.njit(cache=True)
+def _cell_gap(i, ci, f, cell):
+    """Gap [m] along one axis between a query in cell ``ci`` (offset `f` from that
+    cell's lower border) and cell ``i``, less `_BOX_SLACK`, never negative (0 for the
+    query's own cell)."""
+    if i < ci:
+        return max(f + (ci - i - 1) * cell - _BOX_SLACK, 0.0)
+    if i > ci:
+        return max((i - ci) * cell - f - _BOX_SLACK, 0.0)
+    return 0.0
+
+
+@numba.njit(cache=True)
 def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
     """Index of the nearest grid point within `gate` of ``(px, py)`` (-1: none) and its
     distance.  Cells are visited ring by ring (Chebyshev distance from the query's cell);
@@ -168,12 +180,7 @@ def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
         for i in range(ci - r, ci + r + 1):
             if i < 0 or i >= nx:
                 continue
-            if i < ci:
-                gx = max(fx + (ci - i - 1) * cell - _BOX_SLACK, 0.0)
-            elif i > ci:
-                gx = max((i - ci) * cell - fx - _BOX_SLACK, 0.0)
-            else:
-                gx = 0.0
+            gx = _cell_gap(i, ci, fx, cell)
             gx2 = gx * gx
             if gx2 > best_d2:
                 continue
@@ -182,12 +189,7 @@ def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
             j = cj - r
             while j <= cj + r:
                 if 0 <= j < ny:
-                    if j < cj:
-                        gy = max(fy + (cj - j - 1) * cell - _BOX_SLACK, 0.0)
-                    elif j > cj:
-                        gy = max((j - cj) * cell - fy - _BOX_SLACK, 0.0)
-                    else:
-                        gy = 0.0
+                    gy = _cell_gap(j, cj, fy, cell)
                     if gx2 + gy * gy <= best_d2:
                         best, best_d2 = _scan_cell(i * ny + j, px, py, start, pts, best,
                                                    best_d2)
