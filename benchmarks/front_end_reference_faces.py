@@ -44,6 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.front_end_facing import _with_frames
 from data import se2
 from evaluation.slam_input import load_input
 from evaluation.slam_reference import logged_reference
@@ -60,20 +61,6 @@ SINGLES = 6
 def _parse_variant(text: str) -> tuple[str, list[str]]:
     name, _, body = text.partition(":")
     return name, [s for s in body.split(",") if s]
-
-
-def _frozen(odo: Icp2dOdometry, frames: list[np.ndarray],
-            normals: list[np.ndarray] | None = None) -> Icp2dOdometry:
-    """A copy of `odo` that registers onto `frames` (map frame) without adding keyframes."""
-    twin = copy.deepcopy(odo)
-    twin._accept = lambda *args, **kwargs: None  # type: ignore[method-assign]
-    twin._keyframes.clear()
-    twin._keyframes.extend(frames)
-    twin._normals.clear()
-    if normals is not None:
-        twin._normals.extend(normals)
-    twin._rebuild_map()
-    return twin
 
 
 def _error(truth: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -151,9 +138,9 @@ def main() -> None:
         plain.config = dataclasses.replace(cfg_b, cull_back_faces=False)
         culled = copy.deepcopy(odo)
         culled.config = culled_cfg
-        e_all = _error(truth, _frozen(plain, frames).process(scan).delta)
-        e_cull = _error(truth, _frozen(culled, frames, normals).process(scan).delta)
-        singles = np.array([_error(truth, _frozen(plain, [f]).process(scan).delta)
+        e_all = _error(truth, _with_frames(plain, frames).process(scan).delta)
+        e_cull = _error(truth, _with_frames(culled, frames, normals).process(scan).delta)
+        singles = np.array([_error(truth, _with_frames(plain, [f]).process(scan).delta)
                             for f in frames[-SINGLES:]])
         med = np.median(singles[:, 1])
         agree.append((e_cull[1], med, e_all[1]))

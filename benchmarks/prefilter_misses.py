@@ -120,17 +120,22 @@ def _described_submap(mapper, key: int) -> np.ndarray:
     return mapper._local_points(key, max(mapper._span(key)[0], key - n), key)
 
 
-def describe_all(scans: dict, config: PipelineConfig, matcher: PairHistogramMatcher
-                 ) -> dict[int, np.ndarray]:
-    """Pair-histogram vector of every scan that makes a polygon."""
+def polygons_of(scans: dict, config: PipelineConfig) -> dict:
+    """The polygon of every scan that makes one (`config.loops.polygon`)."""
     out = {}
     for k, scan in scans.items():
         try:
-            poly = polygon_from_scan(scan, config.loops.polygon)
+            out[k] = polygon_from_scan(scan, config.loops.polygon)
         except DegeneratePolygonError:
             continue
-        out[k] = np.asarray(matcher.describe(poly), float)
     return out
+
+
+def describe_all(scans: dict, config: PipelineConfig, matcher: PairHistogramMatcher
+                 ) -> dict[int, np.ndarray]:
+    """Pair-histogram vector of every scan that makes a polygon."""
+    return {k: np.asarray(matcher.describe(poly), float)
+            for k, poly in polygons_of(scans, config).items()}
 
 
 def cloud_vector(pts: np.ndarray, radius: float, cfg: PairHistogramConfig,

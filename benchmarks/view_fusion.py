@@ -88,17 +88,10 @@ def grids_of(scans: dict, config: PipelineConfig) -> dict[int, np.ndarray]:
     database stores it (`loopclosure.place_grids.polar_grid`)."""
     from loopclosure.grid_rerank import dilate_polar
     from loopclosure.place_grids import polar_grid, unpack_grid
-    from loopclosure.polygon import DegeneratePolygonError, polygon_from_scan
 
     cfg = config.loops.database
-    out = {}
-    for k, scan in scans.items():
-        try:
-            poly = polygon_from_scan(scan, config.loops.polygon)
-        except DegeneratePolygonError:
-            continue
-        out[k] = dilate_polar(unpack_grid(polar_grid(poly, cfg), cfg))
-    return out
+    return {k: dilate_polar(unpack_grid(polar_grid(poly, cfg), cfg))
+            for k, poly in pm.polygons_of(scans, config).items()}
 
 
 def first_hit(order: np.ndarray, near: np.ndarray, finite: np.ndarray) -> int:
