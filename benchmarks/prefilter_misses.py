@@ -146,7 +146,6 @@ def cloud_vector(pts: np.ndarray, radius: float, cfg: PairHistogramConfig,
     from scipy.spatial import cKDTree
 
     from loopclosure.fast_icp import voxel_downsample_fast
-    from loopclosure.matchers.pair_kernel import pair_histogram_compiled
 
     p = np.asarray(pts, float).reshape(-1, 2)
     p = p[np.hypot(p[:, 0], p[:, 1]) < radius]
@@ -161,14 +160,7 @@ def cloud_vector(pts: np.ndarray, radius: float, cfg: PairHistogramConfig,
     cxy = (nb[..., 0] * nb[..., 1]).sum(1)
     theta = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # the main axis
     nrm = np.column_stack([-np.sin(theta), np.cos(theta)])
-    w = np.full(len(v), cfg.step)
-    if len(v) > cfg.max_samples:
-        stride = -(-len(v) // cfg.max_samples)
-        v, nrm, w = v[::stride], nrm[::stride], w[::stride] * stride
-    hist = pair_histogram_compiled(v, nrm, w, max_distance=cfg.max_distance,
-                                   n_distance=cfg.n_distance, n_angle=cfg.n_angle).ravel()
-    total = hist.sum()
-    return np.sqrt(hist / total) if total > 0 else None
+    return _root_histogram(v, nrm, np.full(len(v), cfg.step), cfg)
 
 
 def union_vector(pts: np.ndarray, own_scan, radius: float, count: int,
@@ -178,7 +170,6 @@ def union_vector(pts: np.ndarray, own_scan, radius: float, count: int,
     surface samples in the keyframe frame: the origin's all, another view's those
     farther than `cfg.step` from every sample already taken."""
     from loopclosure.matchers.pair_histogram import surface_samples
-    from loopclosure.matchers.pair_kernel import pair_histogram_compiled
     from loopclosure.viewpoints import ViewpointConfig, viewpoint_scans
 
     scans = [own_scan]
@@ -207,6 +198,16 @@ def union_vector(pts: np.ndarray, own_scan, radius: float, count: int,
         new = (cKDTree(p).query(pe, distance_upper_bound=cfg.step)[0] > cfg.step
                if len(p) else np.ones(len(pe), bool))
         p, n, w = np.vstack([p, pe[new]]), np.vstack([n, ne[new]]), np.concatenate([w, we[new]])
+    return _root_histogram(p, n, w, cfg)
+
+
+def _root_histogram(p: np.ndarray, n: np.ndarray, w: np.ndarray,
+                    cfg: PairHistogramConfig) -> np.ndarray | None:
+    """Square root of the normalised pair histogram of samples `p` [m], unit normals
+    `n` and lengths `w` [m] (every stride-th sample, weight times stride, beyond
+    `cfg.max_samples`); None for an empty histogram."""
+    from loopclosure.matchers.pair_kernel import pair_histogram_compiled
+
     if len(p) > cfg.max_samples:
         stride = -(-len(p) // cfg.max_samples)
         p, n, w = p[::stride], n[::stride], w[::stride] * stride
