@@ -24,6 +24,7 @@ from data.errors import UserError
 from evaluation.loop_bench_misses import nearest_place, submap_overlap
 from loopclosure.place_choice import merge_views
 from loopclosure.place_database import PlaceDatabase
+from loopclosure.place_shortlist import rank_interleave_with_distance
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper
 
@@ -328,11 +329,5 @@ def interleaved_order(per_view: Sequence[Array]) -> tuple[NDArray[np.intp], Arra
         ``(order, distance)``: the row order, and each row's distance in the view
         that ranks it best (the smaller on ties).
     """
-    d = np.vstack([np.asarray(v, dtype=float) for v in per_view])
-    ranks = np.full(d.shape, np.inf)
-    for view, dist in enumerate(d):
-        finite = np.flatnonzero(np.isfinite(dist))
-        ranks[view, finite[np.argsort(dist[finite], kind="stable")]] = np.arange(len(finite))
-    best = ranks.min(axis=0)
-    distance = np.where(ranks == best, d, np.inf).min(axis=0)
-    return np.lexsort((np.arange(d.shape[1]), distance, best)), distance
+    return rank_interleave_with_distance(np.vstack([np.asarray(v, dtype=float)
+                                                    for v in per_view]))

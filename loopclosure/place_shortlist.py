@@ -37,6 +37,14 @@ def rank_interleave(per_list: list[NDArray[np.floating]] | NDArray[np.floating]
                     ) -> NDArray[np.intp]:
     """Positions ordered by their best rank over several distance lists (module
     docstring; ``inf``: the list does not hold the row, never ranked by it)."""
+    return rank_interleave_with_distance(per_list)[0]
+
+
+def rank_interleave_with_distance(
+    per_list: list[NDArray[np.floating]] | NDArray[np.floating],
+) -> tuple[NDArray[np.intp], Array]:
+    """`rank_interleave`'s order and each position's distance in the list that ranks it
+    best (the smaller on ties; ``inf`` where no list holds it)."""
     d = np.atleast_2d(np.asarray(per_list, dtype=float))
     ranks = np.full(d.shape, np.inf)
     for i, dist in enumerate(d):
@@ -44,7 +52,7 @@ def rank_interleave(per_list: list[NDArray[np.floating]] | NDArray[np.floating]
         ranks[i, finite[np.argsort(dist[finite], kind="stable")]] = np.arange(len(finite))
     best = ranks.min(axis=0)
     distance = np.where(ranks == best, d, np.inf).min(axis=0)
-    return np.lexsort((np.arange(d.shape[1]), distance, best))
+    return np.lexsort((np.arange(d.shape[1]), distance, best)), distance
 
 
 def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
