@@ -281,6 +281,25 @@ def viewpoint_stack(data: dict, config: PipelineConfig, matcher: PairHistogramMa
     return np.array(vecs).reshape(-1, matcher.config.dim), np.array(owner, np.intp)
 
 
+def wide_matrix(wide: dict) -> tuple[np.ndarray, np.ndarray | None]:
+    """The wide view's keys (sorted) and their vectors stacked row by row (None: none)."""
+    wide_keys = np.array(sorted(wide), np.intp)
+    return wide_keys, (np.array([wide[int(k)] for k in wide_keys]) if len(wide_keys)
+                       else None)
+
+
+def wide_distance(wide: dict, wide_keys: np.ndarray, wide_m: np.ndarray | None,
+                  row_keys: np.ndarray, asked: int | None) -> np.ndarray:
+    """Distance of the query's wide vector ``wide[asked]`` to every sorted `row_keys`
+    keyframe's (`wide_matrix`); ``inf`` where either has none."""
+    other = np.full(len(row_keys), np.inf)
+    if wide_m is not None and asked is not None and asked in wide:
+        w_rows = np.flatnonzero(np.isin(wide_keys, row_keys))
+        at = np.searchsorted(row_keys, wide_keys[w_rows])
+        other[at] = np.linalg.norm(wide_m[w_rows] - wide[asked], axis=1)
+    return other
+
+
 def _min_over(q: np.ndarray, vecs: np.ndarray, owner: np.ndarray, n: int) -> np.ndarray:
     best = np.full(n, np.inf)
     if len(vecs):
@@ -299,8 +318,7 @@ def ranks(data: dict, own: dict, wide: dict, views: tuple | None = None,
     dim = len(next(iter(own.values())))
     own_m = np.array([own.get(int(k), np.zeros(dim)) for k in keys])
     has_own = np.array([int(k) in own for k in keys])
-    wide_keys = np.array(sorted(wide), np.intp)
-    wide_m = np.array([wide[int(k)] for k in wide_keys]) if len(wide_keys) else None
+    wide_keys, wide_m = wide_matrix(wide)
     out = {"own": [], "wide": [], "both": []}
     for q in data["queries"]:
         k, rows, near = q["k"], q["rows"], q["near"]
@@ -322,12 +340,7 @@ def ranks(data: dict, own: dict, wide: dict, views: tuple | None = None,
                         d_own = np.minimum(d_own, margin * _min_over(qv, vecs, owner,
                                                                      len(keys))[rows])
         d_own[~has_own[rows]] = np.inf
-        other = np.full(len(rows), np.inf)
-        asked = q["asked"]
-        if wide_m is not None and asked is not None and asked in wide:
-            w_rows = np.flatnonzero(np.isin(wide_keys, keys[rows]))
-            at = np.searchsorted(keys[rows], wide_keys[w_rows])
-            other[at] = np.linalg.norm(wide_m[w_rows] - wide[asked], axis=1)
+        other = wide_distance(wide, wide_keys, wide_m, keys[rows], q["asked"])
         for name, per in (("own", [d_own]), ("wide", [other]), ("both", [d_own, other])):
             order = interleaved_order(per)[0]
             finite = np.isfinite(np.min(np.vstack(per), axis=0))[order]

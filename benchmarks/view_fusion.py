@@ -112,8 +112,7 @@ def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: in
     factors = stored_factors(keys, own_m, has_own, vecs, owner, knn)
     grid_own = grids_of(data["own"], config) if grid else None
     grid_wide = grids_of(data["wide"], config) if grid else None
-    wide_keys = np.array(sorted(wide), np.intp)
-    wide_m = np.array([wide[int(k)] for k in wide_keys]) if len(wide_keys) else None
+    wide_keys, wide_m = pm.wide_matrix(wide)
     out: dict[str, list[int]] = {}
     for q in data["queries"]:
         k, rows, near = q["k"], q["rows"], q["near"]
@@ -135,12 +134,8 @@ def study(data: dict, config: PipelineConfig, radius: float, count: int, knn: in
             dv = np.linalg.norm(vecs - own[k], axis=1)
             np.minimum.at(stored_raw, owner, dv)
             np.minimum.at(stored_scaled, owner, dv * factors)
-        other = np.full(len(rows), np.inf)
         asked = q["asked"]
-        if wide_m is not None and asked is not None and asked in wide:
-            w_rows = np.flatnonzero(np.isin(wide_keys, keys[rows]))
-            at = np.searchsorted(keys[rows], wide_keys[w_rows])
-            other[at] = np.linalg.norm(wide_m[w_rows] - wide[asked], axis=1)
+        other = pm.wide_distance(wide, wide_keys, wide_m, keys[rows], asked)
         qmin = np.minimum(d0, dq.min(axis=0)) if len(dq) else d0
         qmin_s = np.minimum(d0, (dq * q_scale).min(axis=0)) if len(dq) else d0
         smin = np.minimum(d0, stored_raw[rows])
