@@ -11,9 +11,19 @@ from __future__ import annotations
 
 import argparse
 import pickle
+from dataclasses import dataclass
 from pathlib import Path
 
-from evaluation.robustness import corrupted_graph
+import numpy as np
+
+from evaluation.robustness import (
+    aligned_position_error,
+    consistent_with_clean,
+    corrupted_graph,
+)
+from slam.consistency import tls_cost
+from slam.optimize import default_outlier_residual
+from slam.pose_graph import whitened_residual
 
 
 def cell_parser(description: str, seed: int = 0, cache: bool = True) -> argparse.ArgumentParser:
@@ -44,3 +54,33 @@ def read_cell(args: argparse.Namespace):
         cached.parent.mkdir(parents=True, exist_ok=True)
         cached.write_bytes(pickle.dumps(cell[1]))
     return cell
+
+
+@dataclass(frozen=True)
+class CellOutcome:
+    """What a robust solution of one cell did: `obeyed` per loop (whitened residual at
+    most the default outlier residual), the false loops obeyed, how many of those the
+    clean optimum also satisfies (`consistent`), the true loops rejected, the TLS cost
+    above the clean optimum's (`gap`) and the aligned position error [m]."""
+
+    obeyed: np.ndarray
+    false_obeyed: np.ndarray
+    consistent: int
+    true_rejected: int
+    gap: float
+    ate: float
+
+
+def cell_outcome(graph, reference, corrupted, is_false: np.ndarray, poses) -> CellOutcome:
+    """`CellOutcome` of `poses` on the cell ``(graph, reference, corrupted, is_false)``
+    that `read_cell` returns."""
+    threshold = default_outlier_residual(graph.dim)
+    residuals = np.array([whitened_residual(c, poses, graph.dim) for c in corrupted.loops])
+    obeyed = residuals <= threshold
+    false_obeyed = np.flatnonzero(obeyed & is_false)
+    consistent = consistent_with_clean(graph, reference,
+                                       [corrupted.loops[k] for k in false_obeyed])
+    gap = (tls_cost(corrupted, corrupted.gtsam_values(poses))
+           - tls_cost(corrupted, corrupted.gtsam_values(reference)))
+    return CellOutcome(obeyed, false_obeyed, consistent, int((~obeyed & ~is_false).sum()),
+                       gap, aligned_position_error(poses, reference, graph.dim))
