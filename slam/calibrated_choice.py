@@ -47,13 +47,15 @@ from slam.innovation import InnovationTest, _Gains, tls_threshold
 from slam.least_squares import StickySolver
 from slam.pose_graph import Constraint, PoseGraph, chi2_quantile, pose_dof
 from slam.variance_components import BOUNDS
+from slam.warm_starts import WarmStarts
 
 Array = NDArray[np.float64]
 FACTOR_TOLERANCE = 0.01  # decide once a round changes the odometry factor by less than this
 OWN_ROUNDS = 5  # calibrated solves of `own_factor`
 # `calibrated_choices` starts each calibrated solve from the solution it already holds
-# (any candidate, any factor) that is cheapest on the graph to solve (`Solved`); False:
-# from the candidate's own values (or the previous round's solution), as before.
+# (any candidate, any factor) that is cheapest on the graph to solve
+# (`slam.warm_starts.WarmStarts`); False: from the candidate's own values (or the previous
+# round's solution).
 WARM_STARTS = True
 
 
@@ -72,33 +74,6 @@ def odometry_variance_step(
     r_loops = dof * len(loop_traces) - float(np.sum(loop_traces))
     return 2.0 * odometry_error / max(rows - unknowns - r_loops, 1e-12)
 
-
-
-class Solved:
-    """Solutions already found by the calibrated solves of one choice, offered as starts.
-
-    A solve starts from whichever of its own start and every solution held (any
-    candidate, any odometry factor) has the least error on the graph to solve (gtsam
-    units; the own start on ties): the nearest already-solved hypothesis, typically the
-    same candidate solved at a nearby factor.  Why: the solver's trust region grows from
-    a fixed radius, so a solve from a start far away (a candidate's stated solution,
-    factor 1) takes many iterations to reach an optimum that a start nearby reaches in a
-    few; both reach it to the solver's tolerance.  Cost: one error evaluation of the
-    graph per held solution and solve.
-    """
-
-    def __init__(self, values: Sequence[gtsam.Values] = ()) -> None:
-        self.values: list[gtsam.Values] = list(values)
-
-    def start(self, factors: gtsam.NonlinearFactorGraph, own: gtsam.Values) -> gtsam.Values:
-        """The start of a solve of `factors` whose own start is `own`."""
-        tried = [own, *self.values]
-        return tried[int(np.argmin([factors.error(v) for v in tried]))]
-
-    def solved(self, values: gtsam.Values) -> gtsam.Values:
-        """Hold the solution `values` (returned as is)."""
-        self.values.append(values)
-        return values
 
 
 def _loops_key(weights: Array) -> bytes:
@@ -161,7 +136,7 @@ class Calibrated:
 def own_factor(
     graph: PoseGraph, values: gtsam.Values, weights: Array, *,
     unit: Sequence[gtsam.NonlinearFactor], solver: StickySolver, start: float = 1.0,
-    max_rounds: int = OWN_ROUNDS, with_gains: bool = True, starts: Solved | None = None,
+    max_rounds: int = OWN_ROUNDS, with_gains: bool = True, starts: WarmStarts | None = None,
 ) -> Calibrated:
     """The odometry variance factor the loops of weight 1 support, from `start`, and the
     calibrated solution there: `odometry_variance_step` to `FACTOR_TOLERANCE` by secant
@@ -169,7 +144,7 @@ def own_factor(
     re-weighting step first and where the secant is flat), capped at 1, at most
     `max_rounds` solves (the last one's factor is returned).  `with_gains`: linearise the
     accepted loops at the solution (`Calibrated.gains`, else None).  `starts`: each round
-    solves from the nearest solution held there (`Solved.start`) and adds its own."""
+    solves from the nearest solution held there (`WarmStarts.start`) and holds its own."""
     d, keys = pose_dof(graph.dim), graph.keys
     priors = [graph.prior_factor(k) for k in graph.anchor_keys()]
     w = np.asarray(weights) > 0.5
@@ -181,7 +156,7 @@ def own_factor(
         if starts is None:
             current = solver(accepted, current)
         else:
-            current = starts.solved(solver(accepted, starts.start(accepted, current)))
+            current = starts.hold(solver(accepted, starts.start(accepted, current)))
         if not w.any():
             return Calibrated(s, current, fixed, None, kept, None, 0.0, s)
         test = InnovationTest(accepted, current, keys, d)
@@ -256,7 +231,7 @@ def calibrated_choices(
     which = list(distinct.values())
     if len(which) == 1:
         return Choices(0, 0, 1.0, 1.0)
-    starts = Solved(candidates[n][0] for n in which) if WARM_STARTS else None
+    starts = WarmStarts(candidates[n][0] for n in which) if WARM_STARTS else None
     try:
         owns = {n: own_factor(graph, candidates[n][0], candidates[n][1], unit=unit,
                               solver=solve, with_gains=False, starts=starts) for n in which}
@@ -305,7 +280,7 @@ class _Judge:
     unit: Sequence[gtsam.NonlinearFactor]
     owns: dict[int, Calibrated]
     step: dict[int, int]
-    starts: Solved | None = None  # solutions held as starts (`Solved`); None: own starts
+    starts: WarmStarts | None = None  # solutions held as starts; None: own starts
 
     def winner_at(self, chosen: int) -> int:
         """The cheapest candidate with the odometry calibrated by `chosen`'s own factor."""
@@ -330,7 +305,7 @@ class _Judge:
         """`factors` solved from `own`, or from the nearest held solution (`starts`)."""
         if self.starts is None:
             return self.solve(factors, own)
-        return self.starts.solved(self.solve(factors, self.starts.start(factors, own)))
+        return self.starts.hold(self.solve(factors, self.starts.start(factors, own)))
 
     def fixed_point(self, chosen: int) -> int:
         """Judge at the winner's own factor from `chosen` until it stays (or recurs)."""

@@ -128,6 +128,7 @@ from slam.pose_graph import (
     PoseGraph,
     RobustKernel,
 )
+from slam.warm_starts import WarmStarts
 
 __all__ = [
     "BAR_TRIES", "DEFER_MODES", "LM_BUDGET", "ODOMETRY_LADDER", "POLISH_TOLERANCE",
@@ -145,6 +146,10 @@ POLISH_TOLERANCE = 1e-10  # `polish` stops below this relative decrease of the e
 BOUNDED_WAIT = 1  # loop-bearing blocks a deferred loop waits under ``defer="bounded"``
 # `incremental_tls`'s deferral of powerless tests
 DEFER_MODES = ("off", "candidate", "all", "bounded", "both")
+# `incremental_tls`'s `refine_tls` solves start from the solution already found (any run,
+# any loops) that is cheapest on the graph to solve (`slam.warm_starts.WarmStarts`);
+# False: each from the run's own solution.
+WARM_STARTS = True
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -173,6 +178,7 @@ def refine_tls(
     barred: Sequence[int] = (),
     solved: bool = False,
     factors: StatedFactors | None = None,
+    starts: WarmStarts | None = None,
 ) -> tuple[gtsam.Values, Array]:
     """Re-decide every loop by the TLS residual rule on the whole graph until stable.
 
@@ -180,7 +186,9 @@ def refine_tls(
     re-weighted least squares of the TLS loss from a start inside its basin).  Loops
     in `barred` keep weight 0.  `solved`: `values` already solve the graph with
     `weights` (an `admit_incrementally` result), so the first solve is skipped.
-    `factors`: as in `tls_cost`.
+    `factors`: as in `tls_cost`.  `starts`: each solve starts from the nearest solution
+    held there (`WarmStarts.start`: least error on the graph to solve, the current
+    solution on ties) and holds its own (and `values`, when `solved`).
     """
     solve = solver or StickySolver()
     base, loop_index = factors or graph.factor_graph(RobustKernel("none"))
@@ -189,6 +197,8 @@ def refine_tls(
     w = np.asarray(weights, dtype=float).copy()
     w[list(barred)] = 0.0
     result = values
+    if solved and starts is not None:
+        starts.hold(values)
     for n in range(max_rounds):
         if not (solved and n == 0):
             kept = gtsam.NonlinearFactorGraph()
@@ -196,7 +206,10 @@ def refine_tls(
                 kept.add(base.at(k))
             for k in np.flatnonzero(w > 0.5):
                 kept.add(base.at(loop_index[k]))
-            result = solve(kept, result)
+            if starts is None:
+                result = solve(kept, result)
+            else:
+                result = starts.hold(solve(kept, starts.start(kept, result)))
         new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
         new[list(barred)] = 0.0
         if np.array_equal(new, w):
@@ -224,6 +237,7 @@ def bar_search(
     wait: int | None = None,
     undo: bool = False,
     confirm: bool = False,
+    starts: WarmStarts | None = None,
 ) -> Admission:
     """Local search on the TLS objective: re-run the admission without one accepted loop.
 
@@ -242,7 +256,7 @@ def bar_search(
     `factors`: as in `tls_cost`.  `source`: the pass (made with ``record=True``) that
     gave `best`, on `decide` with `gate`: a trial resumes it from before the block that
     decides its barred loop (`AdmissionPass.resumed`), as is the next trial from a kept
-    one, instead of deciding every block again.
+    one, instead of deciding every block again.  `starts`: `refine_tls`'s.
     """
     solve = solver or StickySolver()
     factors = factors or graph.factor_graph(RobustKernel("none"))
@@ -270,7 +284,7 @@ def bar_search(
             break
         refined, weights = refine_tls(graph, run.current, run.weights,
                                       probability=probability, solver=solve, barred=trial,
-                                      solved=decide is graph, factors=factors)
+                                      solved=decide is graph, factors=factors, starts=starts)
         cost = tls_cost(graph, refined, probability, factors)
         if not cost < best.tls_cost * (1.0 - 1e-9):
             break
@@ -439,6 +453,7 @@ def incremental_tls(
     # Finished runs first, then the folded ones in ladder order, each only if still ahead.
     finished: list[tuple[Admission, PoseGraph, AdmissionPass]] = []
     source: AdmissionPass | None = None
+    starts = WarmStarts() if WARM_STARTS else None  # every refined solution, as starts
     for label, decide, run in sorted(runs, key=lambda r: not r[2].done):
         finishes = _finish_unless_behind(run, best, stated, probability)
         run.release_prefix()  # decided: the pass is never advanced again
@@ -446,7 +461,7 @@ def incremental_tls(
             continue
         refined, weights = refine_tls(
             graph, run.current, run.weights, probability=probability, solver=solver,
-            solved=decide is graph, factors=stated,
+            solved=decide is graph, factors=stated, starts=starts,
         )
         cost = tls_cost(graph, refined, probability, stated)
         finished.append((Admission(refined, weights, cost, run.blocks, label), decide, run))
@@ -476,7 +491,7 @@ def incremental_tls(
                           factors=stated, gate=_gate_of(best), source=source,
                           defer=source is not None and source.defer,
                           wait=None if source is None else source.wait, undo=undo,
-                          confirm=confirm)
+                          confirm=confirm, starts=starts)
     # The winner may be an unpolished admission (refine_tls's `solved`): one batch solve
     # with its weights, by dogleg-QR, which stops closer to the optimum along M3500's flat
     # directions than LM at the same tolerance (0% outliers: 0.9 mm from the plain optimum

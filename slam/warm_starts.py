@@ -1,0 +1,45 @@
+"""Starts of a sequence of related least-squares solves: the nearest solution held.
+
+The robust back end solves many graphs that differ from one another only a little: the
+same candidate's loops at several odometry variance factors (`slam.calibrated_choice`),
+the same graph with a few loops more or fewer (`slam.consistency.refine_tls` on every
+rung of the odometry ladder).  A solve from a start far from its optimum (a candidate's
+solution at factor 1 where the factor is 0.3, a rung's solution under odometry ten
+times stiffer) costs many iterations of the solver, whose trust region grows from a
+fixed radius, where a solution already found for a neighbouring graph is a few
+iterations away.  `WarmStarts` holds the solutions found so far and starts each solve
+from the one at which the graph to solve has the least error.
+
+Every start leads to the same optimum to the solver's tolerance (the graphs are solved
+in a basin the own start already lies in when it is the cheapest; a held solution is
+chosen only when it is cheaper still).  Units: gtsam errors (``0.5 r^T I r``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import gtsam
+import numpy as np
+
+
+class WarmStarts:
+    """Solutions already found, offered as starts of the next solves.
+
+    `start` picks, among a solve's own start and every solution held, the one at which
+    the graph to solve has the least error (the own start on ties); `hold` adds a
+    solution.  Cost: one error evaluation of the graph per solution held and solve.
+    """
+
+    def __init__(self, values: Iterable[gtsam.Values] = ()) -> None:
+        self.values: list[gtsam.Values] = list(values)
+
+    def start(self, factors: gtsam.NonlinearFactorGraph, own: gtsam.Values) -> gtsam.Values:
+        """The start of a solve of `factors` whose own start is `own`."""
+        tried = [own, *self.values]
+        return tried[int(np.argmin([factors.error(v) for v in tried]))]
+
+    def hold(self, values: gtsam.Values) -> gtsam.Values:
+        """Hold the solution `values` (returned as is)."""
+        self.values.append(values)
+        return values
