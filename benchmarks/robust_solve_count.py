@@ -5,14 +5,16 @@ Run from the repository root::
 
     python benchmarks/robust_solve_count.py input_INTEL_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--cache DIR] [--depth 4] [--memo N]
-        [--stiff]
+        [--stiff] [--cold]
 
 Runs `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with
 `slam.least_squares.StickySolver` wrapped: every call is attributed to the chain of
 `slam` functions that made it (innermost `--depth` frames), counted as a memo hit or a
 solve, with the solve's CPU seconds and dogleg iterations (QR path).  Prints one line per
 chain, most expensive first, then the totals (the clean optimum's solves, when the cache
-lacks it, are not counted).
+lacks it, are not counted).  `--cold`: the calibrated choice's and `refine_tls`'s solves
+from their own starts (``slam.calibrated_choice.WARM_STARTS`` and
+``slam.consistency.WARM_STARTS`` False) instead of the nearest solution held.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import slam.calibrated_choice as calibrated_choice
+import slam.consistency as consistency
 import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_parser, read_cell
 from slam.optimize import optimize
@@ -92,11 +96,13 @@ def main() -> None:
     parser.add_argument("--memo", type=int, default=None,
                         help="solutions each solver remembers (default: the module's)")
     parser.add_argument("--stiff", action="store_true", help="STIFF_CHOLESKY on")
+    parser.add_argument("--cold", action="store_true", help="WARM_STARTS off")
     args = parser.parse_args()
     DEPTH[0] = args.depth
     if args.memo is not None:
         least_squares.MEMO_ENTRIES = args.memo
     least_squares.STIFF_CHOLESKY = args.stiff
+    calibrated_choice.WARM_STARTS = consistency.WARM_STARTS = not args.cold
     _, _, corrupted, _ = read_cell(args)
     STATS.clear()  # the clean optimum's solves
     start = time.process_time()

@@ -28,7 +28,11 @@ the stated winner is kept too: the loops it has and the stiff one lacks are offe
 
 Cost: `own_factor` takes, per round, a calibrated solve, one sparse LU and the marginal
 covariance blocks of every accepted loop's two poses (`InnovationTest.blocks`); the
-choice runs it for one or two candidates, only when the candidates' loops differ.
+choice runs it for every candidate whose loops differ from an earlier one's, and judges
+each candidate once per factor it is judged at.  Each of those solves starts from the
+solution found so far that is nearest (least error on the graph to solve,
+`slam.warm_starts.WarmStarts`; `WARM_STARTS`): a candidate judged at another's factor
+starts from its own solution at the nearest factor instead of its stated one.
 
 Units: variance factors are dimensionless (actual / stated variance); costs are gtsam
 errors (``0.5 chi2``).
@@ -292,8 +296,12 @@ class _Judge:
         best, best_cost = chosen, np.inf
         for n in self.which:
             w = np.asarray(self.candidates[n][1], dtype=float)
-            x = own.values if n == chosen else self._solved(_accepted(fixed, self.unit, w),
-                                                            self.candidates[n][0])
+            if n == chosen:
+                x = own.values
+            elif self.starts is not None and self.owns[n].s == own.s:
+                x = self.owns[n].values  # this very graph, solved by `own_factor`
+            else:
+                x = self._solved(_accepted(fixed, self.unit, w), self.candidates[n][0])
             cost = fixed.error(x) + float(np.minimum([f.error(x) for f in self.unit],
                                                      self.c).sum())
             if cost < best_cost * (1.0 - 1e-9):
