@@ -4,10 +4,9 @@ The robust back end solves many graphs that differ from one another only a littl
 same candidate's loops at several odometry variance factors (`slam.calibrated_choice`),
 the same graph with a few loops more or fewer (`slam.consistency.refine_tls` on every
 rung of the odometry ladder).  A solve from a start far from its optimum (a candidate's
-solution at factor 1 where the factor is 0.3, a rung's solution under odometry ten
-times stiffer) costs many iterations of the solver, whose trust region grows from a
-fixed radius, where a solution already found for a neighbouring graph is a few
-iterations away.  `WarmStarts` holds the solutions found so far and starts each solve
+solution at factor 1 judged at a factor well below 1, a rung's solution under odometry
+ten times stiffer) costs many more iterations of the solver than one from a solution
+already found for a neighbouring graph.  `WarmStarts` holds the solutions found so far and starts each solve
 from the one at which the graph to solve has the least error.
 
 Every start leads to the same optimum to the solver's tolerance (the graphs are solved
