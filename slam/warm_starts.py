@@ -6,8 +6,8 @@ the same graph with a few loops more or fewer (`slam.consistency.refine_tls` on 
 rung of the odometry ladder).  A solve from a start far from its optimum (a candidate's
 solution at factor 1 judged at a factor well below 1, a rung's solution under odometry
 ten times stiffer) costs many more iterations of the solver than one from a solution
-already found for a neighbouring graph.  `WarmStarts` holds the solutions found so far and starts each solve
-from the one at which the graph to solve has the least error.
+already found for a neighbouring graph.  `WarmStarts` holds the solutions found so far
+and starts each solve from the one at which the graph to solve has the least error.
 
 Every start leads to the same optimum to the solver's tolerance (the graphs are solved
 in a basin the own start already lies in when it is the cheapest; a held solution is
