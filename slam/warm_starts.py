@@ -9,9 +9,11 @@ ten times stiffer) costs many more iterations of the solver than one from a solu
 already found for a neighbouring graph.  `WarmStarts` holds the solutions found so far
 and starts each solve from the one at which the graph to solve has the least error.
 
-Every start leads to the same optimum to the solver's tolerance (the graphs are solved
-in a basin the own start already lies in when it is the cheapest; a held solution is
-chosen only when it is cheaper still).  Units: gtsam errors (``0.5 r^T I r``).
+Not bit-identical: where the own start and the held solution lie in the same basin, both
+solves end at its optimum to the solver's tolerance, so values differ at that tolerance;
+a held solution is taken only where the graph's error is lower there, but on a nonconvex
+graph nothing guarantees the same basin (`benchmarks/warm_starts.md` compares the loops
+decided and the poses with and without).  Units: gtsam errors (``0.5 r^T I r``).
 """
 
 from __future__ import annotations
