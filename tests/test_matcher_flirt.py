@@ -361,3 +361,48 @@ def test_compiled_euclidean_descriptor_distances_are_numpys_to_the_bit() -> None
     hand = euclidean_distances(np.einsum("qb,qb->q", b, b), np.einsum("mfb,mfb->mf", a, a),
                                np.matmul(a, b.T))
     assert hand[0, 0, 0] == np.sqrt(2.0)
+
+
+def test_compiled_responses_equal_the_numpy_ones() -> None:
+    """`_responses` (numba) gives `_responses_numpy`'s bits on a random curve and on a
+    degenerate one (all samples equal: zero derivative, speed taken as 1, delta 0),
+    and on a circle the closed form of the scale-normalised displacement."""
+    from loopclosure.matchers.flirt_features import (
+        _responses,
+        _responses_numpy,
+        _smoothed_complex,
+    )
+
+    rng = np.random.default_rng(11)
+    sigmas = np.array([1.5, 3.0, 6.0, 12.0])
+    for curve in (rng.normal(size=(64, 2)), np.ones((32, 2))):
+        smooth, deriv = _smoothed_complex(curve, sigmas)
+        got = _responses(curve, 0.3, sigmas, smooth, deriv)
+        np.testing.assert_array_equal(got, _responses_numpy(curve, 0.3, sigmas, smooth, deriv))
+    assert not _responses(curve, 0.3, sigmas, smooth, deriv).any()
+    radius, n = 3.0, 256
+    step = 2.0 * np.pi * radius / n
+    smooth, deriv = _smoothed_complex(circle_curve(radius, n), sigmas)
+    delta = _responses(circle_curve(radius, n), step, sigmas, smooth, deriv)
+    u = sigmas * step / radius
+    expected = radius * (1.0 - np.exp(-(u**2) / 2.0)) / (sigmas * step)
+    np.testing.assert_allclose(delta, expected[:, None] * np.ones(n), rtol=1e-9)
+
+
+def test_batched_smoothing_equals_one_inverse_transform_each() -> None:
+    """`smoothed_curves` (one batched inverse FFT, cached filters) is the curve's
+    spectrum times each Gaussian inverted alone, and times ``i w`` for the derivative."""
+    rng = np.random.default_rng(2)
+    curve = rng.normal(size=(48, 2))
+    sigmas = np.array([1.0, 2.5, 7.0])
+    smooth, deriv = smoothed_curves(curve, sigmas)
+    w = 2.0 * np.pi * np.fft.fftfreq(48)
+    spec = np.fft.fft(curve[:, 0] + 1j * curve[:, 1])
+    for lv, sigma in enumerate(sigmas):
+        gauss = np.exp(-0.5 * (sigma * w) ** 2)
+        s = np.fft.ifft(spec * gauss)
+        d = np.fft.ifft(spec * gauss * (1j * w))
+        np.testing.assert_allclose(smooth[lv], np.column_stack([s.real, s.imag]), atol=1e-12)
+        np.testing.assert_allclose(deriv[lv], np.column_stack([d.real, d.imag]), atol=1e-12)
+    again, _ = smoothed_curves(curve, sigmas)  # the cached filters: the same bits
+    np.testing.assert_array_equal(again, smooth)

@@ -228,17 +228,39 @@ def smoothed_curves(curve: Array, sigmas: Array) -> tuple[Array, Array]:
     Returns:
         ``(L, N, 2)`` smoothed points and ``(L, N, 2)`` derivatives d/ds [per sample].
     """
-    n = len(curve)
-    z = curve[:, 0] + 1j * curve[:, 1]
-    spec = np.fft.fft(z)
-    w = 2.0 * np.pi * np.fft.fftfreq(n)  # rad per sample
-    gauss = np.exp(-0.5 * (sigmas[:, None] * w[None, :]) ** 2)
-    smooth = np.fft.ifft(spec[None, :] * gauss, axis=1)
-    deriv = np.fft.ifft(spec[None, :] * gauss * (1j * w[None, :]), axis=1)
+    smooth, deriv = _smoothed_complex(curve, sigmas)
     return (
         np.stack([smooth.real, smooth.imag], axis=-1),
         np.stack([deriv.real, deriv.imag], axis=-1),
     )
+
+
+_FILTERS: dict[tuple[int, bytes], tuple[Array, Array]] = {}
+
+
+def _filters(n: int, sigmas: Array) -> tuple[Array, Array]:
+    """The Gaussians ``exp(-(sigma_l w)^2 / 2)`` ``(L, N)`` and ``i w`` ``(1, N)`` of the
+    frequencies w [rad per sample] of an N-sample curve, made once per (N, scales)."""
+    key = (n, np.asarray(sigmas, float).tobytes())
+    cached = _FILTERS.get(key)
+    if cached is None:
+        w = 2.0 * np.pi * np.fft.fftfreq(n)  # rad per sample
+        cached = (np.exp(-0.5 * (sigmas[:, None] * w[None, :]) ** 2), 1j * w[None, :])
+        if len(_FILTERS) > 16:
+            _FILTERS.clear()
+        _FILTERS[key] = cached
+    return cached
+
+
+def _smoothed_complex(curve: Array, sigmas: Array) -> tuple[Array, Array]:
+    """`smoothed_curves` as complex ``x + i y`` ``(L, N)`` arrays: the curve's spectrum
+    times each Gaussian, and that times ``i w`` for the derivative, both inverted by one
+    batched inverse FFT (the same values as two)."""
+    gauss, iw = _filters(len(curve), sigmas)
+    spec = np.fft.fft(curve[:, 0] + 1j * curve[:, 1])
+    smoothed = spec[None, :] * gauss
+    both = np.fft.ifft(np.stack([smoothed, smoothed * iw]), axis=2)
+    return both[0], both[1]
 
 
 def _local_maxima(a: Array) -> NDArray[np.bool_]:
@@ -286,8 +308,32 @@ def detect(curve: Array, step: float, config: FlirtFeatureConfig) -> tuple[Array
         ``delta`` ``(L, N)`` scale-normalised displacements (dimensionless).
     """
     sigmas = scale_levels(config)
-    smooth, deriv = smoothed_curves(curve, sigmas)
+    smooth, deriv = _smoothed_complex(curve, sigmas)
     return _detect(curve, step, sigmas, smooth, deriv, config)
+
+
+def _responses(curve: Array, step: float, sigmas: Array, smooth: Array, deriv: Array
+               ) -> Array:
+    """``(L, N)`` scale-normalised displacements delta (module docstring, step 3) of the
+    curve from its complex smoothed copies and derivatives ``(L, N)``
+    (`flirt_peak_kernel.responses_kernel`, compiled: `_responses_numpy`'s bits)."""
+    # numba loads on first use: importing the matchers stays light.
+    from loopclosure.matchers.flirt_peak_kernel import responses_kernel
+
+    return responses_kernel(np.ascontiguousarray(curve, dtype=float), smooth, deriv,
+                            np.ascontiguousarray(sigmas, dtype=float), float(step))
+
+
+def _responses_numpy(curve: Array, step: float, sigmas: Array, smooth: Array, deriv: Array
+                     ) -> Array:
+    """`_responses` in numpy (the reference of the compiled kernel)."""
+    smooth = np.stack([smooth.real, smooth.imag], axis=-1)
+    deriv = np.stack([deriv.real, deriv.imag], axis=-1)
+    speed = np.linalg.norm(deriv, axis=-1)
+    speed = np.where(speed > 0, speed, 1.0)
+    normal = np.stack([deriv[..., 1], -deriv[..., 0]], axis=-1) / speed[..., None]
+    disp = np.einsum("lnk,lnk->ln", curve[None] - smooth, normal)
+    return disp / (sigmas[:, None] * step)
 
 
 def _detect(
@@ -298,11 +344,8 @@ def _detect(
     deriv: Array,
     config: FlirtFeatureConfig,
 ) -> tuple[Array, Array, Array]:
-    speed = np.linalg.norm(deriv, axis=-1)
-    speed = np.where(speed > 0, speed, 1.0)
-    normal = np.stack([deriv[..., 1], -deriv[..., 0]], axis=-1) / speed[..., None]
-    disp = np.einsum("lnk,lnk->ln", curve[None] - smooth, normal)
-    delta = disp / (sigmas[:, None] * step)
+    """`detect` from the complex smoothed curves and derivatives ``(L, N)``."""
+    delta = _responses(curve, step, sigmas, smooth, deriv)
     mag = np.abs(delta)
     peak = _local_maxima(mag) & (mag >= config.min_response)
     level, idx = np.nonzero(peak)
@@ -317,7 +360,7 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     curve = polygon.resample(cfg.n_samples) / unit
     step = polygon.perimeter / unit / cfg.n_samples
     sigmas = scale_levels(cfg)
-    smooth, deriv = smoothed_curves(curve, sigmas)
+    smooth, deriv = _smoothed_complex(curve, sigmas)
     idx, level, delta = _detect(curve, step, sigmas, smooth, deriv, cfg)
     if len(idx) < cfg.min_features:
         k = cfg.min_features + 1
@@ -327,7 +370,7 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     else:
         responses = delta[level, idx]
     tangent = deriv[level, idx]
-    orient = np.arctan2(-tangent[:, 0], tangent[:, 1])  # angle of (t_y, -t_x)
+    orient = np.arctan2(-tangent.real, tangent.imag)  # angle of (t_y, -t_x)
     points = curve[idx]
     scales = sigmas[level] * step
     view = _viewpoint(polygon, cfg.viewpoint, unit)

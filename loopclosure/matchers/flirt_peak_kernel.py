@@ -1,6 +1,14 @@
-"""Compiled FLIRT peak test: `flirt_features._local_maxima` as one loop.
+"""Compiled FLIRT detector: the responses (`flirt_features._responses`) and the peak
+test (`flirt_features._local_maxima`), each as one loop.
 
-The detector keeps a response ``a[l, n]`` (scale level l, circular curve position n,
+Responses: the scale-normalised displacement of step 3 of `flirt_features`' docstring,
+``delta = ((c - c_sigma) . n_sigma) / (sigma h)`` with ``n_sigma = (t_y, -t_x) / |t|``
+(``|t| = sqrt(t_x^2 + t_y^2)``, 1 where it is 0), from the smoothed curve and its
+derivative given as complex ``x + i y`` ``(L, N)`` arrays; the same operations in
+the same order as `flirt_features._responses_numpy` (its norm, its two-term
+einsum and its divisions), so the same bits, without its dozen temporaries.
+
+Peak test: the detector keeps a response ``a[l, n]`` (scale level l, circular curve position n,
 dimensionless) that exceeds every one of its eight neighbours in the 3 x 3 box
 (levels ``l - 1 .. l + 1``, positions ``n - 1 .. n + 1`` modulo N; a level outside
 ``0 .. L - 1`` is ``-inf``) by the relative margin ``strict``:
@@ -15,8 +23,32 @@ mask is identical.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
+
+
+@numba.njit(cache=True)
+def responses_kernel(curve, smooth, deriv, sigmas, step):
+    """``(L, N)`` scale-normalised displacements (module docstring) of the ``(N, 2)``
+    curve [length], its complex smoothed copies and derivatives ``(L, N)`` [length,
+    length per sample], the scales ``sigmas`` (L,) [samples] and the step [length]."""
+    levels, n = smooth.shape
+    delta = np.empty((levels, n))
+    for lv in range(levels):
+        scale = sigmas[lv] * step
+        for i in range(n):
+            tx = deriv[lv, i].real
+            ty = deriv[lv, i].imag
+            speed = math.sqrt(tx * tx + ty * ty)
+            if not speed > 0:
+                speed = 1.0
+            nx = ty / speed
+            ny = -tx / speed
+            disp = (curve[i, 0] - smooth[lv, i].real) * nx + (curve[i, 1] - smooth[lv, i].imag) * ny
+            delta[lv, i] = disp / scale
+    return delta
 
 
 @numba.njit(cache=True)
@@ -45,4 +77,4 @@ def local_maxima_kernel(a, scale, offset):
     return out
 
 
-__all__ = ["local_maxima_kernel"]
+__all__ = ["local_maxima_kernel", "responses_kernel"]
