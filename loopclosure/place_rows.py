@@ -53,8 +53,9 @@ class KeyIndex:
     def __init__(self) -> None:
         self._keys: list[Hashable] = []
         self._index: dict[Hashable, int] = {}
-        self._int_keys: list[int] | None = []  # None once a key is not an increasing int
-        self._int_key_array: NDArray[np.int64] | None = None
+        # The keys while every one is an int larger than the last (None after one is
+        # not), grown by amortised doubling: `rows` searches them without a copy.
+        self._int_keys: FloatRows | None = FloatRows(1, dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self._keys)
@@ -83,13 +84,12 @@ class KeyIndex:
         self._keys.append(key)
         self._index[key] = row
         if self._int_keys is not None:
-            if isinstance(key, int | np.integer) and (
-                not self._int_keys or int(key) > self._int_keys[-1]
-            ):
-                self._int_keys.append(int(key))
+            last = self._int_keys.data[-1:, 0]
+            if (isinstance(key, int | np.integer) and -(2**63) <= int(key) < 2**63
+                    and (not len(last) or int(key) > last[0])):
+                self._int_keys.append([int(key)])
             else:
                 self._int_keys = None
-        self._int_key_array = None
         return row
 
     def row(self, key: Hashable) -> int:
@@ -105,9 +105,7 @@ class KeyIndex:
         if arr.size == 0:
             return np.zeros(0, np.intp)
         if self._int_keys is not None and np.issubdtype(arr.dtype, np.integer):
-            if self._int_key_array is None:
-                self._int_key_array = np.asarray(self._int_keys, np.int64)
-            table = self._int_key_array
+            table = self._int_keys.data[:, 0]
             idx = np.searchsorted(table, arr.ravel())
             ok = idx < len(table)
             ok[ok] = table[idx[ok]] == arr.ravel()[ok]
