@@ -88,10 +88,11 @@ class KeyframeSelector:
             self._delta, self._cov = accumulate(
                 self._delta, self._cov, estimate.delta, estimate.covariance
             )
-        usable = int(scan.valid.sum()) >= cfg.min_valid_beams
         last = self.keyframes[-1] if self.keyframes else None
         new = None
-        if usable and (last is None or self._due(last, estimate)):
+        # Due first: most scans are not, and then their valid beams need no count.
+        if ((last is None or self._due(last, estimate))
+                and np.count_nonzero(scan.valid) >= cfg.min_valid_beams):
             scan = _share_angles(scan, last)
             new = Keyframe(
                 id=len(self.keyframes),

@@ -543,8 +543,8 @@ class Mapper:
         """Keyframes ``first .. last`` in `key`'s sensor frame (front-end poses), points
         beyond ``submap.max_range`` dropped, voxelised by ``submap.voxel`` [m] (the
         compiled `loopclosure.registration.voxel_downsample`)."""
-        centre = self._keyframe(key).odom_pose
-        parts = [se2.transform_points(se2.between(centre, kf.odom_pose), kf.points)
+        inverse = se2.inverse(self._keyframe(key).odom_pose)  # between(centre, .) each
+        parts = [_transform(se2.compose(inverse, kf.odom_pose), kf.points)
                  for kf in map(self._keyframe, range(first, last + 1))]
         pts = np.vstack(parts) if parts else np.zeros((0, 2))
         pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
@@ -630,6 +630,14 @@ class Mapper:
             worker_peak_rss_mb=self._worker_stats.get("peak_rss_mb", 0.0),
         )
         return complete_sessions(self, result, poses)
+
+
+def _transform(pose: Array, points: Array) -> Array:
+    """`data.se2.transform_points` of a ``(3,)`` float pose and ``(N, 2)`` float points
+    (the same operations, without its conversions: a submap transforms a few dozen
+    keyframes)."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return points @ np.array([[c, -s], [s, c]]).T + pose[:2]
 
 
 def _rotate_covariance(cov: Array, theta: float) -> Array:

@@ -126,6 +126,11 @@ class PoseGraph:
     odometry: list[Constraint] = field(default_factory=list)
     loops: list[Constraint] = field(default_factory=list)
     fixed: set[int] = field(default_factory=set)
+    # `factor_graph`'s gtsam factors of the graph's own constraints, by (id, kernel):
+    # (constraint, its measurement, its information, factor).  An entry holds its
+    # constraint, so the id is not reused while the entry lives, and it is used only
+    # while the constraint still holds the same measurement and information arrays.
+    _factors: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     # -- building ---------------------------------------------------------------------------
     def add_pose(self, key: int, guess: Array) -> None:
@@ -209,12 +214,31 @@ class PoseGraph:
         for key in self.anchor_keys():
             graph.add(self.prior_factor(key))
         for c in self.odometry:
-            graph.add(self.between_factor(c))
+            graph.add(self._own_factor(c, None))
         loop_index = []
         for c in self.loops:
             loop_index.append(graph.size())
-            graph.add(self.between_factor(c, kernel))
+            graph.add(self._own_factor(c, kernel))
         return graph, loop_index
+
+    def _own_factor(self, c: Constraint, kernel: RobustKernel | None) -> gtsam.NonlinearFactor:
+        """`between_factor` of a constraint of this graph, made once and kept: the
+        final pass builds the whole graph several times, and a gtsam factor is
+        immutable (the same factor object serves every graph that holds it).  A
+        constraint whose measurement or information was replaced gets a new factor;
+        the cache is pruned of constraints no longer in the graph when it doubles."""
+        kernel = kernel or RobustKernel("none")
+        key = (id(c), kernel)
+        entry = self._factors.get(key)
+        if (entry is not None and entry[0] is c and entry[1] is c.measurement
+                and entry[2] is c.information):
+            return entry[3]
+        factor = self.between_factor(c, kernel)
+        self._factors[key] = (c, c.measurement, c.information, factor)
+        if len(self._factors) > 4 * (len(self.odometry) + len(self.loops)) + 64:
+            own = {id(o): o for o in (*self.odometry, *self.loops)}
+            self._factors = {k: v for k, v in self._factors.items() if own.get(k[0]) is v[0]}
+        return factor
 
 
 def pose_dof(dim: int) -> int:

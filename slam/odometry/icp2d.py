@@ -295,12 +295,17 @@ class Icp2dConfig:
                 raise UserError(f"icp2d {name} must be three numbers >= 0, got {value}")
 
 
+_FAST: list = []  # `loopclosure.fast_icp` once `_fast` imported it
+
+
 def _fast():
     """`loopclosure.fast_icp`, imported on first use: numba (tens of MB, a fraction
     of a second) loads only when a scan is registered, not with the config."""
-    from loopclosure import fast_icp
+    if not _FAST:
+        from loopclosure import fast_icp
 
-    return fast_icp
+        _FAST.append(fast_icp)
+    return _FAST[0]
 
 
 def _frame_rotation(theta: float) -> Array:
@@ -331,6 +336,8 @@ class Icp2dOdometry:
         self._keyframe_pose: Array | None = None
         self._view: Array | None = None
         self._grid: GridTarget | None = None
+        self._trig: tuple[Array, Array, Array] | None = None  # `_bearings`
+        self._floor_cov: Array | None = None  # `_floor`
         self.map_rebuilds = 0
 
     # ------------------------------------------------------------------ public
@@ -429,14 +436,33 @@ class Icp2dOdometry:
         """``(N, 2)`` points the front end registers: end points (sensor frame) of the
         beams within ``[min_range, max_range]``, voxel-downsampled to `source_voxel` [m]."""
         cfg = self.config
+        r, angles = scan.ranges, scan.angles
+        if (cfg.compiled and r.dtype == np.float64 and angles.dtype == np.float64
+                and r.shape == angles.shape):
+            # One compiled call on the bearings' cosines and sines, computed once per
+            # laser (`_bearings`): the same points, to the bit.
+            cosines, sines = self._bearings(angles)
+            bounds = (max(scan.min_range, 0.0), scan.max_range, cfg.min_range, cfg.max_range)
+            return _fast().beam_points_fast(r, cosines, sines, bounds, cfg.source_voxel)
         valid = scan.valid
-        r = scan.ranges
         with np.errstate(invalid="ignore"):
             keep = valid & (r >= cfg.min_range) & (r <= cfg.max_range)
-        pts = np.column_stack([r[keep] * np.cos(scan.angles[keep]),
-                               r[keep] * np.sin(scan.angles[keep])])
+        pts = np.column_stack([r[keep] * np.cos(angles[keep]),
+                               r[keep] * np.sin(angles[keep])])
         voxel = _fast().voxel_downsample_fast if cfg.compiled else voxel_downsample
         return voxel(pts, cfg.source_voxel)
+
+    def _bearings(self, angles: Array) -> tuple[Array, Array]:
+        """``(cos, sin)`` of the beams' bearings `angles` [rad], kept for the next scan
+        of the same laser (equal bearings: a cosine depends only on its bearing, so
+        ``np.cos(angles)[keep]`` is ``np.cos(angles[keep])``)."""
+        cached = self._trig
+        if (cached is not None and cached[0].shape == angles.shape
+                and np.array_equal(cached[0], angles)):
+            return cached[1], cached[2]
+        a = np.array(angles, dtype=float)  # a copy: the key of the next comparison
+        self._trig = (a, np.cos(a), np.sin(a))
+        return self._trig[1], self._trig[2]
 
     def _prediction(self, odom: Array | None) -> tuple[Array, Array, bool]:
         """Increment ``u``, its covariance and whether it is an odometry jump."""
@@ -623,7 +649,10 @@ class Icp2dOdometry:
         return cov
 
     def _floor(self) -> Array:
-        return np.diag(np.square(self.config.covariance_floor)) + 1e-12 * np.eye(3)
+        """``diag(covariance_floor^2) + 1e-12 I`` (made once: the config is frozen)."""
+        if self._floor_cov is None:
+            self._floor_cov = np.diag(np.square(self.config.covariance_floor)) + 1e-12 * np.eye(3)
+        return self._floor_cov.copy()
 
     @staticmethod
     def _describe(res: IcpResult, extra: dict[str, Any]) -> None:
