@@ -14,6 +14,7 @@ from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry
 from slam.outputs import LoopRecord, write_loops_csv
 from slam.pipeline import _transform
 from slam.pose_graph import PoseGraph, RobustKernel
+from tests.helpers import load_benchmark
 
 
 def _reference_points(ranges, angles, bounds, voxel):
@@ -131,3 +132,17 @@ def test_loops_csv_row(tmp_path) -> None:
     assert header.split(",")[:3] == ["keyframe_a", "keyframe_b", "stamp_a"]
     assert row == ("3,10,1.500000,7.250000,place,1,1,0,ok,nan,2,nan,0.500000,nan,nan,nan,"
                    "nan,1.000000,-0.500000,0.250000")
+
+
+def test_stage_benchmark_compares_bytes_and_keeps_the_best_pass() -> None:
+    bench = load_benchmark("exact_stage_speed")
+    a = [np.array([1.0, 2.0]), np.zeros((0, 2))]
+    assert bench.same_arrays(a, [np.array([1.0, 2.0]), np.zeros((0, 2))])
+    assert not bench.same_arrays(a, [np.array([1.0, 2.0 + 1e-15]), np.zeros((0, 2))])
+    assert not bench.same_arrays(a, a[:1])
+    assert not bench.same_arrays([np.zeros(2)], [np.zeros((1, 2))])  # shape, same bytes
+    calls: list[str] = []
+    best = bench.best_of(2, {"old": lambda: calls.append("old"),
+                             "new": lambda: calls.append("new")})
+    assert calls == ["old", "new", "new", "old"]  # alternate order
+    assert set(best) == {"old", "new"} and all(0.0 <= t < 1.0 for t in best.values())
