@@ -59,7 +59,11 @@ def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel a default run calls."""
     scans = [room_scan(-1.0, -0.5), room_scan(-0.8, -0.4)]
     points = [s.points() for s in scans]
-    # Front end and geometric check: voxel grid, grid normals, ICP and its figures.
+    # Front end and geometric check: the beams' end points, voxel grid, grid normals,
+    # ICP and its figures.
+    scan = scans[0]
+    fast_icp.beam_points_fast(scan.ranges, np.cos(scan.angles), np.sin(scan.angles),
+                              (0.0, scan.max_range, 0.0, scan.max_range), 0.05)
     target = fast_icp.GridTarget(fast_icp.voxel_downsample_fast(points[0], 0.05))
     fast_icp.register_fast(points[1], target, (0.2, 0.1, 0.0))
     lazy = fast_icp.GridTarget(fast_icp.voxel_downsample_fast(points[0], 0.05), lazy=True)
@@ -94,6 +98,7 @@ def cache_is_cold() -> bool:
     from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, flirt_peak_kernel, pair_kernel
 
     kernels = (fast_icp._register_kernel, fast_icp._screen_kernel, fast_icp._voxel_kernel,
+               fast_icp._beam_points_kernel, flirt_peak_kernel.responses_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
                flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts, flirt_peak_kernel.local_maxima_kernel,
