@@ -1,0 +1,53 @@
+"""The fit-accuracy and consistency-diagnosis benchmark scripts' own figures, on
+hand-checked cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from loopclosure.free_space import RangeImage
+from tests.helpers import load_benchmark
+
+
+def test_split_error_projects_on_the_weak_axis_and_its_left_normal() -> None:
+    split = load_benchmark("fit_accuracy").split_error
+    # reference 0.3 m further along x and 0.1 m to the left (+y) than the fit
+    along, across, turn = split(np.array([1.3, 0.1, np.radians(1.0)]),
+                                np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0]))
+    assert along == pytest.approx(0.3) and across == pytest.approx(0.1)
+    assert turn == pytest.approx(1.0)
+    # the same error on an axis along y: along 0.1, across -0.3 (left of +y is -x)
+    along, across, _ = split(np.array([1.3, 0.1, 0.0]), np.array([1.0, 0.0, 0.0]),
+                             np.array([0.0, 1.0]))
+    assert along == pytest.approx(0.1) and across == pytest.approx(-0.3)
+
+
+def test_split_error_wraps_the_heading() -> None:
+    split = load_benchmark("fit_accuracy").split_error
+    _, _, turn = split(np.array([0.0, 0.0, np.radians(179.0)]),
+                       np.array([0.0, 0.0, np.radians(-179.0)]), np.array([1.0, 0.0]))
+    assert turn == pytest.approx(-2.0)
+
+
+def test_maker_tells_the_own_scan_from_another_keyframes_points() -> None:
+    maker = load_benchmark("consistency_diagnosis").maker
+    # own scan: a wall 5 m ahead (+x); another keyframe's point 2 m behind (-x)
+    pts = np.array([[5.0, 0.0], [-2.0, 0.0]])
+    own = np.array([True, False])
+    image = RangeImage(pts, bins=720)
+    where = np.array([[3.0, 0.0], [-1.0, 0.0]])
+    assert maker(image, pts, own, where).tolist() == [True, False]
+
+
+def test_decompose_counts_a_point_in_front_of_a_wall_as_a_far_conflict() -> None:
+    bench = load_benchmark("consistency_diagnosis")
+    wall = np.column_stack([np.full(41, 5.0), np.linspace(-2, 2, 41)])
+    q_pts = np.vstack([wall, [[3.0, 0.0]]])  # one stray point 2 m before the wall
+    c_pts = wall.copy()
+    fig = bench.decompose(q_pts, np.zeros(len(q_pts), int), 0, c_pts,
+                          np.ones(len(c_pts), int), 1, np.zeros(3), 0.1, 0.3, 720)
+    assert fig["hits"] == 82 and fig["conflicts"] == 1
+    assert fig["q_in_c_conf"] == 1 and fig["q_in_c_conf_near"] == 0
+    assert fig["q_in_c_conf_own_made"] == 1 and fig["c_in_q_conf"] == 0
+    assert fig["consistency"] == pytest.approx(82 / 83) and fig["own"] == pytest.approx(82 / 83)
