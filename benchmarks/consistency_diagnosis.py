@@ -2,7 +2,8 @@
 
 Run from the repository root::
 
-    python benchmarks/consistency_diagnosis.py LOG [--max-queries N] [--csv OUT.csv]
+    python benchmarks/consistency_diagnosis.py LOG [--max-queries N] [--queries FIRST-LAST] \
+        [--csv OUT.csv]
 
 The log is mapped as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0`` maps it (`evaluation.loop_bench.mapped_input`); every planned
@@ -94,6 +95,10 @@ def decompose(q_pts, q_lab, q_key, c_pts, c_lab, c_key, pose, tol, margin, bins)
         out[f"{name}_conf"] = int(conf.sum())
         out[f"{name}_conf_own_made"] = int((conf & by_own).sum())
         out[f"{name}_conf_near"] = int((conf & (d <= margin)).sum())
+        for lo, hi in ((tol, 0.15), (0.15, 0.2), (0.2, margin)):
+            out[f"{name}_conf_{lo:.2f}_{hi:.2f}"] = int((conf & (d > lo) & (d <= hi)).sum())
+        rng = np.hypot(moved[conf, 0], moved[conf, 1])
+        out[f"{name}_conf_range_med"] = float(np.median(rng)) if len(rng) else float("nan")
         own_img = RangeImage(other.points[other_lab == other_key], bins)
         oc = ~hit & own_img.free(moved, margin)
         own_hits += int(hit.sum())
@@ -107,6 +112,7 @@ def main() -> None:
     ap.add_argument("log")
     ap.add_argument("--max-queries", type=int)
     ap.add_argument("--csv")
+    ap.add_argument("--queries", help="first-last keyframe ids (default: every planned one)")
     args = ap.parse_args()
     cfg = PipelineConfig()
     source = LoopSource(args.log, reference_from_log=True, odometry_noise=0,
@@ -121,6 +127,10 @@ def main() -> None:
     keys = np.array(sorted(det.database.keys), dtype=np.intp)
     covered = np.isfinite(ref).all(axis=1)
     plan = _query_plan(len(ref), args.max_queries)
+    if args.queries:
+        first, last = (int(x) for x in args.queries.split("-"))
+        plan[:first] = False
+        plan[last + 1:] = False
     rows = []
     for k in np.flatnonzero(plan & covered):
         older = keys[keys < k]

@@ -3,7 +3,8 @@
 Run from the repository root::
 
     python benchmarks/fit_accuracy.py LOG [--max-queries N] [--cache FILE.npz] \
-        [--csv OUT.csv] [--variants more_iter,scan,scan_scan,longer_match,longer_both,dense]
+        [--csv OUT.csv] [--set KEY=VALUE ...] [--longer L] \
+        [--variants more_iter,scan,scan_scan,longer_match,longer_both,dense]
 
 The log is mapped as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0 --stages fused`` maps it (`evaluation.loop_bench.mapped_input`) and
@@ -58,6 +59,7 @@ from loopclosure.registration import (  # noqa: E402
     voxel_downsample,
 )
 from slam.config import PipelineConfig  # noqa: E402
+from slam.config_io import apply_overrides  # noqa: E402
 
 VARIANTS = ("more_iter", "scan", "scan_scan", "longer_match", "longer_both", "dense")
 
@@ -161,8 +163,10 @@ def main() -> None:
     ap.add_argument("--csv")
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--longer", type=int, default=30)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config override, as the CLI's --set")
     args = ap.parse_args()
-    cfg = PipelineConfig()
+    cfg = apply_overrides(PipelineConfig(), args.set)
     mapper, ref, rec = _records(args, cfg)
     keys, match, rel, axes = rec["keys"], rec["match"], rec["relative"], rec["axis"]
     acc = rec["accepted"] & (match >= 0)
