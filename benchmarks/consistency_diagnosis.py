@@ -23,7 +23,9 @@ conflicts of `loopclosure.free_space` (2) are split by
   margin, or a point far from any surface);
 
 and the consistency is recomputed with the free space of the keyframe's own scan
-only (``own``: every ray of the model then starts at the origin it assumes).
+only (``own``: every ray of the model then starts at the origin it assumes) and with
+the union of the free spaces of every scan of the submap, each about its own sensor
+origin (``multi``: the rays each scan observed).
 Nothing here changes a verdict.
 """
 
@@ -79,15 +81,36 @@ def maker(image: RangeImage, points: np.ndarray, own: np.ndarray, where: np.ndar
     return out
 
 
-def decompose(q_pts, q_lab, q_key, c_pts, c_lab, c_key, pose, tol, margin, bins):
-    """Conflict split (module docstring) and the consistency with own-scan free space."""
+def scans_of(mapper, key: int, first: int, last: int, bins: int) -> list:
+    """``(pose, RangeImage)`` of every scan of keyframes ``first .. last``: its sensor
+    pose in `key`'s frame and the free space it observed about its own origin."""
+    centre = mapper._keyframe(key).odom_pose
+    return [(se2.between(centre, mapper._keyframe(j).odom_pose),
+             RangeImage(mapper._keyframe(j).points, bins)) for j in range(first, last + 1)]
+
+
+def union_free(scans: list, points: np.ndarray, margin: float) -> np.ndarray:
+    """``(N,)`` points (the submap's frame) in the free space of any of `scans`
+    (`scans_of`): each scan's rays from its own origin (module docstring, ``multi``)."""
+    out = np.zeros(len(points), bool)
+    for pose, image in scans:
+        out |= image.free(se2.transform_points(se2.inverse(pose), points), margin)
+    return out
+
+
+def decompose(q_pts, q_lab, q_key, c_pts, c_lab, c_key, pose, tol, margin, bins,
+              q_scans=None, c_scans=None):
+    """Conflict split (module docstring), the consistency with own-scan free space
+    (``own``) and, given each submap's scans (`scans_of`), with the union of their
+    free spaces (``multi``)."""
     q, c = Submap.of(q_pts, bins), Submap.of(c_pts, bins)
     base = consistency(q, c, pose, tol, margin)
     out = dict(consistency=base.consistency, hits=base.hits, conflicts=base.conflicts)
-    own_hits = own_conf = 0
-    for name, moved, other, other_lab, other_key in (
-            ("q_in_c", se2.transform_points(pose, q_pts), c, c_lab, c_key),
-            ("c_in_q", se2.transform_points(se2.inverse(pose), c_pts), q, q_lab, q_key)):
+    own_hits = own_conf = multi_conf = 0
+    for name, moved, other, other_lab, other_key, scans in (
+            ("q_in_c", se2.transform_points(pose, q_pts), c, c_lab, c_key, c_scans),
+            ("c_in_q", se2.transform_points(se2.inverse(pose), c_pts), q, q_lab, q_key,
+             q_scans)):
         d, _ = other.tree.query(moved, k=1)
         hit = d <= tol
         conf = ~hit & other.image.free(moved, margin)
@@ -103,7 +126,11 @@ def decompose(q_pts, q_lab, q_key, c_pts, c_lab, c_key, pose, tol, margin, bins)
         oc = ~hit & own_img.free(moved, margin)
         own_hits += int(hit.sum())
         own_conf += int(oc.sum())
+        if scans is not None:
+            multi_conf += int((~hit & union_free(scans, moved, margin)).sum())
     out["own"] = own_hits / (own_hits + own_conf) if own_hits + own_conf else 0.0
+    if q_scans is not None and c_scans is not None:
+        out["multi"] = own_hits / (own_hits + multi_conf) if own_hits + multi_conf else 0.0
     return out
 
 
@@ -157,7 +184,11 @@ def main() -> None:
                            err_m=round(e_m, 3), err_deg=round(e_deg, 2),
                            fitness=round(c.verification.fitness, 3))
                 fig = decompose(q_pts, q_lab, int(k), c_pts, c_lab, m, c.relative,
-                                s.consistency_tolerance, s.free_margin, s.free_bins)
+                                s.consistency_tolerance, s.free_margin, s.free_bins,
+                                scans_of(mapper, int(k), max(0, int(k) - nb), int(k),
+                                         s.free_bins),
+                                scans_of(mapper, m, max(0, m - nb), min(last_kf, m + nb),
+                                         s.free_bins))
                 row.update({a: round(b, 4) if isinstance(b, float) else b
                             for a, b in fig.items()})
                 rows.append(row)

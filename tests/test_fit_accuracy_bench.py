@@ -51,3 +51,15 @@ def test_decompose_counts_a_point_in_front_of_a_wall_as_a_far_conflict() -> None
     assert fig["q_in_c_conf"] == 1 and fig["q_in_c_conf_near"] == 0
     assert fig["q_in_c_conf_own_made"] == 1 and fig["c_in_q_conf"] == 0
     assert fig["consistency"] == pytest.approx(82 / 83) and fig["own"] == pytest.approx(82 / 83)
+
+
+def test_union_free_uses_each_scans_own_origin() -> None:
+    bench = load_benchmark("consistency_diagnosis")
+    # a scan at the origin sees a wall 5 m ahead; a second scan 10 m ahead (facing
+    # +x) sees a wall 2 m ahead of it, at x = 12
+    first = (np.zeros(3), RangeImage(np.array([[5.0, 0.0]]), 720))
+    second = (np.array([10.0, 0.0, 0.0]), RangeImage(np.array([[2.0, 0.0]]), 720))
+    pts = np.array([[3.0, 0.0], [8.0, 0.0], [11.0, 0.0]])
+    # 3: before the first wall; 8: behind it and behind the second scan (unseen by
+    # both); 11: before the second scan's wall
+    assert bench.union_free([first, second], pts, 0.3).tolist() == [True, False, True]
