@@ -63,3 +63,39 @@ def test_union_free_uses_each_scans_own_origin() -> None:
     # 3: before the first wall; 8: behind it and behind the second scan (unseen by
     # both); 11: before the second scan's wall
     assert bench.union_free([first, second], pts, 0.3).tolist() == [True, False, True]
+
+
+class _Keyframe:
+    def __init__(self, pose, points):
+        self.odom_pose = np.asarray(pose, float)
+        self.points = np.asarray(points, float)
+
+
+class _Mapper:
+    """Two keyframes 1 m apart along x, each seeing one point 1 m ahead."""
+
+    def __init__(self):
+        self.kfs = [_Keyframe([0.0, 0.0, 0.0], [[1.0, 0.0]]),
+                    _Keyframe([1.0, 0.0, 0.0], [[1.0, 0.0]])]
+
+    def _keyframe(self, key):
+        return self.kfs[key]
+
+
+def test_labelled_names_the_keyframe_that_saw_each_point() -> None:
+    bench = load_benchmark("consistency_diagnosis")
+    # in keyframe 0's frame: keyframe 0's point at x = 1, keyframe 1's at x = 2
+    got = bench.labelled(_Mapper(), 0, 0, 1, np.array([[2.02, 0.0], [0.98, 0.0]]))
+    assert got.tolist() == [1, 0]
+
+
+def test_scans_of_gives_each_scan_its_pose_in_the_keys_frame() -> None:
+    bench = load_benchmark("consistency_diagnosis")
+    scans = bench.scans_of(_Mapper(), 1, 0, 1, 720)
+    assert np.allclose(scans[0][0], [-1.0, 0.0, 0.0]) and np.allclose(scans[1][0], 0.0)
+    # in keyframe 1's frame keyframe 0 (at x = -1) saw free space up to x = -0.3, keyframe
+    # 1 up to x = 0.7 (the 0.3 m margin): x = -0.5 lies in keyframe 0's, x = 0.5 in
+    # keyframe 1's; x = 0.8 within the margin of both walls
+    assert bench.union_free(scans, np.array([[-0.5, 0.0], [0.5, 0.0]]), 0.3).tolist() == [
+        True, True]
+    assert bench.union_free(scans, np.array([[0.8, 0.0]]), 0.3).tolist() == [False]
