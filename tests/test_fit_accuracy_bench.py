@@ -99,3 +99,22 @@ def test_scans_of_gives_each_scan_its_pose_in_the_keys_frame() -> None:
     assert bench.union_free(scans, np.array([[-0.5, 0.0], [0.5, 0.0]]), 0.3).tolist() == [
         True, True]
     assert bench.union_free(scans, np.array([[0.8, 0.0]]), 0.3).tolist() == [False]
+
+
+def test_multi_consistency_counts_conflicts_in_any_scans_free_space() -> None:
+    from loopclosure.free_space import Submap
+
+    bench = load_benchmark("multi_origin_consistency")
+    wall = np.column_stack([np.full(21, 5.0), np.linspace(-1, 1, 21)])
+    cand = Submap.of(wall)
+    # the query: the same wall plus a stray point at x = 2 (before the wall)
+    query = Submap.of(np.vstack([wall, [[2.0, 0.0]]]))
+    seen_from_origin = [(np.zeros(3), RangeImage(wall, 720))]
+    # a scan 4 m behind the wall's side, seeing nothing towards x = 2: no conflict
+    seen_elsewhere = [(np.array([0.0, 10.0, 0.0]), RangeImage(np.array([[1.0, 0.0]]), 720))]
+    got = bench.multi_consistency(query, cand, np.zeros(3), q_scans=seen_from_origin,
+                                  c_scans=seen_from_origin)
+    assert (got.hits, got.conflicts) == (42, 1)
+    got = bench.multi_consistency(query, cand, np.zeros(3), q_scans=seen_from_origin,
+                                  c_scans=seen_elsewhere)
+    assert (got.hits, got.conflicts) == (42, 0)
