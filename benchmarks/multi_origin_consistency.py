@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/multi_origin_consistency.py LOG [--bar B] [--max-queries N]
+    python benchmarks/multi_origin_consistency.py LOG [--bar B] [--max-queries N] [--npz F]
 
 The log is mapped and queried as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0 --stages fused`` does, with `loopclosure.prior_free`'s consistency
@@ -68,6 +68,8 @@ def main() -> None:
     ap.add_argument("log")
     ap.add_argument("--bar", type=float)
     ap.add_argument("--max-queries", type=int)
+    ap.add_argument("--npz", help="save the final row's records (keys, match, score, "
+                    "accepted, relative, correct) here")
     args = ap.parse_args()
     cfg = PipelineConfig()
     if args.bar is not None:
@@ -124,6 +126,9 @@ def main() -> None:
     acc = np.asarray(raw.accepted) & (match >= 0)
     ok = np.zeros(len(q), bool)
     ok[acc] = pose_correct(ref[q[acc]], ref[match[acc]], np.asarray(raw.relative)[acc])
+    if args.npz:
+        np.savez(args.npz, keys=q, match=match, score=np.asarray(raw.final_score),
+                 accepted=acc, relative=np.asarray(raw.relative), correct=ok)
     curve = pr_curve(np.asarray(raw.final_score), ok, int(np.sum(raw.revisit)))
     print(f"{Path(args.log).name} multi-origin free space, bar "
           f"{cfg.loops.check.min_consistency}: R@100P {recall_at_precision(curve, 1.0):.3f} "
