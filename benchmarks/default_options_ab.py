@@ -18,7 +18,9 @@ same the whole cell's result with ``stall`` on is the default's, bit for bit.
 
 ``--runs``: whole-cell runs of `slam.optimize.optimize` as `benchmarks/robust_modes.py`
 calls it (``gnc``, incremental, from the odometry chain), each one of ``default``
-(the defaults), ``confirm-off``, ``stall-on``, ``confirm-off-stall-on``.  One line each:
+(the defaults), ``confirm-off``, ``stall-on``, ``confirm-off-stall-on``, ``stiff-on`` (the
+defaults with ``slam.least_squares.STIFF_CHOLESKY`` on: dogleg by Cholesky, stiff factors'
+poses first).  One line each:
 ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
 the outlier-free graph), true loops rejected, TLS objective's gap to the clean optimum,
 wall and CPU seconds, solver; then, for each later run, whether it obeys the same loops
@@ -36,6 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
 from benchmarks.robust_confirm_ab import _head, _position
 from slam.consistency import ODOMETRY_LADDER
@@ -47,6 +50,7 @@ RUNS = {
     "confirm-off": {"confirm": False},
     "stall-on": {"stall": True},
     "confirm-off-stall-on": {"confirm": False, "stall": True},
+    "stiff-on": {},  # the defaults with slam.least_squares.STIFF_CHOLESKY = True
 }
 
 
@@ -87,10 +91,12 @@ def main() -> None:
               flush=True)
     first = None
     for run in [r for r in args.runs.split(",") if r]:
+        least_squares.STIFF_CHOLESKY = run == "stiff-on"
         wall, cpu = time.perf_counter(), time.process_time()
         result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
                           **RUNS[run])
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        least_squares.STIFF_CHOLESKY = False
         out = cell_outcome(graph, reference, corrupted, is_false, result.poses)
         line = (f"{name} {run}: ATE {out.ate:.3g} m, {len(out.false_obeyed)} F "
                 f"({out.consistent}), {out.true_rejected} T, gap {out.gap:+.1f}, "
