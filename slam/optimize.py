@@ -167,7 +167,7 @@ def optimize(
     undo: bool = True,
     screen: bool = False,
     confirm: bool = True,
-    stall: bool = False,
+    stall: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
 
@@ -217,11 +217,13 @@ def optimize(
     admission whose actual cost of being kept is above ``c``
     (`slam.admission.AdmissionPass`): the linearised cost the gate judges by can fall
     below ``c`` while the prefix re-solved without the loop says otherwise.
-    `stall`: the fast path's first solve (stiffest rung) is given up when an LM step
-    lowers the error by under a relative `slam.fast_path_screen.STALL_DECREASE` at low
-    damping while most loops are above ``c`` (`slam.fast_path_screen.stalled_solve`);
-    otherwise its result is `solve`'s bit for bit.  Off by default: a measured rule,
-    not a proof that the fast path would fail.
+    `stall` (on by default): the fast path's first solve (stiffest rung) is given up when
+    an LM step lowers the error by under a relative `slam.fast_path_screen.STALL_DECREASE`
+    at low damping while most loops are above ``c`` (`slam.fast_path_screen.stalled_solve`);
+    otherwise its result is `solve`'s bit for bit.  A measured rule, not a proof that the
+    fast path would fail: on every graph and odometry scaling measured it gave up only
+    solves whose result failed the fast path's check as well, and it saves most of that
+    solve where many false loops make it the dearest of the back end.
     """
     if method not in METHODS:
         raise UserError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

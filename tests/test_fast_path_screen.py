@@ -66,7 +66,8 @@ def test_the_stall_rule_changes_no_result() -> None:
     for graph in (_square_graph(noise=0.02, laps=3)[0], _with_false_loops(60)[0]):
         on = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental",
                       stall=True)
-        off = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental")
+        off = optimize(graph, "none", "gnc", init="odometry", gnc_start="incremental",
+                       stall=False)
         assert on.solver == off.solver and on.loop_outliers == off.loop_outliers
         assert max(np.abs(on.poses[k] - off.poses[k]).max() for k in on.poses) < 1e-12
 
