@@ -18,7 +18,8 @@ same the whole cell's result with ``stall`` on is the default's, bit for bit.
 
 ``--runs``: whole-cell runs of `slam.optimize.optimize` as `benchmarks/robust_modes.py`
 calls it (``gnc``, incremental, from the odometry chain), each one of ``default``
-(the defaults), ``confirm-off``, ``stall-on``, ``confirm-off-stall-on``, ``stiff-on`` (the
+(the defaults), ``confirm-off``, ``stall-on``, ``stall-off``, ``confirm-off-stall-on``,
+``stiff-on`` (the
 defaults with ``slam.least_squares.STIFF_CHOLESKY`` on: dogleg by Cholesky, stiff factors'
 poses first).  One line each:
 ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
@@ -51,6 +52,7 @@ RUNS = {
     "default": {},
     "confirm-off": {"confirm": False},
     "stall-on": {"stall": True},
+    "stall-off": {"stall": False},
     "confirm-off-stall-on": {"confirm": False, "stall": True},
     "stiff-on": {},  # the defaults with slam.least_squares.STIFF_CHOLESKY = True
 }
