@@ -52,6 +52,13 @@ class LoopClosureConfig:
             checked once [m] (half of `max_distance`: the check of one searches the
             query within `max_distance` of it, so a neighbour farther away may be
             the revisit the first is not).
+        prefilter_first: the query's own-view matches (view 0) of prefilter rank below
+            this are always among the `global_verify` places checked, whatever their
+            fused score: a place the fused ranking leaves out takes the budget's last
+            slot (`LoopClosureDetector.places`).  The prefilter's first place is often
+            the revisit when the verifiers disagree with it (a fused score near 0);
+            with ``viewpoint_order = interleave`` the first ranks are the first
+            places of the interleaved lists (one per list).  0: none.
         agree_distance: two candidates checked with no prior that are both accepted
             for one query must put the query within this of each other in the map
             [m]; else the query is ambiguous (a look-alike of one of the places) and
@@ -125,6 +132,7 @@ class LoopClosureConfig:
     min_score_across: float = 0.0
     global_verify: int = 8
     place_separation: float = 1.0
+    prefilter_first: int = 0
     agree_distance: float = 1.0
     free_every: int = 10
     sequence_keyframes: int = 2
@@ -155,6 +163,9 @@ class LoopClosureConfig:
         if not self.place_separation >= 0:
             raise UserError(
                 f"loops.place_separation must be >= 0 m, got {self.place_separation}")
+        if not 0 <= self.prefilter_first <= self.global_verify:
+            raise UserError(f"loops.prefilter_first must be in 0..global_verify "
+                            f"({self.global_verify}), got {self.prefilter_first}")
         if self.sequence_places < 1:
             raise UserError(f"loops.sequence_places must be >= 1, got {self.sequence_places}")
         if not self.agree_distance > 0:

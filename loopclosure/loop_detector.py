@@ -318,7 +318,12 @@ class LoopClosureDetector(CandidateChecks):
         score (pairs and FLIRT) does not see the layout that made the grids choose an
         extra, so a wrong extra can outscore the K's true place of a corridor
         look-alike and take its slot; so ordered, the extras only add checks, made
-        when the K's places were not enough."""
+        when the K's places were not enough.
+
+        With `prefilter_first` = F > 0, the own view's matches of prefilter rank below F
+        (view 0: the query's own description) are among the `global_verify` places:
+        one that is no place already taken takes the last slot of the fused order
+        (checked after the fused places; the budget stays `global_verify`)."""
         cfg = self.config
         xy = np.asarray(poses, dtype=float).reshape(-1, 3)[:, :2]
         top_k = [db.config.top_k for db in (self.database, self.wide_database)
@@ -327,13 +332,32 @@ class LoopClosureDetector(CandidateChecks):
         def in_k(m: PlaceMatch) -> bool:
             return m.prefilter_rank < top_k[min(m.view, len(top_k) - 1)]
 
-        taken = distinct_places([m for m in matches if in_k(m)], cfg.global_verify, xy,
-                                self._frames, cfg.place_separation)
+        fused = [m for m in matches if in_k(m)]
+        first = sorted((m for m in fused if m.view == 0 and m.prefilter_rank < cfg.prefilter_first),
+                       key=lambda m: m.prefilter_rank)
+        taken = self._with_first(fused, first, cfg.global_verify, xy)
         extras = [m for m in matches if not in_k(m)]
         if not extras:
             return taken
         return distinct_places([*taken, *extras], len(taken) + len(extras), xy,
                                self._frames, cfg.place_separation)
+
+    def _with_first(self, fused: list[PlaceMatch], first: list[PlaceMatch], limit: int,
+                    xy: Array) -> list[PlaceMatch]:
+        """The first `limit` distinct places of `fused` (best first), the places of
+        `first` (reserved matches, in order) among them: each one that is no place
+        taken is appended, in place of the last fused places (`places`)."""
+        cfg = self.config
+        for n in range(limit, -1, -1):
+            head = distinct_places(fused, n, xy, self._frames, cfg.place_separation)
+            if not first:
+                return head
+            # `head` is distinct already: this appends the reserved places it lacks.
+            both = distinct_places([*head, *first], len(head) + len(first), xy,
+                                   self._frames, cfg.place_separation)
+            if len(both) <= limit:
+                return both
+        return both[:limit]
 
     def appearance_matches(self, key: int) -> list[PlaceMatch]:
         """The place database's matches of `key` over its eligible keyframes, as

@@ -327,6 +327,37 @@ def test_places_check_the_grids_extras_after_the_prefilters_places() -> None:
     assert det.places([], poses) == []
 
 
+def test_places_keep_the_prefilters_first_place_in_the_budget() -> None:
+    """With `prefilter_first` = 1 the own view's prefilter rank 0 (here the lowest fused
+    score) takes the last slot of `global_verify` = 3; the wide view's rank 0 does not
+    count; a first place already taken, or the same place as one taken, changes
+    nothing; 2 reserves ranks 0 and 1, in rank order after the fused places."""
+    det = _detector([float(k) for k in range(12)])
+    det.config = dataclasses.replace(det.config, global_verify=3, prefilter_first=1)
+
+    def match(key: int, score: float, rank: int, view: int = 0) -> PlaceMatch:
+        return PlaceMatch(key=key, prefilter_distance=0.0, prefilter_rank=rank,
+                          distances={}, score=score, headings=(), view=view)
+
+    poses = np.zeros((12, 3))
+    poses[:, 0] = 3.0 * np.arange(12)  # every keyframe a place of its own
+    poses[6, 0] = poses[2, 0] + 0.5  # keyframe 6 is keyframe 2's place
+    matches = [match(1, 0.9, 3), match(2, 0.8, 2), match(3, 0.7, 4), match(4, 0.6, 1),
+               match(5, 0.1, 0), match(7, 0.05, 0, view=1)]
+    assert [m.key for m in det.places(matches, poses)] == [1, 2, 5]
+    det.config = dataclasses.replace(det.config, prefilter_first=2)
+    assert [m.key for m in det.places(matches, poses)] == [1, 5, 4]
+    det.config = dataclasses.replace(det.config, prefilter_first=0)
+    assert [m.key for m in det.places(matches, poses)] == [1, 2, 3]
+    det.config = dataclasses.replace(det.config, prefilter_first=1)
+    same = [match(1, 0.9, 3), match(2, 0.8, 2), match(3, 0.7, 4), match(6, 0.1, 0)]
+    assert [m.key for m in det.places(same, poses)] == [1, 2, 3]  # 6: 2's place
+    taken = [match(1, 0.9, 0), match(2, 0.8, 2), match(3, 0.7, 4), match(4, 0.6, 1)]
+    assert [m.key for m in det.places(taken, poses)] == [1, 2, 3]
+    with pytest.raises(UserError, match="prefilter_first"):
+        LoopClosureConfig(prefilter_first=9)
+
+
 def test_a_negative_place_separation_is_a_user_error() -> None:
     with pytest.raises(UserError, match="place_separation"):
         LoopClosureConfig(place_separation=-1.0)
