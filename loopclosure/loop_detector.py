@@ -51,7 +51,8 @@ and calls, for every keyframe:
    - **appearance** (every `global_every` keyframes): the place database's cascade
      (prefilter over every older keyframe, verifier on the top K, fused score):
      candidates with a fused score of at least `min_score`, the best `global_verify`
-     of them, one per place (more than `place_separation` apart in the map); the
+     of them, one per place (more than `place_separation` apart in the map; with
+     `prefilter_first`, the own view's first prefilter ranks among them); the
      answers of the query's trail (its last keyframes within `trail_radius` of it,
      `with_trail`) count as well;
    - **pose** (pose-gated, not in ``appearance`` mode): older keyframes whose
