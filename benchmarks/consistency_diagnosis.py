@@ -32,7 +32,6 @@ Nothing here changes a verdict.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import _query_plan, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -193,11 +193,8 @@ def main() -> None:
                             for a, b in fig.items()})
                 rows.append(row)
                 print(row, flush=True)
-    if args.csv and rows:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+    if args.csv:
+        write_rows(args.csv, rows)
 
 
 if __name__ == "__main__":

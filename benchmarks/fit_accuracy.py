@@ -38,7 +38,6 @@ repository: it is derived from the data).  Nothing here changes a verdict.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import sys
 from pathlib import Path
@@ -48,6 +47,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import _query_plan, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -204,11 +204,8 @@ def main() -> None:
         print(f"{v:12s} {r100:.3f}   {r99:.3f}  {int(correct[v].sum()):5d}    "
               f"{med[0]:.3f}/{p90[0]:.3f}       {med[1]:.3f}/{p90[1]:.3f}      "
               f"{med[2]:.2f}/{p90[2]:.2f}")
-    if args.csv and rows:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+    if args.csv:
+        write_rows(args.csv, rows)
 
 
 if __name__ == "__main__":

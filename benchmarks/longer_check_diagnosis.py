@@ -32,7 +32,6 @@ against the reference's [m, deg].  ``--csv`` writes one row per re-check.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import sys
 from pathlib import Path
@@ -42,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import Tolerances, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -190,10 +190,7 @@ def main() -> None:
                       f"ref-built: {'accepted' if other['accepted'] else 'rejected'} "
                       f"{other['err_m']} m {other['err_deg']} deg")
     if args.csv:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_rows(args.csv, rows)
 
 
 if __name__ == "__main__":

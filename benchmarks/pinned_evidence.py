@@ -24,7 +24,6 @@ changes a verdict.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from pathlib import Path
 
@@ -33,6 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -115,11 +115,8 @@ def main() -> None:
                 row.update({kk: vv for kk, vv in rec.items() if kk != "pose"})
                 rows.append(row)
                 print(row, flush=True)
-    if args.csv and rows:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+    if args.csv:
+        write_rows(args.csv, rows)
 
 
 if __name__ == "__main__":

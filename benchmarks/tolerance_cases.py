@@ -50,6 +50,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -316,11 +317,8 @@ def main() -> None:
                 continue
             print(f"  {k}: {v}")
         sys.stdout.flush()
-    if args.csv and out:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(out[0]))
-            w.writeheader()
-            w.writerows(out)
+    if args.csv:
+        write_rows(args.csv, out)
 
 
 if __name__ == "__main__":
