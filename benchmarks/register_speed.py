@@ -18,8 +18,6 @@ microseconds per call of either (R alternate passes, best of each).
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import subprocess
 import sys
 import tempfile
 import time
@@ -29,25 +27,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
+from benchmarks.exact_stage_speed import ROOT, load_revision
+
 FIELDS = ("pose", "covariance", "hessian", "sigma", "inlier_ratio", "rms", "fitness",
           "degeneracy", "degenerate_axis", "iterations", "converged", "correspondences",
           "ok", "initial")
-
-
-def load_revision(rev: str, folder: Path):
-    """Revision `rev`'s ``fast_icp`` as module ``fast_icp_<rev>``."""
-    text = subprocess.run(["git", "show", f"{rev}:loopclosure/fast_icp.py"], cwd=ROOT,
-                          check=True, capture_output=True, text=True).stdout
-    path = folder / "fast_icp_baseline.py"
-    path.write_text(text)
-    name = "fast_icp_baseline"
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def record(log: Path, limit: int) -> list:
@@ -93,7 +77,7 @@ def main() -> None:
     import loopclosure.fast_icp as now
 
     with tempfile.TemporaryDirectory() as tmp:
-        old = load_revision(args.baseline, Path(tmp))
+        old = load_revision(args.baseline, "loopclosure/fast_icp.py", Path(tmp))
         calls = record(args.data / args.log, args.limit)
         differ = 0
         for source, grid, initial, kwargs in calls:
