@@ -123,7 +123,9 @@ def test_recheck_removes_a_false_loop_the_loose_odometry_absorbs() -> None:
     assert aligned_position_error(rechecked.poses, plain, 2) < 1e-6
 
 
-def test_calibrated_choice_prefers_the_candidate_without_the_absorbed_false_loop() -> None:
+def loose_square_candidates():
+    """The loose square (`_loose_square_with_false_loop`), its odometry solution, and its
+    candidates with and without its absorbed false loop: ``(values, weights, tls cost)``."""
     from slam.consistency import refine_tls, tls_cost
 
     _, loose = _loose_square_with_false_loop()
@@ -132,6 +134,11 @@ def test_calibrated_choice_prefers_the_candidate_without_the_absorbed_false_loop
     for w in (np.ones(len(loose.loops)), np.r_[np.ones(len(loose.loops) - 1), 0.0]):
         values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else [len(w) - 1])
         candidates.append((values, weights, tls_cost(loose, values)))
+    return loose, start, candidates
+
+
+def test_calibrated_choice_prefers_the_candidate_without_the_absorbed_false_loop() -> None:
+    loose, _, candidates = loose_square_candidates()
     assert candidates[0][1][-1] == 1.0 and candidates[1][1][-1] == 0.0
     assert candidates[0][2] < candidates[1][2]  # the stated objective prefers the false loop
     factor: list[float] = []

@@ -13,7 +13,7 @@ from slam.consistency import refine_tls, tls_cost
 from slam.least_squares import StickySolver
 from slam.optimize import optimize
 from slam.warm_starts import WarmStarts
-from tests.test_recheck import _loose_square_with_false_loop
+from tests.test_recheck import loose_square_candidates
 
 
 def _prior_at_origin() -> gtsam.NonlinearFactorGraph:
@@ -41,22 +41,11 @@ def test_the_start_is_the_held_solution_of_least_error() -> None:
     assert WarmStarts().start(factors, _at(3.0)).atPose2(0).x() == 3.0
 
 
-def _candidates():
-    """The loose square's candidates with and without its absorbed false loop."""
-    _, loose = _loose_square_with_false_loop()
-    start = loose.gtsam_values(optimize(loose, "none", init="odometry").poses)
-    candidates = []
-    for w in (np.ones(len(loose.loops)), np.r_[np.ones(len(loose.loops) - 1), 0.0]):
-        values, weights = refine_tls(loose, start, w, barred=[] if w[-1] else [len(w) - 1])
-        candidates.append((values, weights, tls_cost(loose, values)))
-    return loose, start, candidates
-
-
 @pytest.mark.parametrize("warm", [False, True])
 def test_the_calibrated_choice_is_the_same_from_warm_starts(
     monkeypatch: pytest.MonkeyPatch, warm: bool
 ) -> None:
-    loose, _, candidates = _candidates()
+    loose, _, candidates = loose_square_candidates()
     held: list[int] = []
     hold = WarmStarts.hold
     monkeypatch.setattr(WarmStarts, "hold",
@@ -74,7 +63,7 @@ def test_the_calibrated_choice_is_the_same_from_warm_starts(
 
 
 def test_refine_tls_from_warm_starts_decides_the_same_loops() -> None:
-    loose, start, _ = _candidates()
+    loose, start, _ = loose_square_candidates()
     none = np.zeros(len(loose.loops))  # from the odometry's solution: every loop re-decided
     plain, plain_w = refine_tls(loose, start, none)
     starts = WarmStarts()
