@@ -99,6 +99,7 @@ Motion distortion (the robot moving during one sweep) is ignored: at Intel's spe
 
 from __future__ import annotations
 
+import functools
 import statistics
 import time
 from collections import deque
@@ -295,17 +296,13 @@ class Icp2dConfig:
                 raise UserError(f"icp2d {name} must be three numbers >= 0, got {value}")
 
 
-_FAST: list = []  # `loopclosure.fast_icp` once `_fast` imported it
-
-
+@functools.cache
 def _fast():
     """`loopclosure.fast_icp`, imported on first use: numba (tens of MB, a fraction
     of a second) loads only when a scan is registered, not with the config."""
-    if not _FAST:
-        from loopclosure import fast_icp
+    from loopclosure import fast_icp
 
-        _FAST.append(fast_icp)
-    return _FAST[0]
+    return fast_icp
 
 
 def _frame_rotation(theta: float) -> Array:
