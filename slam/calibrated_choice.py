@@ -51,7 +51,7 @@ from slam.innovation import InnovationTest, _Gains, tls_threshold
 from slam.least_squares import StickySolver
 from slam.pose_graph import Constraint, PoseGraph, chi2_quantile, pose_dof
 from slam.variance_components import BOUNDS
-from slam.warm_starts import WarmStarts
+from slam.warm_starts import WarmStarts, solve_from
 
 Array = NDArray[np.float64]
 FACTOR_TOLERANCE = 0.01  # decide once a round changes the odometry factor by less than this
@@ -157,10 +157,7 @@ def own_factor(
     for n in range(max_rounds):
         fixed, odometry = _calibrated_fixed(graph, s, priors)
         accepted = _accepted(fixed, unit, w.astype(float))
-        if starts is None:
-            current = solver(accepted, current)
-        else:
-            current = starts.hold(solver(accepted, starts.start(accepted, current)))
+        current = solve_from(starts, solver, accepted, current)
         if not w.any():
             return Calibrated(s, current, fixed, None, kept, None, 0.0, s)
         test = InnovationTest(accepted, current, keys, d)
@@ -301,19 +298,14 @@ class _Judge:
             elif self.starts is not None and self.owns[n].s == own.s:
                 x = self.owns[n].values  # this very graph, solved by `own_factor`
             else:
-                x = self._solved(_accepted(fixed, self.unit, w), self.candidates[n][0])
+                x = solve_from(self.starts, self.solve, _accepted(fixed, self.unit, w),
+                               self.candidates[n][0])
             cost = fixed.error(x) + float(np.minimum([f.error(x) for f in self.unit],
                                                      self.c).sum())
             if cost < best_cost * (1.0 - 1e-9):
                 best, best_cost = n, cost
         self.step[chosen] = best
         return best
-
-    def _solved(self, factors: gtsam.NonlinearFactorGraph, own: gtsam.Values) -> gtsam.Values:
-        """`factors` solved from `own`, or from the nearest held solution (`starts`)."""
-        if self.starts is None:
-            return self.solve(factors, own)
-        return self.starts.hold(self.solve(factors, self.starts.start(factors, own)))
 
     def fixed_point(self, chosen: int) -> int:
         """Judge at the winner's own factor from `chosen` until it stays (or recurs)."""

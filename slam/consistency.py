@@ -128,7 +128,7 @@ from slam.pose_graph import (
     PoseGraph,
     RobustKernel,
 )
-from slam.warm_starts import WarmStarts
+from slam.warm_starts import WarmStarts, solve_from
 
 __all__ = [
     "BAR_TRIES", "DEFER_MODES", "LM_BUDGET", "ODOMETRY_LADDER", "POLISH_TOLERANCE",
@@ -206,10 +206,7 @@ def refine_tls(
                 kept.add(base.at(k))
             for k in np.flatnonzero(w > 0.5):
                 kept.add(base.at(loop_index[k]))
-            if starts is None:
-                result = solve(kept, result)
-            else:
-                result = starts.hold(solve(kept, starts.start(kept, result)))
+            result = solve_from(starts, solve, kept, result)
         new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
         new[list(barred)] = 0.0
         if np.array_equal(new, w):

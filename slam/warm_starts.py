@@ -18,7 +18,7 @@ decided and the poses with and without).  Units: gtsam errors (``0.5 r^T I r``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import gtsam
 import numpy as np
@@ -44,3 +44,16 @@ class WarmStarts:
         """Hold the solution `values` (returned as is)."""
         self.values.append(values)
         return values
+
+
+def solve_from(
+    starts: WarmStarts | None,
+    solve: Callable[[gtsam.NonlinearFactorGraph, gtsam.Values], gtsam.Values],
+    factors: gtsam.NonlinearFactorGraph,
+    own: gtsam.Values,
+) -> gtsam.Values:
+    """`solve` of `factors` from `own` (``starts`` None), or from `starts`' nearest
+    held solution, the result then held too."""
+    if starts is None:
+        return solve(factors, own)
+    return starts.hold(solve(factors, starts.start(factors, own)))
