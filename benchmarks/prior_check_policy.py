@@ -14,11 +14,16 @@ query and candidate keys, the search that proposed it (``pose`` or
 run's fitness, inlier ratio and degeneracy, the ICP runs, and its CPU seconds
 (``time.process_time``, the target or grid build included); and every loop the
 detector accepted (any search), with the CPU seconds of each ``detect`` and of the
-whole run.  Nothing goes into the repository.
+whole run; and, per query that ran them, the checks with no prior
+(`CandidateChecks._verify_free`: how many, how many accepted, their verdicts, their
+CPU seconds).
+Nothing goes into the repository.
 
 ``analyse`` prints per log: the checks from a prior per keyframe queried, how many
 were accepted, and the CPU seconds of the accepted, of those a pre-ICP screen
-stopped, and of those rejected after ICP (by reason); then, for each candidate
+stopped, and of those rejected after ICP (by reason); the checks with no prior, how
+many were accepted, their CPU seconds (and those of queries where none was) and
+their verdicts; then, for each candidate
 policy, the checks it would skip, the CPU seconds they cost, and the accepted loops
 among them (the loops it would lose, to first order: a skipped check changes
 nothing later in this replay).  The policies:
@@ -105,7 +110,20 @@ def collect(logs: list[Path], out: Path, inputs: Path | None = None) -> None:
                      for c in out if c.accepted)
         return out
 
+    real_free = CandidateChecks._verify_free
+    free: list[dict] = []  # per `_verify_free` call: its checks with no prior
+
+    def verify_free(self, key, matches, *args, **kwargs):
+        start = time.process_time()
+        out = real_free(self, key, matches, *args, **kwargs)
+        free.append({"key": int(key), "checks": len(out),
+                     "accepted": sum(bool(c.accepted) for c in out),
+                     "reasons": [c.reason for c in out],
+                     "cpu": time.process_time() - start})
+        return out
+
     CandidateChecks._check_prior = check_prior
+    CandidateChecks._verify_free = verify_free
     LoopClosureDetector.detect = detect
     cc.verify = recording
     try:
@@ -115,10 +133,11 @@ def collect(logs: list[Path], out: Path, inputs: Path | None = None) -> None:
             data = load_input(log, odometry_noise=0 if corrected else None)
             checks.clear()
             loops.clear()
+            free.clear()
             detect_cpu[:] = [0.0, 0]
             start = time.process_time()
             Mapper(PipelineConfig(front_end_worker=False)).run(data.scans)
-            result[name] = {"checks": list(checks), "loops": list(loops),
+            result[name] = {"checks": list(checks), "loops": list(loops), "free": list(free),
                             "detect_cpu": detect_cpu[0], "queries": detect_cpu[1],
                             "run_cpu": time.process_time() - start}
             print(f"{name}: {len(checks)} checks from a prior, {len(loops)} loops, "
@@ -126,6 +145,7 @@ def collect(logs: list[Path], out: Path, inputs: Path | None = None) -> None:
                   flush=True)
     finally:
         CandidateChecks._check_prior = real_check
+        CandidateChecks._verify_free = real_free
         LoopClosureDetector.detect = real_detect
         cc.verify = real_verify
     out.write_text(json.dumps(result))
@@ -188,6 +208,20 @@ def analyse(path: Path) -> None:
                 reasons.setdefault(c["reason"].split(" (")[0].split(" ")[0], []).append(c["cpu"])
         for r, v in sorted(reasons.items(), key=lambda f: -sum(f[1])):
             print(f"      rejected: {r:12s} {len(v):6d}  {sum(v):7.1f} s")
+        if "free" in d:
+            f = d["free"]
+            print(f"  checks with no prior {sum(x['checks'] for x in f)} in {len(f)} queries, "
+                  f"{sum(x['accepted'] for x in f)} accepted, "
+                  f"{sum(x['cpu'] for x in f):.1f} s CPU "
+                  f"({sum(x['cpu'] for x in f if not x['accepted']):.1f} s in queries with "
+                  f"none accepted)")
+            why: dict[str, int] = {}
+            for x in f:
+                for r in x.get("reasons", []):
+                    k = r.split(" (")[0].split(" ")[0]
+                    why[k] = why.get(k, 0) + 1
+            print("    " + ", ".join(f"{k} {n}" for k, n in sorted(why.items(),
+                                                                  key=lambda f: -f[1])))
         for src in ("pose", "appearance"):
             m = np.array([c["source"] == src for c in checks])
             print(f"    {src:10s} {m.sum():6d} checks, {(m & (kinds == 'accepted')).sum():5d} "
