@@ -20,7 +20,12 @@ over the relations longer than `MIN_ALONG_M` of ``(t_est - t_ref) . t_ref /
 |t_ref|^2`` (``t`` the relation's translation in the frame of its first scan), the
 relative length error of the estimated motion along the reference's.  A layout
 that removes a shared length error without raising the metric's error is the
-log's; one that only trades one for the other is not evidence.
+log's; one that only trades one for the other is not evidence.  ``--breakdown``
+also prints each variant's errors by tercile of the reference relation's turn rate
+[deg/s], speed [m/s] and length [m] (a motion-dependent error, the laser's sweep
+during motion, grows with the first two) and the translation error split along and
+across the reference's translation (mean and standard deviation [m]): a shared
+length error is the along mean, the scatter the standard deviations.
 
 Nothing is written; the shared data is read in place.
 """
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import sys
 from pathlib import Path
 
@@ -75,16 +81,58 @@ def relayout(scan: Scan, start_deg: float | None, step_deg: float | None,
     return dataclasses.replace(scan, angles=angles, ranges=ranges)
 
 
-def score(poses: np.ndarray, stamps: np.ndarray, relations) -> tuple[float, float, float]:
-    """Short relations' mean translation [m], rotation [deg] and median along error."""
+def along_across(estimate: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation error ``t_est - t_ref`` [m] of ``(K, 4, 4)`` relative poses split along
+    ``t_ref`` and across it (positive to its left); NaN below `MIN_ALONG_M`."""
+    t_ref, d = reference[:, :2, 3], estimate[:, :2, 3] - reference[:, :2, 3]
+    length = np.hypot(t_ref[:, 0], t_ref[:, 1])
+    u = t_ref / np.maximum(length, 1e-12)[:, None]
+    along = np.where(length >= MIN_ALONG_M, u[:, 0] * d[:, 0] + u[:, 1] * d[:, 1], np.nan)
+    across = np.where(length >= MIN_ALONG_M, u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0], np.nan)
+    return along, across
+
+
+def pairs(poses: np.ndarray, stamps: np.ndarray, relations):
+    """Matched ``(estimate, reference, dt)``: ``(K, 4, 4)`` relative poses and ``(K,)``
+    ``|t2 - t1|`` [s] of the relations whose stamps the trajectory holds (1 ms)."""
     traj = Trajectory.from_xytheta(stamps, poses)
-    m = relations_metric(traj, relations)
     i1 = lookup(traj.stamps, np.array([r.t1 for r in relations]), 1e-3)
     i2 = lookup(traj.stamps, np.array([r.t2 for r in relations]), 1e-3)
     ok = (i1 >= 0) & (i2 >= 0)
     est = np.linalg.inv(traj.poses[i1[ok]]) @ traj.poses[i2[ok]]
-    ref = np.stack([r.delta for r, k in zip(relations, ok, strict=True) if k])
+    kept = [r for r, k in zip(relations, ok, strict=True) if k]
+    return (est, np.stack([r.delta for r in kept]),
+            np.array([abs(r.t2 - r.t1) for r in kept]))
+
+
+def score(poses: np.ndarray, stamps: np.ndarray, relations) -> tuple[float, float, float]:
+    """Short relations' mean translation [m], rotation [deg] and median along error."""
+    m = relations_metric(Trajectory.from_xytheta(stamps, poses), relations)
+    est, ref, _ = pairs(poses, stamps, relations)
     return m.trans_abs_mean, m.rot_abs_mean_deg, float(np.nanmedian(along_error(est, ref)))
+
+
+def breakdown(poses: np.ndarray, stamps: np.ndarray, relations) -> None:
+    """Print the errors by tercile of the reference's turn rate, speed and length, and
+    the translation error's along/across mean and standard deviation [m]."""
+    est, ref, dt = pairs(poses, stamps, relations)
+    err = est @ np.linalg.inv(ref)
+    trans = np.hypot(err[:, 0, 3], err[:, 1, 3])
+    rot = np.degrees(np.arctan2(err[:, 1, 0], err[:, 0, 0]))
+    length = np.hypot(ref[:, 0, 3], ref[:, 1, 3])
+    turn = np.degrees(np.abs(np.arctan2(ref[:, 1, 0], ref[:, 0, 0])))
+    dt = np.maximum(dt, 1e-6)
+    for what, x in (("turn rate deg/s", turn / dt), ("speed m/s", length / dt),
+                    ("length m", length)):
+        edges = np.quantile(x, [0.0, 1 / 3, 2 / 3, 1.0])
+        for lo, hi in itertools.pairwise(edges):
+            m = (x >= lo) & (x <= hi)
+            print(f"  {what} {lo:8.3f}..{hi:8.3f}: {m.sum():4d} relations, trans "
+                  f"{trans[m].mean():.4f} m, rot {np.abs(rot[m]).mean():.3f} deg")
+    along, across = along_across(est, ref)
+    print(f"  along {np.nanmean(along):+.4f} +- {np.nanstd(along):.4f} m, across "
+          f"{np.nanmean(across):+.4f} +- {np.nanstd(across):.4f} m, rotation "
+          f"{rot.mean():+.4f} +- {rot.std():.4f} deg")
 
 
 def run(scans: list[Scan], config: Icp2dConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -104,6 +152,8 @@ def main() -> None:
     parser.add_argument("--scale", action="append", type=float, default=[],
                         help="range scale (repeatable)")
     parser.add_argument("--set", action="append", default=[], help="key=value (icp2d.*)")
+    parser.add_argument("--breakdown", action="store_true",
+                        help="errors by turn rate, speed and length; along/across split")
     args = parser.parse_args()
     scans = list(CarmenLog(args.log))[: args.limit]
     stamps = np.array([s.stamp for s in scans])
@@ -129,6 +179,8 @@ def main() -> None:
         poses, st = run(moved, config)
         te, re, al = score(poses, st, short)
         print(f"{name:<16} {te:8.5f} {re:8.4f} {al:+8.2%}", flush=True)
+        if args.breakdown:
+            breakdown(poses, st, short)
 
 
 if __name__ == "__main__":

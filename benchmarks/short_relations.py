@@ -18,6 +18,8 @@ relative pose of the two scans (laser poses, scan ``t2`` in the frame of scan
   60 iterations, residual floor 2 mm), started from the trajectory's relative pose;
 - the same ICP started from the reference relation itself.
 
+The distance the ICP started from the trajectory moves away from it is printed too:
+how far the two scans alone (no map, no reference) disagree with the trajectory.
 When the ICP started at the reference moves away from it by about as much as the
 trajectory disagrees with it, the scans themselves do not support the reference
 more precisely than that: the error floor of these relations for a scan matcher
@@ -106,7 +108,7 @@ def main() -> None:
     traj = read_tum(args.trajectory)
     cfg = IcpConfig(min_residual_scale=0.002, max_iterations=60)
     short = [r for r in read_relations(args.relations) if abs(r.t2 - r.t1) < args.max_dt]
-    rows, pairs = [], []
+    rows, pairs, moved = [], [], []
     for rel in short[:: max(args.every, 1)]:
         ti = np.abs(traj.stamps - rel.t1).argmin(), np.abs(traj.stamps - rel.t2).argmin()
         si = np.abs(scan_stamps - rel.t1).argmin(), np.abs(scan_stamps - rel.t2).argmin()
@@ -120,6 +122,7 @@ def main() -> None:
         from_ours = register(source, target, ours, config=cfg).pose
         from_reference = register(source, target, reference, config=cfg).pose
         pairs.append((ours, reference))
+        moved.append(_error(from_ours, ours))
         rows.append([*_error(ours, reference), *_error(from_ours, reference),
                      *_error(from_reference, reference), _along(ours, reference),
                      _along(from_ours, reference), _along(from_reference, reference)])
@@ -134,6 +137,10 @@ def main() -> None:
         t, r = e[:, 2 * k], e[:, 2 * k + 1]
         print(f"{name:34s} {t.mean():10.4f} {np.median(t):8.4f} {r.mean():9.3f} "
               f"{np.median(r):8.3f} {np.nanmedian(e[:, 6 + k]):+8.2%}")
+    m = np.array(moved)
+    print(f"pairwise ICP from the trajectory moves from it by {m[:, 0].mean():.4f} m "
+          f"(median {np.median(m[:, 0]):.4f}), {m[:, 1].mean():.3f} deg: the trajectory's "
+          "disagreement with the two scans alone, no reference involved")
     arm, rest = lever_arm(np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs]))
     print(f"lever arm of the trajectory's errors: ({arm[0]:+.4f}, {arm[1]:+.4f}) m; "
           f"translation error without it {np.hypot(rest[:, 0], rest[:, 1]).mean():.4f} m "
