@@ -10,7 +10,8 @@ syntax of ``loopclosure run --set``, keys under ``icp2d.``) maps the log's scans
 in file order with their wheel odometry, once per variant: each ``--layout``
 re-bears every scan's beams (beam ``i`` at ``START + i * STEP`` degrees), each
 ``--scale`` multiplies every range (a diagnosis: no laser's ranges are wrong by a
-percent).  The variant ``reader`` keeps the reader's bearings; the row ``wheel
+percent), each ``--config`` changes the front end's settings instead.  The variant
+``reader`` keeps the reader's bearings; the row ``wheel
 odometry`` scores the scans' own odometry poses (when every scan has one).
 
 Per variant, on the reference relations whose scans are less than 1 s apart
@@ -18,7 +19,10 @@ Per variant, on the reference relations whose scans are less than 1 s apart
 (Kümmerle et al. 2009, `evaluation.relations_metric`), and ``along``: the median
 over the relations longer than `MIN_ALONG_M` of ``(t_est - t_ref) . t_ref /
 |t_ref|^2`` (``t`` the relation's translation in the frame of its first scan), the
-relative length error of the estimated motion along the reference's.  A layout
+relative length error of the estimated motion along the reference's; ``vs
+reader``: the mean translation [m] and rotation [deg] between the variant's and
+the ``reader`` variant's relative poses of the same relations (how much the
+estimate moves when only the front end changes, no reference involved).  A layout
 that removes a shared length error without raising the metric's error is the
 log's; one that only trades one for the other is not evidence.  ``--breakdown``
 also prints each variant's errors by tercile of the reference relation's turn rate
@@ -152,6 +156,9 @@ def main() -> None:
     parser.add_argument("--scale", action="append", type=float, default=[],
                         help="range scale (repeatable)")
     parser.add_argument("--set", action="append", default=[], help="key=value (icp2d.*)")
+    parser.add_argument("--config", action="append", default=[],
+                        help="NAME:key=value,key=value: another front-end setting, the "
+                        "reader's bearings (repeatable)")
     parser.add_argument("--breakdown", action="store_true",
                         help="errors by turn rate, speed and length; along/across split")
     args = parser.parse_args()
@@ -165,20 +172,32 @@ def main() -> None:
           f"{a[0]:+.3f}..{a[-1]:+.3f} deg step {a[1] - a[0]:.4f}; {len(short)} relations "
           f"< {SHORT_S:g} s")
     config = apply_overrides(PipelineConfig(), args.set).icp2d
-    variants = [("reader", None, None, 1.0)]
+    variants = [("reader", None, None, 1.0, config)]
     for spec in args.layout:
         name, start, step = spec.split(":")
-        variants.append((name, float(start), float(step), 1.0))
-    variants += [(f"range x{s:g}", None, None, s) for s in args.scale]
-    print(f"{'variant':<16} {'trans m':>8} {'rot deg':>8} {'along':>8}")
+        variants.append((name, float(start), float(step), 1.0, config))
+    variants += [(f"range x{s:g}", None, None, s, config) for s in args.scale]
+    for spec in args.config:
+        name, _, sets = spec.partition(":")
+        other = apply_overrides(PipelineConfig(), args.set + sets.split(",")).icp2d
+        variants.append((name, None, None, 1.0, other))
+    print(f"{'variant':<16} {'trans m':>8} {'rot deg':>8} {'along':>8} {'vs reader m':>11} "
+          f"{'deg':>7}")
     if all(s.odom is not None for s in scans):
         te, re, al = score(np.array([s.odom for s in scans]), stamps, short)
         print(f"{'wheel odometry':<16} {te:8.5f} {re:8.4f} {al:+8.2%}", flush=True)
-    for name, start, step, scale in variants:
+    first = None
+    for name, start, step, scale, cfg in variants:
         moved = [relayout(s, start, step, scale) for s in scans]
-        poses, st = run(moved, config)
+        poses, st = run(moved, cfg)
         te, re, al = score(poses, st, short)
-        print(f"{name:<16} {te:8.5f} {re:8.4f} {al:+8.2%}", flush=True)
+        est = pairs(poses, st, short)[0]
+        first = est if first is None else first
+        apart = first @ np.linalg.inv(est)
+        print(f"{name:<16} {te:8.5f} {re:8.4f} {al:+8.2%} "
+              f"{np.hypot(apart[:, 0, 3], apart[:, 1, 3]).mean():11.5f} "
+              f"{np.degrees(np.abs(np.arctan2(apart[:, 1, 0], apart[:, 0, 0]))).mean():7.4f}",
+              flush=True)
         if args.breakdown:
             breakdown(poses, st, short)
 

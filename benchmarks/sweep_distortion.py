@@ -80,6 +80,7 @@ def distorted_ranges(run, n_scans: int, period: float, mode: str,
                      rng: np.random.Generator) -> np.ndarray:
     """``(n_scans, N)`` noisy ranges of `run`'s laser with beams at `beam_times`."""
     laser = run.laser
+    n_scans = min(n_scans, len(run.scans))
     stamps = run.ground_truth.stamps
     truth = run.ground_truth.xytheta()
     times = beam_times(laser.beams, laser.fov_deg, period, mode)

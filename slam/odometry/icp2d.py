@@ -93,8 +93,20 @@ Every estimate carries ``extra``: points, map_points, keyframe (a map keyframe w
 added), and after ICP inlier_ratio, rms, iterations, degeneracy, converged, search
 (number of guesses, if it ran) and search_won.
 
-Motion distortion (the robot moving during one sweep) is ignored: at Intel's speeds
-(< 0.5 m/s, 75 Hz sweeps) it stays below 1 cm.
+Motion distortion (the robot moving during one sweep) is ignored by default: at
+Intel's speeds (< 0.5 m/s, 75 Hz sweeps) it stays below 1 cm.  With ``deskew`` each
+beam's end point is moved into the frame of the scan's stamp before anything else
+(`deskew_points`): beam ``j`` (bearing ``a_j``, beams taken in index order from
+the first bearing ``a_0``) is taken ``tau_j = (a_j - a_0) / (2 pi) * mirror_period``
+after the stamp, plus one `mirror_period` for the odd beams of ``"interlaced"`` (a
+SICK LMS at 0.5 degree takes the even beams in one turn of its mirror and the odd
+ones in the next); the sensor's pose then is ``(tau_j / dt) * v`` in the stamp's
+frame (``v`` the previous scan's registered increment, ``dt`` the time between the
+two stamps it joins: constant velocity, the increment's ``(x, y, theta)`` scaled,
+its first-order interpolation; the registered increment, not the odometry's, whose
+error in heading is larger than the distortion), and the point is
+``T((tau_j / dt) v) p_j``.  Not applied before two scans were registered, when that
+``dt`` was not positive or shorter than the sweep itself, or on an odometry jump.
 """
 
 from __future__ import annotations
@@ -130,6 +142,9 @@ if TYPE_CHECKING:
     from loopclosure.fast_icp import GridTarget
 
 Array = NDArray[np.float64]
+
+#: Beam timings of `Icp2dConfig.deskew`.
+DESKEW_MODES = ("none", "sweep", "interlaced")
 
 
 @dataclass(frozen=True, slots=True)
@@ -217,6 +232,10 @@ class Icp2dConfig:
             odometry jump, whose prediction may be false).
         facing_refresh: distance [m] of the prediction from the last culling
             position that makes ``facing_view="prediction"`` cull again.
+        deskew: ``"none"``, ``"sweep"`` or ``"interlaced"``: move each beam's point
+            by the motion predicted between the stamp and the instant the beam was
+            taken (module docstring).
+        mirror_period: one turn of the laser's mirror [s] (1/75 s for a SICK LMS).
     """
 
     icp: IcpConfig = field(
@@ -263,6 +282,8 @@ class Icp2dConfig:
     facing_bend: float = float(np.pi)
     facing_view: str = "keyframe"
     facing_refresh: float = 0.1
+    deskew: str = "none"
+    mirror_period: float = 1.0 / 75.0
 
     def __post_init__(self) -> None:
         positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
@@ -283,6 +304,11 @@ class Icp2dConfig:
                             f"got {self.facing_view!r}")
         if not (np.isfinite(self.facing_refresh) and self.facing_refresh >= 0):
             raise UserError(f"icp2d facing_refresh must be >= 0, got {self.facing_refresh}")
+        if self.deskew not in DESKEW_MODES:
+            raise UserError(f"icp2d deskew must be one of {', '.join(DESKEW_MODES)}, "
+                            f"got {self.deskew!r}")
+        if not (np.isfinite(self.mirror_period) and self.mirror_period > 0):
+            raise UserError(f"icp2d mirror_period must be positive, got {self.mirror_period}")
         if self.covariance_inflation not in ("none", "inliers"):
             raise UserError(f"icp2d covariance_inflation must be none or inliers, "
                             f"got {self.covariance_inflation!r}")
@@ -294,6 +320,31 @@ class Icp2dConfig:
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)) or np.any(value < 0):
                 raise UserError(f"icp2d {name} must be three numbers >= 0, got {value}")
+
+
+def beam_delays(angles: Array, mirror_period: float, mode: str) -> Array:
+    """Time [s] after the stamp at which each beam of bearings `angles` [rad] is taken
+    (module docstring, *Motion distortion*): ``(a_j - a_0) / (2 pi) * mirror_period``,
+    plus `mirror_period` for the odd beams when `mode` is ``"interlaced"``."""
+    angles = np.asarray(angles, dtype=float)
+    if mode == "none" or len(angles) == 0:
+        return np.zeros(len(angles))
+    delay = (angles - angles[0]) / (2.0 * np.pi) * mirror_period
+    if mode == "interlaced":
+        delay[1::2] += mirror_period
+    return delay
+
+
+def deskew_points(points: Array, delays: Array, increment: Array, dt: float) -> Array:
+    """``(N, 2)`` sensor-frame `points` [m] taken `delays` [s] after the stamp, moved
+    into the stamp's frame: ``T(s_j u) p_j`` with ``s_j = delays_j / dt`` and ``u``
+    the ``(x, y, theta)`` `increment` over `dt` [s] (constant velocity, first order)."""
+    frac = np.asarray(delays, dtype=float) / dt
+    theta = frac * increment[2]
+    c, s = np.cos(theta), np.sin(theta)
+    x, y = points[:, 0], points[:, 1]
+    return np.column_stack([c * x - s * y + frac * increment[0],
+                            s * x + c * y + frac * increment[1]])
 
 
 @functools.cache
@@ -335,6 +386,8 @@ class Icp2dOdometry:
         self._grid: GridTarget | None = None
         self._trig: tuple[Array, Array, Array] | None = None  # `_bearings`
         self._floor_cov: Array | None = None  # `_floor`
+        self._stamp: float | None = None  # stamp of the previous scan (`deskew`)
+        self._step_dt = 0.0  # time between the previous scan and the one before [s]
         self.map_rebuilds = 0
 
     # ------------------------------------------------------------------ public
@@ -361,6 +414,7 @@ class Icp2dOdometry:
         if self._pose is None:
             pose = odom.copy() if odom is not None else np.zeros(3)
             self._odom = odom
+            self._stamp = float(scan.stamp)
             self._accept(pose, np.zeros(3), points, extra, force_keyframe=True)
             return self._estimate(scan, pose, np.zeros(3), self._floor(), 0.0, "first", t0, extra)
 
@@ -368,6 +422,11 @@ class Icp2dOdometry:
         u, u_cov, jump = self._prediction(odom)
         if odom is not None:
             self._odom = odom
+        if cfg.deskew != "none" and not jump:
+            points = self._deskewed(scan, points)
+            extra["points"] = len(points)
+        self._step_dt = float(scan.stamp) - self._stamp if self._stamp is not None else 0.0
+        self._stamp = float(scan.stamp)
         pred = se2.compose(prev, u)
         if jump:
             extra["odometry_step"] = u.copy()
@@ -448,6 +507,23 @@ class Icp2dOdometry:
                                r[keep] * np.sin(angles[keep])])
         voxel = _fast().voxel_downsample_fast if cfg.compiled else voxel_downsample
         return voxel(pts, cfg.source_voxel)
+
+    def _deskewed(self, scan: Scan, points: Array) -> Array:
+        """`scan_points` of `scan` with every beam moved by `deskew_points` (the
+        previous registered increment over the time it took); `points` unchanged
+        when that time was not positive or shorter than the sweep."""
+        cfg = self.config
+        delays = beam_delays(scan.angles, cfg.mirror_period, cfg.deskew)
+        dt = self._step_dt
+        if not dt > max(float(delays.max(initial=0.0)), 0.0):
+            return points
+        r, angles = scan.ranges, scan.angles
+        with np.errstate(invalid="ignore"):
+            keep = scan.valid & (r >= cfg.min_range) & (r <= cfg.max_range)
+        raw = np.column_stack([r[keep] * np.cos(angles[keep]), r[keep] * np.sin(angles[keep])])
+        moved = deskew_points(raw, delays[keep], self._velocity, dt)
+        voxel = _fast().voxel_downsample_fast if cfg.compiled else voxel_downsample
+        return voxel(moved, cfg.source_voxel)
 
     def _bearings(self, angles: Array) -> tuple[Array, Array]:
         """``(cos, sin)`` of the beams' bearings `angles` [rad], kept for the next scan
