@@ -42,6 +42,8 @@ def test_deskew_config_is_checked() -> None:
         Icp2dConfig(deskew="rolling")
     with pytest.raises(UserError, match="mirror_period"):
         Icp2dConfig(mirror_period=0.0)
+    with pytest.raises(UserError, match="deskew_baseline"):
+        Icp2dConfig(deskew_baseline=-1.0)
 
 
 def test_deskew_reduces_the_error_of_interlaced_scans() -> None:
@@ -64,3 +66,18 @@ def test_deskew_reduces_the_error_of_interlaced_scans() -> None:
         errors[mode] = bench.consecutive_error(poses, truth)
     assert errors["interlaced"][1] < errors["none"][1]
     assert errors["interlaced"][0] < errors["none"][0]
+
+
+def test_deskew_velocity_spans_the_baseline() -> None:
+    """Tracked scans at 0, 0.09, 0.1 and 0.105 s (stamps a few milliseconds apart, as
+    in logs that send two scans at once): with a 0.1 s baseline the velocity joins
+    the newest scan to the one at 0 s (0.105 s), not to the one 5 ms before it;
+    none while no scan is old enough."""
+    odo = Icp2dOdometry(Icp2dConfig(deskew="sweep", deskew_baseline=0.1))
+    for t, x in ((0.0, 0.0), (0.09, 0.05), (0.1, 0.06), (0.105, 0.1)):
+        odo._track.append((t, np.array([x, 0.0, 0.0])))
+    velocity, dt = odo._track_velocity()
+    np.testing.assert_allclose(velocity, [0.1, 0.0, 0.0], atol=1e-15)
+    assert abs(dt - 0.105) < 1e-15
+    odo._track.popleft()
+    assert odo._track_velocity() == (None, 0.0)

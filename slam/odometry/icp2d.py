@@ -101,12 +101,15 @@ the first bearing ``a_0``) is taken ``tau_j = (a_j - a_0) / (2 pi) * mirror_peri
 after the stamp, plus one `mirror_period` for the odd beams of ``"interlaced"`` (a
 SICK LMS at 0.5 degree takes the even beams in one turn of its mirror and the odd
 ones in the next); the sensor's pose then is ``(tau_j / dt) * v`` in the stamp's
-frame (``v`` the previous scan's registered increment, ``dt`` the time between the
-two stamps it joins: constant velocity, the increment's ``(x, y, theta)`` scaled,
-its first-order interpolation; the registered increment, not the odometry's, whose
-error in heading is larger than the distortion), and the point is
-``T((tau_j / dt) v) p_j``.  Not applied before two scans were registered, when that
-``dt`` was not positive or shorter than the sweep itself, or on an odometry jump.
+frame (constant velocity, the increment's ``(x, y, theta)`` scaled, its first-order
+interpolation), with ``v`` the registered motion from the newest earlier scan at
+least `deskew_baseline` before the previous one to the previous one and ``dt`` the
+time between their stamps: the front end's own increments, not the odometry's
+(whose heading error is larger than the distortion), over a baseline long enough
+that the registration's millimetres and the stamps' jitter (scans a few
+milliseconds apart) do not make a velocity.  The point is ``T((tau_j / dt) v) p_j``.
+Not applied while no such pair of scans exists (the start, after a kidnap) or on an
+odometry jump.
 """
 
 from __future__ import annotations
@@ -145,6 +148,8 @@ Array = NDArray[np.float64]
 
 #: Beam timings of `Icp2dConfig.deskew`.
 DESKEW_MODES = ("none", "sweep", "interlaced")
+#: Earlier scans kept for the de-skew's velocity (`Icp2dConfig.deskew_baseline`).
+TRACK_LENGTH = 64
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,6 +241,8 @@ class Icp2dConfig:
             by the motion predicted between the stamp and the instant the beam was
             taken (module docstring).
         mirror_period: one turn of the laser's mirror [s] (1/75 s for a SICK LMS).
+        deskew_baseline: shortest time [s] over which the de-skew's velocity is
+            measured (module docstring).
     """
 
     icp: IcpConfig = field(
@@ -284,6 +291,7 @@ class Icp2dConfig:
     facing_refresh: float = 0.1
     deskew: str = "none"
     mirror_period: float = 1.0 / 75.0
+    deskew_baseline: float = 0.1
 
     def __post_init__(self) -> None:
         positive = ("max_range", "map_voxel", "line_anchor_radius", "map_radius",
@@ -307,8 +315,10 @@ class Icp2dConfig:
         if self.deskew not in DESKEW_MODES:
             raise UserError(f"icp2d deskew must be one of {', '.join(DESKEW_MODES)}, "
                             f"got {self.deskew!r}")
-        if not (np.isfinite(self.mirror_period) and self.mirror_period > 0):
-            raise UserError(f"icp2d mirror_period must be positive, got {self.mirror_period}")
+        for name in ("mirror_period", "deskew_baseline"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise UserError(f"icp2d {name} must be positive, got {value}")
         if self.covariance_inflation not in ("none", "inliers"):
             raise UserError(f"icp2d covariance_inflation must be none or inliers, "
                             f"got {self.covariance_inflation!r}")
@@ -387,7 +397,8 @@ class Icp2dOdometry:
         self._trig: tuple[Array, Array, Array] | None = None  # `_bearings`
         self._floor_cov: Array | None = None  # `_floor`
         self._stamp: float | None = None  # stamp of the previous scan (`deskew`)
-        self._step_dt = 0.0  # time between the previous scan and the one before [s]
+        # (stamp, pose) of the earlier scans, newest last (`deskew`'s velocity).
+        self._track: deque[tuple[float, Array]] = deque(maxlen=TRACK_LENGTH)
         self.map_rebuilds = 0
 
     # ------------------------------------------------------------------ public
@@ -422,10 +433,12 @@ class Icp2dOdometry:
         u, u_cov, jump = self._prediction(odom)
         if odom is not None:
             self._odom = odom
-        if cfg.deskew != "none" and not jump:
-            points = self._deskewed(scan, points)
-            extra["points"] = len(points)
-        self._step_dt = float(scan.stamp) - self._stamp if self._stamp is not None else 0.0
+        if cfg.deskew != "none":
+            assert self._stamp is not None
+            self._track.append((self._stamp, prev.copy()))
+            if not jump:
+                points = self._deskewed(scan, points)
+                extra["points"] = len(points)
         self._stamp = float(scan.stamp)
         pred = se2.compose(prev, u)
         if jump:
@@ -513,17 +526,30 @@ class Icp2dOdometry:
         previous registered increment over the time it took); `points` unchanged
         when that time was not positive or shorter than the sweep."""
         cfg = self.config
-        delays = beam_delays(scan.angles, cfg.mirror_period, cfg.deskew)
-        dt = self._step_dt
-        if not dt > max(float(delays.max(initial=0.0)), 0.0):
+        velocity, dt = self._track_velocity()
+        if velocity is None:
             return points
+        delays = beam_delays(scan.angles, cfg.mirror_period, cfg.deskew)
         r, angles = scan.ranges, scan.angles
         with np.errstate(invalid="ignore"):
             keep = scan.valid & (r >= cfg.min_range) & (r <= cfg.max_range)
         raw = np.column_stack([r[keep] * np.cos(angles[keep]), r[keep] * np.sin(angles[keep])])
-        moved = deskew_points(raw, delays[keep], self._velocity, dt)
+        moved = deskew_points(raw, delays[keep], velocity, dt)
         voxel = _fast().voxel_downsample_fast if cfg.compiled else voxel_downsample
         return voxel(moved, cfg.source_voxel)
+
+    def _track_velocity(self) -> tuple[Array | None, float]:
+        """Registered increment ``(x, y, theta)`` from the newest tracked scan at least
+        `deskew_baseline` [s] before the newest one to the newest one, and the time
+        between them [s]; ``(None, 0)`` when no tracked scan is that old."""
+        if not self._track:
+            return None, 0.0
+        t_last, p_last = self._track[-1]
+        for t, p in reversed(self._track):
+            dt = t_last - t
+            if dt >= self.config.deskew_baseline:
+                return se2.between(p, p_last), dt
+        return None, 0.0
 
     def _bearings(self, angles: Array) -> tuple[Array, Array]:
         """``(cos, sin)`` of the beams' bearings `angles` [rad], kept for the next scan
@@ -651,6 +677,7 @@ class Icp2dOdometry:
         """The odometry jumped and the map does not confirm any motion: restart the map."""
         cfg = self.config
         extra["kidnap"] = True
+        self._track.clear()
         self._keyframes.clear()
         self._normals.clear()
         self._grid = None
