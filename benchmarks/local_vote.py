@@ -18,7 +18,10 @@ keyframes
   interleaved by rank (ties by the default order);
 - ``fused N``: the default order's first N rows, then the vote's best rows not among
   them, then the rest in the default order (10 - N of the first 10 from the vote);
-- ``interleave3``: own, wide and vote lists interleaved by rank.
+- ``fused own N``: the same with the own index's vote alone (a query's own view
+  against the stored own views, as one database would vote);
+- ``interleave3``: own, wide and vote lists interleaved by rank;
+- ``either@10``: a true place among the default's first 10 or the vote's (20 rows).
 
 Printed per log and variant (``NAME:`` then `PairVoteConfig` fields): recall@1/10/50
 of each order and recall@10 per distance / overlap bin, and CPU ms per vote query.
@@ -45,13 +48,15 @@ from prefilter_misses import (  # noqa: E402
     describe_all,
     mapped,
     polygons_of,
+    wide_distance,
+    wide_matrix,
 )
+
 from evaluation.loop_bench_misses import DISTANCE_BINS, OVERLAP_BINS  # noqa: E402
 from evaluation.loop_bench_queries import interleaved_order  # noqa: E402
 from loopclosure.matchers.flirt import FlirtConfig, FlirtMatcher  # noqa: E402
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher  # noqa: E402
 from loopclosure.place_vote import PairVoteConfig, PairVoteIndex  # noqa: E402
-from prefilter_misses import wide_distance, wide_matrix  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 from slam.config_io import apply_overrides  # noqa: E402
 
@@ -74,10 +79,13 @@ def keypoints(scans: dict, config: PipelineConfig, step: float | None = None,
             m = FlirtMatcher(FlirtConfig(n_samples=n, max_features=max_features))
         f = m.describe(poly)
         p, o = np.asarray(f.points, float), np.asarray(f.orientations, float)
+        # label: concave (1) or convex (0), plus 2 x the scale's octave above 0.3 m (0..2)
+        octave = np.clip(np.floor(np.log2(np.maximum(f.scales, 1e-9) / 0.3)), 0, 2)
+        lab = (np.asarray(f.responses) < 0).astype(np.int64) + 2 * octave.astype(np.int64)
         if max_range is not None:
             keep = np.hypot(p[:, 0], p[:, 1]) <= max_range
-            p, o = p[keep], o[keep]
-        out[k] = (p, o)
+            p, o, lab = p[keep], o[keep], lab[keep]
+        out[k] = (p, o, lab)
     return out
 
 
@@ -111,7 +119,8 @@ def vote_index(keys: np.ndarray, kp: dict, cfg: PairVoteConfig) -> tuple[PairVot
     at = []
     for pos, k in enumerate(keys.tolist()):
         if k in kp:
-            index.add(*kp[k])
+            p, o, lab = kp[k]
+            index.add(p, o, lab % cfg.n_labels)
             at.append(pos)
     return index, np.array(at, np.intp)
 
@@ -163,8 +172,10 @@ def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
         v_wide = np.full(len(rows), -np.inf)
         if k in kp_own:
             t0 = time.process_time()
-            s = idx_own.scores(*kp_own[k])
-            sw = idx_wide.scores(*kp_own[k]) if len(idx_wide) else np.zeros(0)
+            p, o, lab = kp_own[k]
+            lab = lab % cfg.n_labels
+            s = idx_own.scores(p, o, lab)
+            sw = idx_wide.scores(p, o, lab) if len(idx_wide) else np.zeros(0)
             clock += time.process_time() - t0
             p = pos_rows[at_own]
             ok = p >= 0
@@ -185,8 +196,11 @@ def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
                                    ).astype(np.intp)
         orders = {"default": default, "vote": vote_full,
                   "vote own": np.lexsort((rank_default, -np.where(v_own > 0, v_own, 0)))}
+        own_voted = np.flatnonzero(v_own > 0)
+        own_vote = own_voted[np.lexsort((rank_default[own_voted], -v_own[own_voted]))]
         for n in splits:
             orders[f"fused {n}"] = fused(default, vote_full[:n_voted], n)
+            orders[f"fused own {n}"] = fused(default, own_vote, n)
         orders["interleave3"] = interleaved_order([d_own, d_wide,
                                                    np.minimum(dv_own, dv_wide)])[0]
         for name, order in orders.items():
@@ -197,6 +211,31 @@ def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
     res = {n: np.array(v + [BIG] * skipped) for n, v in out.items()}
     res["_ms"] = np.array([1000 * clock / n_q])
     return res
+
+
+def scaling(kp: dict, cfg: PairVoteConfig, sizes: list[int], n_queries: int = 50
+            ) -> dict[int, float]:
+    """Best-of-3 CPU ms of one `PairVoteIndex.scores` query at each database size, the
+    database made of the log's keyframes' keypoints cycled to the size (as many
+    postings per key as a log of that many keyframes like these), the index built
+    before timing; queries: `n_queries` keyframes evenly spread."""
+    items = list(kp.values())
+    qs = [items[i] for i in np.linspace(0, len(items) - 1, n_queries).astype(int)]
+    out = {}
+    for size in sizes:
+        index = PairVoteIndex(cfg)
+        for i in range(size):
+            p, o, lab = items[i % len(items)]
+            index.add(p, o, lab % cfg.n_labels)
+        index.scores(*qs[0][:2], qs[0][2] % cfg.n_labels)  # builds the sorted index
+        best = np.inf
+        for _ in range(3):
+            t0 = time.process_time()
+            for p, o, lab in qs:
+                index.scores(p, o, lab % cfg.n_labels)
+            best = min(best, (time.process_time() - t0) / len(qs))
+        out[size] = 1000 * best
+    return out
 
 
 def report(data: dict, name: str, res: dict) -> None:
@@ -222,6 +261,7 @@ def main() -> None:
     ap.add_argument("--max-range", type=float, help="keypoints: farthest kept [m]")
     ap.add_argument("--max-features", type=int, default=40)
     ap.add_argument("--repeat-only", action="store_true")
+    ap.add_argument("--scaling", default="", help="database sizes to time, e.g. 1000,10000")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
     config = apply_overrides(PipelineConfig(), args.set)
@@ -229,7 +269,8 @@ def main() -> None:
     for v in args.variant:
         name, _, rest = v.partition(":")
         kv = {a: b for a, b in (item.split("=") for item in rest.split(",") if item)}
-        over = {a: (b == "1") if a == "normalise" else float(b) for a, b in kv.items()}
+        over = {a: (b == "1") if a == "normalise" else int(b) if a in ("neighbours", "n_labels")
+                else float(b) for a, b in kv.items()}
         variants[name] = replace(PairVoteConfig(), **over)
     splits = [int(s) for s in args.split.split(",") if s]
     for spec in args.logs:
@@ -246,6 +287,11 @@ def main() -> None:
         if args.repeat_only:
             continue
         for vname, cfg in variants.items():
+            if args.scaling:
+                ms = scaling(kp_own, cfg, [int(x) for x in args.scaling.split(",")])
+                print(f"  {vname}: CPU ms per vote query (own index only) at size "
+                      + ", ".join(f"{n}: {t:.2f}" for n, t in ms.items()), flush=True)
+                continue
             report(data, vname, run_log(data, config, kp_own, kp_wide, cfg, splits))
 
 

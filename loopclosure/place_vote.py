@@ -54,9 +54,11 @@ class PairVoteConfig:
     length_step: float = 0.25
     angle_step: float = np.pi / 6
     theta_step: float = np.pi / 12
-    translation_step: float = 1.0
+    translation_step: float = 0.75
     max_translation: float = 3.0
     normalise: bool = True
+    neighbours: int = 0
+    n_labels: int = 6
 
     def __post_init__(self) -> None:
         steps = (self.length_step, self.angle_step, self.theta_step, self.translation_step)
@@ -65,6 +67,8 @@ class PairVoteConfig:
         if not (0 <= self.min_length < self.max_length and self.max_translation > 0):
             raise UserError("pair vote: need 0 <= min_length < max_length and "
                             "max_translation > 0")
+        if self.neighbours < 0 or self.n_labels < 1:
+            raise UserError("pair vote: need neighbours >= 0 and n_labels >= 1")
 
     @property
     def n_angle(self) -> int:
@@ -80,12 +84,15 @@ class PairVoteConfig:
 
 
 def pair_keys(points: Array, orientations: Array, config: PairVoteConfig,
-              both_directions: bool) -> tuple[NDArray[np.int64], NDArray[np.intp], Array]:
+              both_directions: bool, labels: NDArray[np.integer] | None = None
+              ) -> tuple[NDArray[np.int64], NDArray[np.intp], Array]:
     """Keys of the keypoint pairs of one place (module docstring).
 
     Args:
         points: ``(F, 2)`` keypoint positions [m]; orientations: ``(F,)`` [rad].
         both_directions: every pair as (a, b) and (b, a) (stored side), else a < b.
+        labels: ``(F,)`` class of each keypoint in ``[0, n_labels)`` (e.g. convex or
+            concave), part of the key; None: all 0.
 
     Returns:
         ``(keys, a, phi)``: key of each pair (one int64), index of its first keypoint
@@ -93,8 +100,19 @@ def pair_keys(points: Array, orientations: Array, config: PairVoteConfig,
     """
     p = np.asarray(points, float).reshape(-1, 2)
     o = np.asarray(orientations, float).ravel()
-    i, j = np.nonzero(~np.eye(len(p), dtype=bool)) if both_directions else np.triu_indices(
-        len(p), 1)
+    lab = (np.zeros(len(p), np.int64) if labels is None
+           else np.clip(np.asarray(labels, np.int64).ravel(), 0, config.n_labels - 1))
+    pair = ~np.eye(len(p), dtype=bool)
+    if config.neighbours and len(p) > config.neighbours + 1:
+        dist = np.hypot(*(p[:, None, :] - p[None, :, :]).transpose(2, 0, 1))
+        np.fill_diagonal(dist, np.inf)
+        near = np.zeros_like(pair)
+        rank = np.argsort(dist, axis=1, kind="stable")[:, : config.neighbours]
+        near[np.repeat(np.arange(len(p)), config.neighbours), rank.ravel()] = True
+        pair &= near | near.T
+    if not both_directions:
+        pair &= np.triu(np.ones_like(pair), 1)
+    i, j = np.nonzero(pair)
     d = p[j] - p[i]
     length = np.hypot(d[:, 0], d[:, 1])
     keep = (length >= config.min_length) & (length <= config.max_length)
@@ -104,7 +122,9 @@ def pair_keys(points: Array, orientations: Array, config: PairVoteConfig,
     a1 = np.floor(np.mod(o[i] - phi, TWO_PI) / config.angle_step).astype(np.int64) % na
     a2 = np.floor(np.mod(o[j] - phi, TWO_PI) / config.angle_step).astype(np.int64) % na
     lb = np.floor(length / config.length_step).astype(np.int64)
-    return (lb * na + a1) * na + a2, i.astype(np.intp), phi
+    nl = config.n_labels
+    key = ((lb * na + a1) * na + a2) * nl * nl + lab[i] * nl + lab[j]
+    return key, i.astype(np.intp), phi
 
 
 class PairVoteIndex:
@@ -119,9 +139,10 @@ class PairVoteIndex:
     def __len__(self) -> int:
         return len(self._pairs)
 
-    def add(self, points: Array, orientations: Array) -> int:
+    def add(self, points: Array, orientations: Array,
+            labels: NDArray[np.integer] | None = None) -> int:
         """Store one place (its row is the number of places stored before it)."""
-        keys, a, phi = pair_keys(points, orientations, self.config, both_directions=True)
+        keys, a, phi = pair_keys(points, orientations, self.config, True, labels)
         row = len(self._pairs)
         p = np.asarray(points, float).reshape(-1, 2)[a]
         self._parts.append((keys, np.full(len(keys), row, np.int64), p, phi))
@@ -141,15 +162,16 @@ class PairVoteIndex:
             self._built = (keys[order], rows[order], p[order], phi[order])
         return self._built
 
-    def scores(self, points: Array, orientations: Array) -> Array:
+    def scores(self, points: Array, orientations: Array,
+               labels: NDArray[np.integer] | None = None) -> Array:
         """``(len(self),)`` vote score of every stored place for the query keypoints."""
         cfg = self.config
         out = np.zeros(len(self))
         skeys, srows, sp, sphi = self._index()
-        qkeys, qa, qphi = pair_keys(points, orientations, cfg, both_directions=False)
+        qkeys, qa, qphi = pair_keys(points, orientations, cfg, False, labels)
         if not len(qkeys) or not len(skeys):
             return out
-        na2 = cfg.n_angle ** 2
+        na2 = cfg.n_angle ** 2 * cfg.n_labels ** 2
         look = (qkeys[None, :] + np.array([-na2, 0, na2])[:, None]).ravel()
         owner = np.tile(np.arange(len(qkeys)), 3)
         lo = np.searchsorted(skeys, look, side="left")
