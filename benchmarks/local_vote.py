@@ -134,10 +134,9 @@ def fused(default: np.ndarray, vote_order: np.ndarray, n: int, k: int = 10) -> n
     """First `n` of `default`, then the vote's best not among them up to `k`, then the
     rest of `default`."""
     head = default[:n]
-    extra = [r for r in vote_order[: 4 * k] if r not in set(head.tolist())][: k - n]
-    taken = set(head.tolist()) | set(extra)
-    rest = [r for r in default.tolist() if r not in taken]
-    return np.array(head.tolist() + extra + rest, np.intp)
+    extra = vote_order[: 4 * k][~np.isin(vote_order[: 4 * k], head)][: k - n]
+    first = np.concatenate([head, extra]).astype(np.intp)
+    return np.concatenate([first, default[~np.isin(default, first)]]).astype(np.intp)
 
 
 def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
@@ -191,8 +190,9 @@ def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
         rank_default[default] = np.arange(len(rows))
         vote_order = interleaved_order([dv_own, dv_wide])[0]
         n_voted = int(np.isfinite(np.minimum(dv_own, dv_wide)).sum())
-        vote_full = np.concatenate([vote_order[:n_voted],
-                                    [r for r in default if r not in set(vote_order[:n_voted])]]
+        voted = np.zeros(len(rows), bool)
+        voted[vote_order[:n_voted]] = True
+        vote_full = np.concatenate([vote_order[:n_voted], default[~voted[default]]]
                                    ).astype(np.intp)
         orders = {"default": default, "vote": vote_full,
                   "vote own": np.lexsort((rank_default, -np.where(v_own > 0, v_own, 0)))}
