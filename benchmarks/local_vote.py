@@ -261,6 +261,8 @@ def main() -> None:
     ap.add_argument("--max-range", type=float, help="keypoints: farthest kept [m]")
     ap.add_argument("--max-features", type=int, default=40)
     ap.add_argument("--repeat-only", action="store_true")
+    ap.add_argument("--variants-only", action="store_true",
+                    help="skip the default PairVoteConfig")
     ap.add_argument("--scaling", default="", help="database sizes to time, e.g. 1000,10000")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
@@ -269,9 +271,12 @@ def main() -> None:
     for v in args.variant:
         name, _, rest = v.partition(":")
         kv = {a: b for a, b in (item.split("=") for item in rest.split(",") if item)}
-        over = {a: (b == "1") if a == "normalise" else int(b) if a in ("neighbours", "n_labels")
-                else float(b) for a, b in kv.items()}
+        ints = ("neighbours", "n_labels", "length_slack")
+        over = {a: (b == "1") if a == "normalise" else int(b) if a in ints else float(b)
+                for a, b in kv.items()}
         variants[name] = replace(PairVoteConfig(), **over)
+    if args.variants_only and args.variant:
+        del variants["default"]
     splits = [int(s) for s in args.split.split(",") if s]
     for spec in args.logs:
         data = mapped(spec, config, args.cache)

@@ -17,8 +17,11 @@ Pair key.  For two keypoints a, b with ``l = |p_b - p_a|`` in
 
 invariant to rotation and translation of the frame (``wrap`` to [0, 2 pi)).  Stored
 places keep both directions of every pair (a, b) and (b, a); a query looks its pairs
-up in one direction, with the length bins ``b - 1 .. b + 1`` (a length on a bin edge
-still finds its match).
+up in one direction, with the length bins ``b - length_slack .. b + length_slack``
+(default 1: a length on a bin edge still finds its match).  Optional parts of the
+key: a class per keypoint in ``[0, n_labels)`` (e.g. convex or concave and the
+detection scale's octave), and ``neighbours`` > 0 pairs a keypoint only with its
+that many nearest (fewer pairs, fewer postings per query).
 
 Vote.  A query pair (a, b) matched to a stored pair (a', b') of place j gives the
 rigid transform of j's frame into the query's:
@@ -59,6 +62,7 @@ class PairVoteConfig:
     normalise: bool = True
     neighbours: int = 0
     n_labels: int = 6
+    length_slack: int = 1
 
     def __post_init__(self) -> None:
         steps = (self.length_step, self.angle_step, self.theta_step, self.translation_step)
@@ -67,8 +71,9 @@ class PairVoteConfig:
         if not (0 <= self.min_length < self.max_length and self.max_translation > 0):
             raise UserError("pair vote: need 0 <= min_length < max_length and "
                             "max_translation > 0")
-        if self.neighbours < 0 or self.n_labels < 1:
-            raise UserError("pair vote: need neighbours >= 0 and n_labels >= 1")
+        if self.neighbours < 0 or self.n_labels < 1 or self.length_slack < 0:
+            raise UserError("pair vote: need neighbours >= 0, n_labels >= 1 and "
+                            "length_slack >= 0")
 
     @property
     def n_angle(self) -> int:
@@ -172,8 +177,9 @@ class PairVoteIndex:
         if not len(qkeys) or not len(skeys):
             return out
         na2 = cfg.n_angle ** 2 * cfg.n_labels ** 2
-        look = (qkeys[None, :] + np.array([-na2, 0, na2])[:, None]).ravel()
-        owner = np.tile(np.arange(len(qkeys)), 3)
+        shifts = np.arange(-cfg.length_slack, cfg.length_slack + 1) * na2
+        look = (qkeys[None, :] + shifts[:, None]).ravel()
+        owner = np.tile(np.arange(len(qkeys)), len(shifts))
         lo = np.searchsorted(skeys, look, side="left")
         hi = np.searchsorted(skeys, look, side="right")
         n = hi - lo

@@ -99,3 +99,15 @@ def test_bad_config_is_refused():
         PairVoteConfig(min_length=5.0, max_length=2.0)
     with pytest.raises(UserError):
         PairVoteConfig(neighbours=-1)
+
+
+def test_length_slack_finds_a_pair_across_a_bin_edge():
+    # stored pair 2.24 m long (bin 8), query pair 2.26 m (bin 9): found with the
+    # neighbouring bins only
+    o = np.array([1.0, 2.0])
+    stored = (np.array([[0.0, 0.0], [2.24, 0.0]]), o)
+    query = (np.array([[0.0, 0.0], [2.26, 0.0]]), o)
+    for slack, expected in ((0, 0.0), (1, 1.0)):
+        index = PairVoteIndex(PairVoteConfig(normalise=False, n_labels=1, length_slack=slack))
+        index.add(*stored)
+        assert index.scores(*query).tolist() == [expected]
