@@ -14,8 +14,9 @@ keyframes
 
 - ``default``: as ``bench loops``'s prefilter row (own and wide pair-histogram
   distances interleaved by rank, `prefilter_misses.ranks`);
-- ``vote``: by the pair vote of its own view's keypoints, own and wide indexes
-  interleaved by rank (ties by the default order);
+- ``vote``: by the pair vote of its own view's keypoints (with ``--query-wide``
+  also its wide view's, the larger score kept), own and wide indexes interleaved by
+  rank (ties by the default order);
 - ``fused N``: the default order's first N rows, then the vote's best rows not among
   them, then the rest in the default order (10 - N of the first 10 from the vote);
 - ``fused own N``: the same with the own index's vote alone (a query's own view
@@ -140,7 +141,8 @@ def fused(default: np.ndarray, vote_order: np.ndarray, n: int, k: int = 10) -> n
 
 
 def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
-            cfg: PairVoteConfig, splits: list[int]) -> dict[str, np.ndarray]:
+            cfg: PairVoteConfig, splits: list[int], query_wide: bool = False
+            ) -> dict[str, np.ndarray]:
     keys = data["keys"]
     matcher = PairHistogramMatcher()
     own = describe_all(data["own"], config, matcher)
@@ -176,6 +178,12 @@ def run_log(data: dict, config: PipelineConfig, kp_own: dict, kp_wide: dict,
             s = idx_own.scores(p, o, lab)
             sw = idx_wide.scores(p, o, lab) if len(idx_wide) else np.zeros(0)
             clock += time.process_time() - t0
+            asked = q["asked"]
+            if query_wide and asked in kp_wide:  # the query's wide view votes too
+                pw, ow, lw = kp_wide[asked]
+                s = np.maximum(s, idx_own.scores(pw, ow, lw % cfg.n_labels))
+                if len(idx_wide):
+                    sw = np.maximum(sw, idx_wide.scores(pw, ow, lw % cfg.n_labels))
             p = pos_rows[at_own]
             ok = p >= 0
             v_own[p[ok]] = s[ok]
@@ -263,6 +271,8 @@ def main() -> None:
     ap.add_argument("--repeat-only", action="store_true")
     ap.add_argument("--variants-only", action="store_true",
                     help="skip the default PairVoteConfig")
+    ap.add_argument("--query-wide", action="store_true",
+                    help="the query's wide view's keypoints vote too (the larger score)")
     ap.add_argument("--scaling", default="", help="database sizes to time, e.g. 1000,10000")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
@@ -297,7 +307,8 @@ def main() -> None:
                 print(f"  {vname}: CPU ms per vote query (own index only) at size "
                       + ", ".join(f"{n}: {t:.2f}" for n, t in ms.items()), flush=True)
                 continue
-            report(data, vname, run_log(data, config, kp_own, kp_wide, cfg, splits))
+            report(data, vname, run_log(data, config, kp_own, kp_wide, cfg, splits,
+                                        args.query_wide))
 
 
 if __name__ == "__main__":
