@@ -133,7 +133,11 @@ def pair_keys(points: Array, orientations: Array, config: PairVoteConfig,
 
 
 class PairVoteIndex:
-    """Inverted index of the stored places' pair keys; `scores` votes a query."""
+    """Inverted index of the stored places' pair keys; `scores` votes a query.
+
+    The postings are one array sorted by key, rebuilt (O(P log P), P stored pairs)
+    on the first query after an insertion: fit for a database filled once and then
+    asked, not yet for one that grows between queries."""
 
     def __init__(self, config: PairVoteConfig | None = None) -> None:
         self.config = config or PairVoteConfig()
