@@ -95,3 +95,18 @@ def test_batched_distances_are_the_exact_norm(norm: str) -> None:
     diff = np.stack(descs).astype(float) - descs[0]
     exact = np.abs(diff).sum(axis=1) if norm == "l1" else np.linalg.norm(diff, axis=1)
     np.testing.assert_allclose(d, exact, rtol=1e-3, atol=1e-5)
+
+
+def test_l1_and_l2_distances_of_arc_lengths_by_hand() -> None:
+    # Rings at 0.5 and 1.5 m.  A square of half-side 0.25 m lies within both circles,
+    # which never enter it: profile (0, 0).  A square of half-side 2 m contains both
+    # circles: arcs (pi, 3 pi) [m].
+    def square(h: float) -> Polygon:
+        return Polygon(np.array([[-h, -h], [h, -h], [h, h], [-h, h]]))
+    small, big = square(0.25), square(2.0)
+    l1 = RingProjectionMatcher(n_rings=2, max_radius=2.0, norm="l1")
+    np.testing.assert_allclose(l1.describe(big), [np.pi, 3 * np.pi], rtol=1e-6)
+    assert l1.distance(l1.describe(small), l1.describe(big)) == pytest.approx(4 * np.pi, rel=1e-6)
+    l2 = RingProjectionMatcher(n_rings=2, max_radius=2.0)  # the default norm
+    assert l2.distance(l2.describe(small), l2.describe(big)) == pytest.approx(
+        np.sqrt(10) * np.pi, rel=1e-6)

@@ -22,7 +22,15 @@ and the descriptor is the vector of arc lengths (gamma_i f(gamma_i)), i = 0 .. R
 (default, the paper's implementation), or with ``arc_length=False`` the fractions
 f(gamma_i) / (2 pi) of each circle inside the polygon (dimensionless, in [0, 1]).
 Two descriptors are compared with the Euclidean distance s(D_i, D_j) = ||D_i - D_j||_2
-(default) or the L1 distance sum_i |D_i - D_j| (``norm="l1"``).
+(default) or the L1 distance sum_i |D_i - D_j| (``norm="l1"``).  The paper gives no
+distance for the ring projection (L1 is the one of its other region profile, scan
+line).  L1 suits places within a few metres of the sensor: two views of one place
+differ mostly in a few rings (those that cut the open space at the range cap, or a
+door open in one view), a difference that L2 squares into the largest term.  When the
+centroid itself moves between two views (far-reaching scans whose open space differs),
+their difference is a radial shift of the profile, spread thinly over many rings,
+which L2 forgives more.  The place database's ring stage is Euclidean (its vector
+store), so the default stays L2.
 
 Exact computation, vectorised.  The paper orders the intersections of each circle with
 the polygon by angle and tests the midpoint of every arc.  We avoid the point-in-polygon
@@ -43,8 +51,10 @@ spans), so the cost is O(N + crossings), not O(R N), and there is no sampling er
 
 Parameters (`RingConfig`)
 -------------------------
-- ``n_rings`` R = 32: number of circles (0.625 m apart for max_radius 20 m); a query
-  costs O(R) per stored profile.
+- ``n_rings`` R = 32: number of circles (0.625 m apart for max_radius 20 m; a place
+  within 5 m of the sensor then spans only about 9 of them, and 64, about the
+  displacement between two views of one place apart, resolve it better); a query costs
+  O(R) per stored profile.
 - ``max_radius`` = 20.0 m: radius of the outermost ring (places; rooms 2-30 m, the scan
   polygon is capped at 30 m, and the far field is the least repeatable part of a scan
   taken from a displaced position).  Unused when scale invariant, which pixel-unit
@@ -54,8 +64,8 @@ Parameters (`RingConfig`)
   it (so the descriptor does not change with scale); for MPEG-7.
 - ``norm`` = "l2": Euclidean distance, because ring projection is a prefilter: a query
   against the whole database is one float32 matrix-vector product with precomputed
-  norms (||q||^2 + ||x||^2 - 2 q.x).  "l1" needs a full |x - q| pass over the
-  database instead.
+  norms (||q||^2 + ||x||^2 - 2 q.x).  "l1" (see above) needs a full |x - q| pass over
+  the database instead.
 - ``arc_length`` = True: the profile is the arc length gamma * f(gamma) [m] (the
   paper's implementation); False gives the fraction f / (2 pi), which weighs every ring
   equally.  Arc lengths weigh the outer rings more.
