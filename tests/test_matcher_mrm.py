@@ -11,7 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from loopclosure.matchers.mrm import MRMMatcher, _dtw_cyclic
+from data.errors import UserError
+from loopclosure.matchers.mrm import MRMMatcher, _dtw_cyclic, resample_by_vertex
 from loopclosure.polygon import Polygon
 from tests.matcher_shapes import blob, regular
 
@@ -113,12 +114,18 @@ def test_chunked_distances_equal_unchunked() -> None:
 def test_metric_distance_of_a_scaled_copy_is_bounded_by_the_unwarped_cost() -> None:
     a = blob(5)
     big = Polygon(a.vertices * 2.5)
-    metric = MRMMatcher()
-    da = metric.describe(a)
+    metric = MRMMatcher(normalisation="points")
+    da, db = metric.describe(a), metric.describe(big)
     # Descriptors scale with size: d_big = 2.5 d_a.  The un-warped path costs
     # mean|1.5 d_a| [m]; warping can only lower it.
     unwarped = 1.5 * np.abs(da.mcc).mean()
-    assert 0.5 * unwarped < metric.distance(da, metric.describe(big)) <= unwarped + 1e-12
+    per_point = metric.distance(da, db)
+    assert 0.5 * unwarped < per_point <= unwarped + 1e-12
+    # The complexity normalisation divides the same path cost by (C_a + C_b) / 2, with
+    # C_b = 2.5 C_a: a scaled copy stays at a distance > 0 (not scale invariant).
+    assert db.complexity == pytest.approx(2.5 * da.complexity, rel=1e-12)
+    default = MRMMatcher().distance(da, db)
+    assert default == pytest.approx(per_point / (1.75 * da.complexity), rel=1e-12)
 
 
 def test_mirror_option() -> None:
@@ -130,3 +137,26 @@ def test_mirror_option() -> None:
     plain, mirror = MRMMatcher(), MRMMatcher(mirror=True)
     assert plain.distance(plain.describe(a), plain.describe(mirrored)) > 0.005
     assert mirror.distance(mirror.describe(a), mirror.describe(mirrored)) < 1e-9
+
+
+def test_resample_by_vertex_by_hand() -> None:
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    want = [[0, 0], [1, 0], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [0, 1]]
+    np.testing.assert_allclose(resample_by_vertex(square, 8), want)
+    # Fewer samples than vertices: index steps of 4/3, between vertices 1-2 and 2-3.
+    np.testing.assert_allclose(resample_by_vertex(square, 3), [[0, 0], [2, 2 / 3], [2 / 3, 2]])
+
+
+def test_sampling_auto_is_arc_for_shapes_and_vertex_for_places() -> None:
+    # Uneven edges: the two samplings differ.
+    poly = Polygon(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 1.0], [9.0, 1.5], [0.0, 1.0]]))
+    def mcc(**kw: object) -> np.ndarray:
+        return MRMMatcher(**kw).describe(poly).mcc
+    np.testing.assert_array_equal(mcc(), mcc(sampling="vertex"))
+    np.testing.assert_array_equal(mcc(scale_invariant=True),
+                                  mcc(scale_invariant=True, sampling="arc"))
+    assert np.abs(mcc(sampling="arc") - mcc(sampling="vertex")).max() > 0.01
+    with pytest.raises(UserError):
+        MRMMatcher(sampling="angle")
+    with pytest.raises(UserError):
+        MRMMatcher(normalisation="area")

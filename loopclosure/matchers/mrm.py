@@ -9,8 +9,25 @@ single closed contour", IEEE Trans. Circuits Syst. Video Technol. 14(5):742-753,
 
 Descriptor (``describe``), for a polygon P:
 
-1. Resample the boundary to ``N = n_points`` points ``z_0(u)``, ``u = 0..N-1``,
-   equally spaced by arc length (counter-clockwise, complex ``x + iy``).
+1. Resample the boundary to ``N = n_points`` points ``z_0(u)``, ``u = 0..N-1``
+   (counter-clockwise, complex ``x + iy``), by ``sampling``:
+
+   - ``"vertex"``: equally spaced in vertex index, the paper's "polygon P with n
+     points": ``z_0(u) = (1 - w) v_k + w v_{k+1}`` with ``t = u V / N``,
+     ``k = floor(t)``, ``w = t - k`` (V vertices, indices mod V).  A scan polygon
+     has one vertex per beam, so this samples the place at equal bearing steps
+     from the sensor and every direction weighs the same.
+   - ``"arc"``: equally spaced by arc length along the boundary (Adamek &
+     O'Connor's parametrisation of silhouettes).
+   - ``"auto"`` (default): ``"arc"`` when ``scale_invariant`` (shape sets such as
+     MPEG-7, whose simplified contours have few, unevenly spaced vertices),
+     ``"vertex"`` otherwise (places).
+
+   Why not arc length on places: a real place's boundary is mostly its least
+   repeatable part -- the arcs of open space at the range cap and the depth
+   jumps along the beams between a near and a far wall -- so equal arc-length
+   samples land mostly there, and the nearby walls that identify the place get
+   few of the N samples.
 2. Smooth at ``K = n_scales`` levels ``sigma_k = k * sigma_step`` (k = 1..K, in
    units of the sample spacing; level 0 is the unsmoothed contour):
    ``z_k(u) = sum_v z_0(v) g_k(u - v)`` (circular convolution with a Gaussian of
@@ -39,10 +56,16 @@ Matching (``distance``):
   (N-1, N-1) with steps (i-1, j), (i, j-1), (i-1, j-1) (classic DTW):
   ``D(i, j) = c(i, j) + min(D(i-1, j), D(i, j-1), D(i-1, j-1))``.
 - ``cost = min_s D_s(N-1, N-1)``; the distance is
-  ``2 cost / (N (C_a + C_b))`` when ``scale_invariant`` (the original's
-  normalisation by the complexity of the compared curves; the contour is first
-  divided by sqrt(area), so the distance is dimensionless and scale invariant),
-  and ``cost / N`` [m] otherwise (see departures).
+  ``2 cost / (N (C_a + C_b))`` (``normalisation="complexity"``, default: the
+  paper's and the original's normalisation by the complexity of the compared
+  curves; dimensionless), or ``cost / N`` (``normalisation="points"``: the mean
+  per-point difference of convexity, in the contour's unit).  The complexity
+  normalisation alone does not make the distance scale invariant: a copy of a
+  room scaled by s has ``d_b = s d_a`` and ``C_b = s C_a``, so its distance is
+  about ``2 |s - 1| / (s + 1)`` times a shape-dependent constant, not 0; it only
+  makes the distance independent of the unit (both shapes scaled alike).  With
+  ``scale_invariant`` the contour is also divided by sqrt(area), which makes it
+  scale invariant.
 
 Vectorisation: the DP runs row by row (N Python iterations) on arrays of shape
 (database entries, start offsets, band width).  The horizontal step makes a row depend on
@@ -73,8 +96,10 @@ Parameters (`MRMConfig`):
         whole table).
     mirror: also match the mirrored contour of the query and keep the smaller
         cost (default False: a mirrored room is a different place).
-    scale_invariant: divide the contour by sqrt(area) and the cost by the curve
-        complexity (default False).
+    sampling: ``"vertex"``, ``"arc"`` or ``"auto"`` (default; see step 1).
+    normalisation: ``"complexity"`` (default) or ``"points"`` (see Matching).
+    scale_invariant: centre the contour and divide it by sqrt(area) (default
+        False).
     chunk: database entries processed at once in `distances` (bounds memory;
         default 16).
 
@@ -82,10 +107,10 @@ Departures from the paper, and why:
 - The smoothing is done by FFT (exact circular Gaussian convolution of the
   trigonometric interpolant of the samples) instead of a truncated spatial kernel:
   same result up to the kernel truncation, all levels in one pass.
-- Places must not be scale invariant (rooms differ in scale), but the complexity
-  normalisation divides out the size of the shape.  With ``scale_invariant=False``
-  the path cost is divided by N only and keeps its unit [m]: the mean per-point
-  difference of convexity in metres, which differs for rooms of different size.
+- Places must not be scale invariant (rooms differ in scale): without
+  ``scale_invariant`` the contour keeps its size in metres, and only the
+  complexity normalisation of the paper is applied (see Matching).
+- Places are sampled per vertex (per beam), not by arc length (step 1).
 - Mirror matching is optional (off by default).
 - Complexity is floored at 1e-9 times the perimeter so a circle (zero complexity)
   never gives a division by zero.
@@ -117,6 +142,8 @@ class MRMConfig:
     band: float | None = 0.2
     mirror: bool = False
     scale_invariant: bool = False
+    sampling: str = "auto"
+    normalisation: str = "complexity"
     chunk: int = 16
 
     def __post_init__(self) -> None:
@@ -130,6 +157,12 @@ class MRMConfig:
             raise UserError(f"n_starts must be >= 1 or None, got {self.n_starts}")
         if self.band is not None and not 0 < self.band <= 1:
             raise UserError(f"band must be in (0, 1] or None, got {self.band}")
+        if self.sampling not in ("auto", "vertex", "arc"):
+            raise UserError(f"sampling must be 'auto', 'vertex' or 'arc', got {self.sampling!r}")
+        if self.normalisation not in ("complexity", "points"):
+            raise UserError(
+                f"normalisation must be 'complexity' or 'points', got {self.normalisation!r}"
+            )
         if self.chunk < 1:
             raise UserError(f"chunk must be >= 1, got {self.chunk}")
 
@@ -162,6 +195,20 @@ class MRMStack:
 
     mcc: Array
     complexity: Array
+
+
+def resample_by_vertex(vertices: Array, n: int) -> Array:
+    """``(n, 2)`` points equally spaced in vertex index along the closed polygon.
+
+    Point u lies at index ``t = u V / n`` of the ``(V, 2)`` `vertices`: linearly
+    between vertex ``floor(t)`` and the next one (the last joins the first).
+    Units as `vertices`.
+    """
+    v = np.asarray(vertices, dtype=float)
+    t = np.arange(n) * (len(v) / n)
+    k = np.floor(t).astype(np.intp)
+    w = (t - k)[:, None]
+    return v[k % len(v)] * (1.0 - w) + v[(k + 1) % len(v)] * w
 
 
 def _mcc(z: NDArray[np.complex128], cfg: MRMConfig) -> tuple[Array, float]:
@@ -260,7 +307,12 @@ class MRMMatcher(Matcher):
 
     def describe(self, polygon: Polygon) -> MRMDescriptor:
         """MCC representation of `polygon` (rotation, translation and start invariant)."""
-        pts = polygon.resample(self.config.n_points)
+        cfg = self.config
+        arc = cfg.sampling == "arc" or (cfg.sampling == "auto" and cfg.scale_invariant)
+        if arc:
+            pts = polygon.resample(cfg.n_points)
+        else:
+            pts = resample_by_vertex(polygon.vertices, cfg.n_points)
         z = pts[:, 0] + 1j * pts[:, 1]
         if self.config.scale_invariant:
             z = (z - z.mean()) / np.sqrt(polygon.area)
@@ -299,7 +351,7 @@ class MRMMatcher(Matcher):
             )
             out[lo : lo + cfg.chunk] = cost
         n = cfg.n_points
-        if cfg.scale_invariant:
+        if cfg.normalisation == "complexity":
             out = 2.0 * out / (n * (query.complexity + stacked.complexity))
         else:
             out = out / n
