@@ -19,7 +19,16 @@ observed free space when
     rho < r(b) - margin                                                            (1)
 
 The smallest range of a submap merged from several scans is at most the keyframe's
-own return in that direction, so (1) errs towards "not observed" (neutral).
+own return in that direction, so (1) errs towards "not observed" (neutral).  But a
+point another scan of the submap saw from elsewhere was observed along *that* scan's
+ray, not along the ray from the keyframe's origin: (1) then also invents free space
+(behind a corner or a door frame from the origin's side) and misses the free space
+the other scans' rays crossed.  The per-scan model (`ScanFreeSpace`) keeps each scan
+of the submap with its sensor pose ``s_k`` in the submap's frame, each scan's
+`RangeImage` ``r_k`` made about its own origin from its own returns, and a point p
+(submap frame) is in observed free space when some scan saw through it:
+
+    exists k:  rho_k < r_k(b_k) - margin,   (rho_k, b_k) = polar (s_k^-1 p)      (1')
 
 Consistency (`consistency`) of the query submap Q (query frame) and the candidate
 submap P (candidate frame) at the pose T of the query in the candidate's frame:
@@ -45,6 +54,9 @@ from scipy.spatial import cKDTree
 from data import se2
 
 Array = NDArray[np.float64]
+SCAN_FREE_SPACE = "scan_free_space"
+"""Key of a registration target's ``derived`` cache holding its submap's
+`ScanFreeSpace` (set by the loop detector's keyframe store)."""
 
 
 class RangeImage:
@@ -82,6 +94,56 @@ class RangeImage:
         return np.hypot(pts[:, 0], pts[:, 1]) < self.ranges[self._sector(pts)] - margin
 
 
+class ScanFreeSpace:
+    """The free space the scans of a submap observed, each about its own origin (1').
+
+    Attributes:
+        poses: ``(K, 3)`` sensor pose of each scan in the submap's frame [m, m, rad].
+        ranges: ``(K, bins)`` each scan's free range per bearing sector about its own
+            origin [m] (`RangeImage.ranges` of its returns in its sensor frame; 0:
+            nothing observed), float32.
+        bins: bearing sectors (`RangeImage`'s convention).
+    """
+
+    __slots__ = ("bins", "poses", "ranges")
+
+    def __init__(self, poses: ArrayLike, ranges: ArrayLike) -> None:
+        self.poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        self.ranges = np.atleast_2d(np.asarray(ranges, dtype=np.float32))
+        if len(self.ranges) != len(self.poses):
+            raise ValueError(f"{len(self.poses)} scan poses but {len(self.ranges)} range rows")
+        self.bins = self.ranges.shape[1]
+
+    @classmethod
+    def of(cls, poses: ArrayLike, scans: list[ArrayLike], bins: int = 720,
+           spread: int = 2) -> ScanFreeSpace:
+        """From each scan's ``(M_k, 2)`` returns [m] (its own sensor frame) and its
+        sensor pose ``(3,)`` in the submap's frame."""
+        return cls(poses, np.array([RangeImage(s, bins, spread).ranges for s in scans],
+                                   dtype=np.float32).reshape(-1, bins))
+
+    def free(self, points: ArrayLike, margin: float) -> NDArray[np.bool_]:
+        """``(N,)`` True where a point [m] (the submap's frame) lies in the observed
+        free space of any scan (1'): every scan's test at once, ``(K, N)``."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        if len(pts) == 0 or len(self.poses) == 0:
+            return np.zeros(len(pts), bool)
+        x, y, th = self.poses.T
+        c, s = np.cos(th)[:, None], np.sin(th)[:, None]
+        dx = pts[None, :, 0] - x[:, None]
+        dy = pts[None, :, 1] - y[:, None]
+        u, v = c * dx + s * dy, c * dy - s * dx  # s_k^-1 p, (K, N)
+        sector = ((np.arctan2(v, u) + np.pi) * (self.bins / (2 * np.pi))).astype(np.intp)
+        sector %= self.bins
+        free_range = np.take_along_axis(self.ranges, sector, axis=1)
+        return (np.hypot(u, v) < free_range - margin).any(axis=0)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held [bytes]."""
+        return self.poses.nbytes + self.ranges.nbytes
+
+
 @dataclass(slots=True)
 class Consistency:
     """Figures of (2) at one pose.
@@ -98,19 +160,39 @@ class Consistency:
     conflicts: int
 
 
+class SubmapPoints(np.ndarray):
+    """``(N, 2)`` points of a submap [m] (its sensor frame) carrying its scans' free
+    space (1') as `free_space` (None: not known), so that the free space travels
+    with the points to the check.  Views keep it; `numpy.asarray` drops it."""
+
+    free_space: ScanFreeSpace | None
+
+    def __new__(cls, points: ArrayLike, free_space: ScanFreeSpace | None) -> SubmapPoints:
+        out = np.asarray(points, dtype=float).reshape(-1, 2).view(cls)
+        out.free_space = free_space
+        return out
+
+    def __array_finalize__(self, obj: object) -> None:
+        self.free_space = getattr(obj, "free_space", None)
+
+
 @dataclass(slots=True)
 class Submap:
-    """A submap prepared for (2): points [m] in its sensor frame, KD-tree, free space."""
+    """A submap prepared for (2): points [m] in its sensor frame, KD-tree, free space
+    ((1) about the sensor origin, or its scans' (1'))."""
 
     points: Array
     tree: cKDTree | None
-    image: RangeImage
+    image: RangeImage | ScanFreeSpace
 
     @classmethod
-    def of(cls, points: ArrayLike, bins: int = 720, spread: int = 2) -> Submap:
-        """Prepare ``(N, 2)`` points (its sensor frame [m])."""
+    def of(cls, points: ArrayLike, bins: int = 720, spread: int = 2,
+           scans: ScanFreeSpace | None = None) -> Submap:
+        """Prepare ``(N, 2)`` points (its sensor frame [m]); free space (1) about the
+        origin, or `scans`' (1') when given."""
         pts = np.asarray(points, dtype=float).reshape(-1, 2)
-        return cls(pts, cKDTree(pts) if len(pts) else None, RangeImage(pts, bins, spread))
+        image = RangeImage(pts, bins, spread) if scans is None else scans
+        return cls(pts, cKDTree(pts) if len(pts) else None, image)
 
 
 def _one_way(moved: Array, other: Submap, tolerance: float, margin: float) -> tuple[int, int]:

@@ -119,7 +119,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data import se2
 from data.errors import UserError
-from loopclosure.free_space import Consistency
+from loopclosure.free_space import SCAN_FREE_SPACE, Consistency
 from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
 from loopclosure.prior_free import PriorFreeConfig, match_prior_free
 from loopclosure.registration import (
@@ -194,6 +194,14 @@ class GeometricCheckConfig:
             with 8-10% of its points in the other's free space; true revisits of real
             logs nearly all stay under 8% (people, doors).  Each query checks several
             places, so the bar sits above the look-alikes'.
+        free_space_origins: where the free-space test's rays start
+            (`loopclosure.free_space`): ``"keyframe"``, the merged submap seen from
+            the keyframe's sensor (1); ``"scans"``, every scan of the submap from its
+            own sensor (1'), for a query whose points carry their scans' free space
+            (`loopclosure.free_space.SubmapPoints`) against a target that holds its
+            own (``derived[SCAN_FREE_SPACE]``), as the loop detector's keyframe store
+            provides them; a pair lacking either (a longer check's joined submaps)
+            keeps (1).
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -262,6 +270,7 @@ class GeometricCheckConfig:
     method: str = "correlative"
     min_matched_length: float = 2.0
     min_consistency: float = 0.92
+    free_space_origins: str = "keyframe"
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -278,6 +287,9 @@ class GeometricCheckConfig:
     def __post_init__(self) -> None:
         if self.method not in ("correlative", "icp"):
             raise UserError(f"loops.check.method must be correlative or icp, got {self.method!r}")
+        if self.free_space_origins not in ("keyframe", "scans"):
+            raise UserError("loops.check.free_space_origins must be keyframe or scans, got "
+                            f"{self.free_space_origins!r}")
 
 
 @dataclass(slots=True)
@@ -470,11 +482,19 @@ def _verify_correlative(
     cfg: GeometricCheckConfig,
 ) -> LoopVerification:
     """The prior-free check by correlative search (`loopclosure.prior_free`)."""
-    multi = match_prior_free(query_points, candidate, headings=headings,
+    scans = None
+    if cfg.free_space_origins == "scans":
+        q_free = getattr(query_points, "free_space", None)
+        c_free = candidate.derived.get(SCAN_FREE_SPACE)
+        if q_free is not None and c_free is not None:
+            scans = (q_free, c_free)
+    multi = match_prior_free(np.asarray(query_points, dtype=float), candidate,
+                             headings=headings,
                              max_distance=max_distance, source_voxel=cfg.source_voxel,
                              icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp,
                              profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial),
-                             cross_profile=cfg.pinned_degenerate and cfg.pinned_cross)
+                             cross_profile=cfg.pinned_degenerate and cfg.pinned_cross,
+                             scans=scans)
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),

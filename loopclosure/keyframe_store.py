@@ -9,6 +9,15 @@ keyframe queries the databases with (`views`: its own, its wide view's, its trai
 and what they answer (`query_places`), and it caches the registration targets (KD-tree +
 normals) of the submaps the checks fit to (`_target`).  The searches and the checks
 are the detector's (`loopclosure.candidate_checks`, `loopclosure.loop_detector`).
+
+With ``check.free_space_origins = "scans"`` the free-space test of the check
+(`loopclosure.free_space` (1')) needs each submap's scans about their own origins:
+the store keeps every keyframe's free ranges about its sensor (`RangeImage` of the
+scan given to `add_keyframe`, float32) and the host tells it, through the
+``submap_origins`` callback (`set_submap_origins`), which keyframes' scans make up
+a submap and where their sensors lie in its frame.  The free space then travels
+with the submap: on the registration target (``derived[SCAN_FREE_SPACE]``) and on
+the query's points (`loopclosure.free_space.SubmapPoints`).
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from data.errors import UserError
 from data.types import Scan
+from loopclosure.free_space import SCAN_FREE_SPACE, RangeImage, ScanFreeSpace, SubmapPoints
 from loopclosure.key_table import KeyTable
 from loopclosure.loop_config import LoopClosureConfig
 from loopclosure.place_choice import merge_views
@@ -41,6 +51,10 @@ SubmapVersionFn = Callable[[int], Hashable]
 TrailingMapFn = Callable[[int, int], ArrayLike]
 """``trailing_map(key, n) -> (N, 2)`` points of keyframes ``key - n .. key``, `key`'s
 sensor frame [m] (`loopclosure.loop_detector`)."""
+SubmapOriginsFn = Callable[[int], tuple[ArrayLike, ArrayLike]]
+"""``submap_origins(key) -> (keys (K,), poses (K, 3))``: the keyframes whose scans make
+up ``submap(key)`` and their sensor poses in `key`'s sensor frame [m, m, rad] (the
+poses the host placed their points with)."""
 
 
 @dataclass(slots=True)
@@ -96,6 +110,43 @@ class KeyframeStore:
         self._targets: OrderedDict[int, tuple[Hashable, RegistrationTarget]] = OrderedDict()
         self._trails: dict[int, list[int]] = {}  # key -> the trail keys it queried with
         self._place_scans: list[Scan | None] = []
+        self._submap_origins: SubmapOriginsFn | None = None
+        # key -> free ranges of its own scan about its sensor (``(bins,)`` float32),
+        # kept with ``check.free_space_origins = "scans"`` only.
+        self._scan_ranges: list[NDArray[np.float32]] = []
+
+    def set_submap_origins(self, submap_origins: SubmapOriginsFn | None) -> None:
+        """The host's ``submap_origins`` callback (`SubmapOriginsFn`): needed by
+        ``check.free_space_origins = "scans"`` (module docstring)."""
+        self._submap_origins = submap_origins
+        self._targets.clear()  # their free space changes
+
+    @property
+    def _per_scan(self) -> bool:
+        return self.config.check.free_space_origins == "scans"
+
+    def submap_free_space(self, key: int, last: int | None = None) -> ScanFreeSpace:
+        """The free space of ``submap(key)``'s scans, each about its own sensor
+        (`loopclosure.free_space` (1'), `key`'s sensor frame), from the scans of keys
+        up to `last` only when given (a submap as it was when `last` was the newest).
+
+        Raises:
+            UserError: no ``submap_origins`` callback, or not kept (the option off).
+        """
+        self._check_key(key)
+        if self._submap_origins is None or not self._per_scan:
+            raise UserError(
+                'check.free_space_origins = "scans" needs the host\'s submap_origins '
+                "callback: detector.set_submap_origins(lambda key: (keys, poses))")
+        keys, poses = self._submap_origins(key)
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        if last is not None:
+            keys, poses = keys[keys <= last], poses[keys <= last]
+        bins = self.config.check.search.free_bins
+        ranges = (np.stack([self._scan_ranges[k] for k in keys]) if len(keys)
+                  else np.zeros((0, bins), np.float32))
+        return ScanFreeSpace(poses, ranges)
 
     # -- keyframes -------------------------------------------------------------------
 
@@ -134,6 +185,9 @@ class KeyframeStore:
                 and float(stamp) == self._stamps[-1]):
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._table.append(float(stamp), int(session), place.descriptors is not None)
+        if self._per_scan:
+            self._scan_ranges.append(RangeImage(
+                scan.points(), self.config.check.search.free_bins).ranges.astype(np.float32))
         self._place_scans.append(place.place_scan)
         self._wide_keys.append(place.wide_key)
         if place.wide_descriptors is not None:
@@ -160,7 +214,7 @@ class KeyframeStore:
             if np.degrees(scan.fov) >= cfg.full_circle_deg or self._submap is None:
                 place_scan = scan
             else:
-                pts = self._submap_points(key)
+                pts = self._plain_points(key)
                 place_scan = virtual_scan(pts, cfg.virtual_beams, cfg.virtual_range, stamp=stamp)
         place = KeyframePlace(place_scan)
         try:
@@ -237,8 +291,10 @@ class KeyframeStore:
         if self.config.check.compiled_icp:
             from loopclosure.fast_icp import estimate_normals_fast as normals  # numba
 
-        target = RegistrationTarget(self._submap_points(key), self.config.check.icp,
+        target = RegistrationTarget(self._plain_points(key), self.config.check.icp,
                                     normals=normals)
+        if self._per_scan:
+            target.derived[SCAN_FREE_SPACE] = self.submap_free_space(key)
         self._targets[key] = (version, target)
         self._targets.move_to_end(key)
         while len(self._targets) > self.config.target_cache:
@@ -246,6 +302,12 @@ class KeyframeStore:
         return target
 
     def _submap_points(self, key: int) -> Array:
+        """``submap(key)``; with ``free_space_origins = "scans"``, carrying its scans'
+        free space (`SubmapPoints`)."""
+        pts = self._plain_points(key)
+        return SubmapPoints(pts, self.submap_free_space(key)) if self._per_scan else pts
+
+    def _plain_points(self, key: int) -> Array:
         if self._submap is None:
             raise UserError(
                 "LoopClosureDetector needs a submap callback to verify loops: pass "

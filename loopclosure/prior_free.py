@@ -27,7 +27,9 @@ in the candidate's submap (the candidate's sensor frame) in three steps:
 3. **ICP** (`loopclosure.registration.register`, point to line, initial gate
    `icp_gate`, at most `icp_iterations`) of the query voxelised to the check's
    ``source_voxel`` from each of those poses; and the free-space
-   consistency of the two submaps at each ICP pose (`loopclosure.free_space` (2)).
+   consistency of the two submaps at each ICP pose (`loopclosure.free_space` (2):
+   free space about each submap's sensor origin (1) or, given ``scans``, about each
+   of their scans' own origins (1')).
 
 The caller (`loopclosure.geometric_check`) applies the acceptance rule to the
 runs; they are returned best first by ICP fitness (ties: lower rms; failed runs
@@ -43,7 +45,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data import se2
-from loopclosure.free_space import Consistency, Submap, consistency
+from loopclosure.free_space import Consistency, ScanFreeSpace, Submap, consistency
 from loopclosure.registration import (
     IcpConfig,
     IcpResult,
@@ -225,6 +227,7 @@ def match_prior_free(
     compiled: bool = False,
     profile_below: float = 1.0,
     cross_profile: bool = False,
+    scans: tuple[ScanFreeSpace, ScanFreeSpace] | None = None,
 ) -> PriorFreeMatch:
     """Search, peaks, ICP and consistency (module docstring).
 
@@ -242,6 +245,9 @@ def match_prior_free(
             below this (the default: always; the check asks below its bars only).
         cross_profile: with the axis profile, the same slides across the axis
             (`PriorFreeMatch.cross_hits`).
+        scans: the free space of the query's and the candidate's scans, each about
+            its own sensor (`loopclosure.free_space` (1'); their submaps' frames),
+            instead of (1) about the submaps' origins.
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -278,10 +284,13 @@ def match_prior_free(
     else:
         results = [register(source, candidate, s, config=icp) for s in starts]
     order = sorted(range(len(results)), key=lambda i: _rank(results[i]))
+    q_scans, c_scans = (None, None) if scans is None else scans
+    key = ("free", cfg.submap_voxel, cfg.free_bins) + (() if c_scans is None else ("scans",))
     cand_submap = _cached(
-        candidate, ("free", cfg.submap_voxel, cfg.free_bins),
-        lambda: Submap.of(voxel_downsample(candidate.points, cfg.submap_voxel), cfg.free_bins))
-    query_submap = Submap.of(source, cfg.free_bins)
+        candidate, key,
+        lambda: Submap.of(voxel_downsample(candidate.points, cfg.submap_voxel), cfg.free_bins,
+                          scans=c_scans))
+    query_submap = Submap.of(source, cfg.free_bins, scans=q_scans)
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
     best = results[order[0]]

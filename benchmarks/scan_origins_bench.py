@@ -1,0 +1,156 @@
+"""``bench loops``' final row with the free-space test about the keyframe (default) and
+about each scan's own origin (``loops.check.free_space_origins = scans``), one process.
+
+Run from the repository root::
+
+    python benchmarks/scan_origins_bench.py LOG [--relations FILE] [--bar B ...]
+        [--max-queries N] [--npz PREFIX] [--no-default]
+
+The log is mapped once as ``loopclosure bench loops LOG --reference-from-log
+--odometry-noise 0 --stages fused`` maps it (``--relations FILE``: the relations-fitted
+reference instead), with the option on so that the keyframe store keeps every
+keyframe's scan free space (mapping runs no loop check).  Then every query is run
+(`evaluation.loop_bench_queries.query_all`) first with the default
+``free_space_origins = keyframe``, then with ``scans`` at each ``--bar`` (the check's
+``min_consistency``; default: the config's).  The host side the product's pipeline does
+not wire yet is done here: `host_origins` is the ``submap_origins`` callback a
+`slam.pipeline.Mapper` would give (`loopclosure.keyframe_store.SubmapOriginsFn`), and
+the benchmark's query submaps (as they were when the query was the newest keyframe)
+are handed to the check carrying their scans' free space
+(`loopclosure.free_space.SubmapPoints`).  Prints per pass R@100P / R@99P / AP of the
+final row, accepted / correct detections, CPU ms per query (the whole query: cascade
+and checks) and the memory of the kept free space; the peak RSS at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from data import se2  # noqa: E402
+from evaluation import loop_bench  # noqa: E402
+from evaluation.loop_bench import _query_plan, mapped_input  # noqa: E402
+from evaluation.loop_bench_input import LoopSource  # noqa: E402
+from evaluation.loop_bench_queries import RecordingMapper, query_all  # noqa: E402
+from evaluation.loop_bench_truth import (  # noqa: E402
+    average_precision,
+    pose_correct,
+    pr_curve,
+    recall_at_precision,
+)
+from loopclosure.free_space import SCAN_FREE_SPACE, SubmapPoints  # noqa: E402
+from slam.config import PipelineConfig  # noqa: E402
+
+
+def host_origins(mapper):
+    """The ``submap_origins`` callback of `mapper` (`slam.pipeline.Mapper`): the keys
+    ``Mapper.submap(key)`` merges and their front-end sensor poses in `key`'s frame,
+    the poses `Mapper._local_points` places their points with."""
+    n = mapper.config.submap_neighbours()
+
+    def origins(key: int):
+        keys = np.arange(max(mapper._span(key)[0], key - n), mapper.submap_version(key) + 1)
+        centre = mapper._keyframe(key).odom_pose
+        return keys, np.array([se2.between(centre, mapper._keyframe(j).odom_pose)
+                               for j in keys]).reshape(-1, 3)
+
+    return origins
+
+
+class OriginsMapper(RecordingMapper):
+    """The benchmark's mapper with its ``submap_origins`` callback given to the detector."""
+
+    def __init__(self, config: PipelineConfig) -> None:
+        super().__init__(config)
+        self.detector.set_submap_origins(host_origins(self))
+
+
+def carrying_queries(det):
+    """`verify_places` whose given query submap (keys up to the query's) carries its
+    scans' free space when the option is on."""
+    original = det.verify_places
+
+    def verify_places(key, matches, poses, query_points=None, allowed=None):
+        if query_points is None or det.config.check.free_space_origins != "scans":
+            return original(key, matches, poses, query_points, allowed)
+        pts = SubmapPoints(query_points, det.submap_free_space(key, last=key))
+        return det._verify_free(key, list(matches), pts,
+                                np.asarray(poses, float).reshape(-1, 3),
+                                det.config.max_loops, allowed)
+
+    return verify_places
+
+
+def run_pass(mapper, result, ref, max_queries, label, npz):
+    det = mapper.detector
+    covered = np.isfinite(ref).all(axis=1)
+    poses = np.array([result.keyframe_poses[kf.id] for kf in result.keyframes], float)
+    start = time.process_time()
+    raw = query_all(mapper, ref, covered, poses, ["fused"],
+                    _query_plan(len(ref), max_queries), 10**9, 2.0, lambda *_: None)
+    cpu = time.process_time() - start
+    q = np.asarray(raw.keys)
+    match = np.asarray(raw.final_match)
+    acc = np.asarray(raw.accepted) & (match >= 0)
+    ok = np.zeros(len(q), bool)
+    ok[acc] = pose_correct(ref[q[acc]], ref[match[acc]], np.asarray(raw.relative)[acc])
+    revisits = int(np.sum(raw.revisit))
+    curve = pr_curve(np.asarray(raw.final_score), ok, revisits)
+    if npz:
+        np.savez(f"{npz}-{label}.npz", keys=q, match=match, score=np.asarray(raw.final_score),
+                 accepted=acc, relative=np.asarray(raw.relative), correct=ok,
+                 reason=np.asarray(raw.reason))
+    kept = sum(t.derived[SCAN_FREE_SPACE].nbytes for _, t in det._targets.values()
+               if SCAN_FREE_SPACE in t.derived)
+    print(f"  {label}: R@100P {recall_at_precision(curve, 1.0):.3f} "
+          f"R@99P {recall_at_precision(curve, 0.99):.3f} AP {average_precision(curve):.3f} "
+          f"accepted {int(acc.sum())} correct {int(ok.sum())} revisits {revisits} "
+          f"queries {len(q)} cpu ms/query {1000 * cpu / max(len(q), 1):.1f} "
+          f"cached-target free space {kept / 1e6:.1f} MB", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("log")
+    ap.add_argument("--relations")
+    ap.add_argument("--bar", type=float, action="append")
+    ap.add_argument("--max-queries", type=int)
+    ap.add_argument("--npz", help="save each pass's final records to PREFIX-LABEL.npz")
+    ap.add_argument("--no-default", action="store_true")
+    args = ap.parse_args()
+    cfg = PipelineConfig()
+    default_bar = cfg.loops.check.min_consistency
+    cfg.loops.check.free_space_origins = "scans"  # the store keeps the scans' free space
+    source = (LoopSource(args.log, relations=args.relations, folder=str(Path.cwd()))
+              if args.relations else
+              LoopSource(args.log, reference_from_log=True, odometry_noise=0,
+                         folder=str(Path.cwd())))
+    loop_bench.RecordingMapper = OriginsMapper
+    mapper, result, ref = mapped_input(source, cfg)
+    det = mapper.detector
+    det.verify_places = carrying_queries(det)
+    kept = sum(r.nbytes for r in det._scan_ranges)
+    print(f"{Path(args.log).name}: {len(ref)} keyframes, scans' free ranges kept "
+          f"{kept / 1e6:.1f} MB", flush=True)
+    check = det.config.check
+    if not args.no_default:
+        check.free_space_origins, check.min_consistency = "keyframe", default_bar
+        det.release_caches()
+        run_pass(mapper, result, ref, args.max_queries, f"keyframe-{default_bar}", args.npz)
+    for bar in args.bar or [default_bar]:
+        check.free_space_origins, check.min_consistency = "scans", bar
+        det.release_caches()
+        run_pass(mapper, result, ref, args.max_queries, f"scans-{bar}", args.npz)
+    print(f"  peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
