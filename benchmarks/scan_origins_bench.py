@@ -18,8 +18,10 @@ not wire yet is done here: `host_origins` is the ``submap_origins`` callback a
 the benchmark's query submaps (as they were when the query was the newest keyframe)
 are handed to the check carrying their scans' free space
 (`loopclosure.free_space.SubmapPoints`).  Prints per pass R@100P / R@99P / AP of the
-final row, accepted / correct detections, CPU ms per query (the whole query: cascade
-and checks) and the memory of the kept free space; the peak RSS at the end.
+final row, accepted / correct detections and the accepted ones more than 1 m or 5
+degrees from the reference (a wrong place, not a tolerance case), CPU ms per query
+(the whole query: cascade and checks) and the memory of the kept free space; the
+peak RSS at the end.
 """
 
 from __future__ import annotations
@@ -102,17 +104,24 @@ def run_pass(mapper, result, ref, max_queries, label, npz):
     acc = np.asarray(raw.accepted) & (match >= 0)
     ok = np.zeros(len(q), bool)
     ok[acc] = pose_correct(ref[q[acc]], ref[match[acc]], np.asarray(raw.relative)[acc])
+    rel = np.asarray(raw.relative, float).reshape(-1, 3)
+    err = np.full((len(q), 2), np.nan)  # accepted: the fit's distance from the reference
+    for i in np.flatnonzero(acc & np.isfinite(ref[match.clip(0)]).all(axis=1)):
+        off = se2.between(se2.between(ref[match[i]], ref[q[i]]), rel[i])
+        err[i] = np.hypot(off[0], off[1]), abs(np.degrees(off[2]))
+    gross = int(np.sum(acc & ~ok & ((err[:, 0] > 1.0) | (err[:, 1] > 5.0))))
     revisits = int(np.sum(raw.revisit))
     curve = pr_curve(np.asarray(raw.final_score), ok, revisits)
     if npz:
         np.savez(f"{npz}-{label}.npz", keys=q, match=match, score=np.asarray(raw.final_score),
                  accepted=acc, relative=np.asarray(raw.relative), correct=ok,
-                 reason=np.asarray(raw.reason))
+                 reason=np.asarray(raw.reason), error=err)
     kept = sum(t.derived[SCAN_FREE_SPACE].nbytes for _, t in det._targets.values()
                if SCAN_FREE_SPACE in t.derived)
     print(f"  {label}: R@100P {recall_at_precision(curve, 1.0):.3f} "
           f"R@99P {recall_at_precision(curve, 0.99):.3f} AP {average_precision(curve):.3f} "
-          f"accepted {int(acc.sum())} correct {int(ok.sum())} revisits {revisits} "
+          f"accepted {int(acc.sum())} correct {int(ok.sum())} wrong beyond 1 m / 5 deg "
+          f"{gross} revisits {revisits} "
           f"queries {len(q)} cpu ms/query {1000 * cpu / max(len(q), 1):.1f} "
           f"cached-target free space {kept / 1e6:.1f} MB", flush=True)
 
@@ -125,6 +134,9 @@ def main() -> None:
     ap.add_argument("--max-queries", type=int)
     ap.add_argument("--npz", help="save each pass's final records to PREFIX-LABEL.npz")
     ap.add_argument("--no-default", action="store_true")
+    ap.add_argument("--rule-pairs", type=int, metavar="STEP",
+                    help="also the front-end pairs of `consistency_bar_rule.py` (every "
+                         "STEP-th keyframe) on this mapping")
     args = ap.parse_args()
     cfg = PipelineConfig()
     default_bar = cfg.loops.check.min_consistency
@@ -141,6 +153,15 @@ def main() -> None:
     print(f"{Path(args.log).name}: {len(ref)} keyframes, scans' free ranges kept "
           f"{kept / 1e6:.1f} MB", flush=True)
     check = det.config.check
+    if args.rule_pairs:
+        from consistency_bar_rule import matched_bar, pairs_in
+
+        one, per = pairs_in(mapper, args.rule_pairs)
+        print(f"  front-end pairs {len(one)}: below {default_bar} with (1) "
+              f"{np.mean(one < default_bar):.3f}; matched bar of (1') "
+              f"{matched_bar(one, per, default_bar):.3f}", flush=True)
+        if args.npz:
+            np.savez(f"{args.npz}-rule-pairs.npz", keyframe=one, scans=per)
     if not args.no_default:
         check.free_space_origins, check.min_consistency = "keyframe", default_bar
         det.release_caches()

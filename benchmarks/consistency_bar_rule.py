@@ -1,0 +1,120 @@
+"""A bar for the free-space consistency that needs no loop truth: the front end's own
+overlaps.
+
+Run from the repository root::
+
+    python benchmarks/consistency_bar_rule.py LOG [LOG ...] [--relations FILE] [--step S]
+        [--bar 0.92] [--out FILE.npz]
+
+Each log is mapped as ``loopclosure bench loops`` maps it (`scan_origins_bench.py`).
+For every `step`-th keyframe k, two submaps made of disjoint scans overlap by
+construction: the trailing submap of k (keyframes ``k - n .. k``, a query's submap)
+and that of ``m = k + n + 1`` (keyframes ``k + 1 .. m``), n the pipeline's submap
+neighbours, at their front-end relative pose: a true overlap with no fit error and
+no loop.  Their consistency (`loopclosure.free_space` (2)) is computed with the free
+space about the keyframe (1) and about each scan (1') (each submap's scans from the
+keyframe store, as the check gets them; the query at the check's ``source_voxel``,
+the other at the search's ``submap_voxel``).
+
+The rule: the bar of (1') is the value that these pairs, pooled over every log
+given, fall below as often as they fall below the bar of (1) (``--bar``, the
+config's by default): the same share of the front end's own true overlaps refused
+by either model.  Prints each log's and the pooled quantiles and that bar.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from scan_origins_bench import OriginsMapper  # noqa: E402
+
+from data import se2  # noqa: E402
+from evaluation import loop_bench  # noqa: E402
+from evaluation.loop_bench import mapped_input  # noqa: E402
+from evaluation.loop_bench_input import LoopSource  # noqa: E402
+from loopclosure.free_space import Submap, consistency  # noqa: E402
+from loopclosure.registration import voxel_downsample  # noqa: E402
+from slam.config import PipelineConfig  # noqa: E402
+
+
+def matched_bar(keyframe: np.ndarray, scans: np.ndarray, bar: float) -> float:
+    """The value of `scans` below which the same share of pairs lies as of `keyframe`
+    below `bar` (the share's quantile of `scans`; pairs paired, shares pooled)."""
+    share = float(np.mean(np.asarray(keyframe) < bar))
+    return float(np.quantile(np.asarray(scans), share))
+
+
+def pairs_of(log: str, relations: str | None, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(keyframe, scans)`` consistencies of the log's front-end pairs (docstring)."""
+    cfg = PipelineConfig()
+    cfg.loops.check.free_space_origins = "scans"
+    source = (LoopSource(log, relations=relations, folder=str(Path.cwd())) if relations
+              else LoopSource(log, reference_from_log=True, odometry_noise=0,
+                              folder=str(Path.cwd())))
+    loop_bench.RecordingMapper = OriginsMapper
+    mapper, _, _ = mapped_input(source, cfg)
+    return pairs_in(mapper, step)
+
+
+def pairs_in(mapper, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """`pairs_of` on a mapped `OriginsMapper` (its store keeping the scans' free space)."""
+    det = mapper.detector
+    check, s = det.config.check, det.config.check.search
+    n = mapper.config.submap_neighbours()
+    from loopclosure.fast_icp import voxel_downsample_fast
+
+    one, per = [], []
+    for k in range(n, len(mapper.keyframes.keyframes) - n - 1, step):
+        m = k + n + 1
+        q_pts = voxel_downsample_fast(mapper.trailing_map(k, n), check.source_voxel)
+        c_pts = voxel_downsample(mapper.trailing_map(m, n), s.submap_voxel)
+        if len(q_pts) == 0 or len(c_pts) == 0:
+            continue
+        pose = se2.between(mapper._keyframe(m).odom_pose, mapper._keyframe(k).odom_pose)
+        args = (pose, s.consistency_tolerance, s.free_margin)
+        one.append(consistency(Submap.of(q_pts, s.free_bins), Submap.of(c_pts, s.free_bins),
+                               *args).consistency)
+        per.append(consistency(
+            Submap.of(q_pts, s.free_bins, scans=det.submap_free_space(k, last=k)),
+            Submap.of(c_pts, s.free_bins, scans=det.submap_free_space(m, last=m)),
+            *args).consistency)
+    return np.array(one), np.array(per)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("logs", nargs="+")
+    ap.add_argument("--relations", help="for a log without its own reference (one log)")
+    ap.add_argument("--step", type=int, default=3)
+    ap.add_argument("--bar", type=float, default=PipelineConfig().loops.check.min_consistency)
+    ap.add_argument("--out", help="save every log's pairs here (npz)")
+    args = ap.parse_args()
+    q = [1, 5, 10, 25, 50]
+    pooled_one, pooled_per, saved = [], [], {}
+    for log in args.logs:
+        one, per = pairs_of(log, args.relations, args.step)
+        pooled_one.append(one)
+        pooled_per.append(per)
+        saved[Path(log).name.split("-corrected")[0].split(".")[0]] = np.stack([one, per])
+        print(f"{Path(log).name}: {len(one)} pairs; below {args.bar} with (1) "
+              f"{np.mean(one < args.bar):.3f}; quantiles {q}%: (1) "
+              f"{np.round(np.percentile(one, q), 3).tolist()} (1') "
+              f"{np.round(np.percentile(per, q), 3).tolist()}; matched bar "
+              f"{matched_bar(one, per, args.bar):.3f}", flush=True)
+    one, per = np.concatenate(pooled_one), np.concatenate(pooled_per)
+    print(f"pooled: {len(one)} pairs; below {args.bar} with (1) {np.mean(one < args.bar):.3f}; "
+          f"matched bar of (1') {matched_bar(one, per, args.bar):.3f}")
+    if args.out:
+        np.savez(args.out, **saved)
+
+
+if __name__ == "__main__":
+    main()
