@@ -134,18 +134,22 @@ def main() -> None:
     ap.add_argument("--max-queries", type=int)
     ap.add_argument("--npz", help="save each pass's final records to PREFIX-LABEL.npz")
     ap.add_argument("--no-default", action="store_true")
+    ap.add_argument("--default-only", action="store_true",
+                    help="the default alone, mapped without the option (its memory)")
     ap.add_argument("--rule-pairs", type=int, metavar="STEP",
                     help="also the front-end pairs of `consistency_bar_rule.py` (every "
                          "STEP-th keyframe) on this mapping")
     args = ap.parse_args()
     cfg = PipelineConfig()
     default_bar = cfg.loops.check.min_consistency
-    cfg.loops.check.free_space_origins = "scans"  # the store keeps the scans' free space
+    if not args.default_only:  # the store keeps the scans' free space
+        cfg.loops.check.free_space_origins = "scans"
     source = (LoopSource(args.log, relations=args.relations, folder=str(Path.cwd()))
               if args.relations else
               LoopSource(args.log, reference_from_log=True, odometry_noise=0,
                          folder=str(Path.cwd())))
-    loop_bench.RecordingMapper = OriginsMapper
+    if not args.default_only:
+        loop_bench.RecordingMapper = OriginsMapper
     mapper, result, ref = mapped_input(source, cfg)
     det = mapper.detector
     det.verify_places = carrying_queries(det)
@@ -166,7 +170,7 @@ def main() -> None:
         check.free_space_origins, check.min_consistency = "keyframe", default_bar
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries, f"keyframe-{default_bar}", args.npz)
-    for bar in args.bar or [default_bar]:
+    for bar in [] if args.default_only else args.bar or [default_bar]:
         check.free_space_origins, check.min_consistency = "scans", bar
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries, f"scans-{bar}", args.npz)
