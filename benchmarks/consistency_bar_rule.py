@@ -34,10 +34,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from scan_origins_bench import OriginsMapper  # noqa: E402
 
 from data import se2  # noqa: E402
-from evaluation import loop_bench  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from loopclosure.free_space import Submap, consistency  # noqa: E402
@@ -59,13 +57,12 @@ def pairs_of(log: str, relations: str | None, step: int) -> tuple[np.ndarray, np
     source = (LoopSource(log, relations=relations, folder=str(Path.cwd())) if relations
               else LoopSource(log, reference_from_log=True, odometry_noise=0,
                               folder=str(Path.cwd())))
-    loop_bench.RecordingMapper = OriginsMapper
     mapper, _, _ = mapped_input(source, cfg)
     return pairs_in(mapper, step)
 
 
 def pairs_in(mapper, step: int) -> tuple[np.ndarray, np.ndarray]:
-    """`pairs_of` on a mapped `OriginsMapper` (its store keeping the scans' free space)."""
+    """`pairs_of` on a mapped `slam.pipeline.Mapper` (its store keeping the scans' free space)."""
     det = mapper.detector
     check, s = det.config.check, det.config.check.search
     n = mapper.config.submap_neighbours()

@@ -32,11 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from scan_origins_bench import OriginsMapper  # noqa: E402
 
 from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
-from evaluation import loop_bench  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from loopclosure.free_space import ScanFreeSpace, Submap, consistency  # noqa: E402
@@ -106,7 +104,6 @@ def main() -> None:
               if args.relations else
               LoopSource(args.log, reference_from_log=True, odometry_noise=0,
                          folder=str(Path.cwd())))
-    loop_bench.RecordingMapper = OriginsMapper
     mapper, _, ref = mapped_input(source, cfg)
     det = mapper.detector
     s = det.config.check.search

@@ -12,12 +12,7 @@ reference instead), with the option on so that the keyframe store keeps every
 keyframe's scan free space (mapping runs no loop check).  Then every query is run
 (`evaluation.loop_bench_queries.query_all`) first with the default
 ``free_space_origins = keyframe``, then with ``scans`` at each ``--bar`` (the check's
-``min_consistency``; default: the config's).  The host side the product's pipeline does
-not wire yet is done here: `host_origins` is the ``submap_origins`` callback a
-`slam.pipeline.Mapper` would give (`loopclosure.keyframe_store.SubmapOriginsFn`), and
-the benchmark's query submaps (as they were when the query was the newest keyframe)
-are handed to the check carrying their scans' free space
-(`loopclosure.free_space.SubmapPoints`).  Prints per pass R@100P / R@99P / AP of the
+``min_consistency``; default: the config's).  Prints per pass R@100P / R@99P / AP of the
 final row, accepted / correct detections and the accepted ones more than 1 m or 5
 degrees from the reference (a wrong place, not a tolerance case), CPU ms per query
 (the whole query: cascade and checks) and the memory of the kept free space; the
@@ -38,57 +33,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from data import se2  # noqa: E402
-from evaluation import loop_bench  # noqa: E402
 from evaluation.loop_bench import _query_plan, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
-from evaluation.loop_bench_queries import RecordingMapper, query_all  # noqa: E402
+from evaluation.loop_bench_queries import query_all  # noqa: E402
 from evaluation.loop_bench_truth import (  # noqa: E402
     average_precision,
     pose_correct,
     pr_curve,
     recall_at_precision,
 )
-from loopclosure.free_space import SCAN_FREE_SPACE, SubmapPoints  # noqa: E402
+from loopclosure.free_space import SCAN_FREE_SPACE  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
-
-
-def host_origins(mapper):
-    """The ``submap_origins`` callback of `mapper` (`slam.pipeline.Mapper`): the keys
-    ``Mapper.submap(key)`` merges and their front-end sensor poses in `key`'s frame,
-    the poses `Mapper._local_points` places their points with."""
-    n = mapper.config.submap_neighbours()
-
-    def origins(key: int):
-        keys = np.arange(max(mapper._span(key)[0], key - n), mapper.submap_version(key) + 1)
-        centre = mapper._keyframe(key).odom_pose
-        return keys, np.array([se2.between(centre, mapper._keyframe(j).odom_pose)
-                               for j in keys]).reshape(-1, 3)
-
-    return origins
-
-
-class OriginsMapper(RecordingMapper):
-    """The benchmark's mapper with its ``submap_origins`` callback given to the detector."""
-
-    def __init__(self, config: PipelineConfig) -> None:
-        super().__init__(config)
-        self.detector.set_submap_origins(host_origins(self))
-
-
-def carrying_queries(det):
-    """`verify_places` whose given query submap (keys up to the query's) carries its
-    scans' free space when the option is on."""
-    original = det.verify_places
-
-    def verify_places(key, matches, poses, query_points=None, allowed=None):
-        if query_points is None or det.config.check.free_space_origins != "scans":
-            return original(key, matches, poses, query_points, allowed)
-        pts = SubmapPoints(query_points, det.submap_free_space(key, last=key))
-        return det._verify_free(key, list(matches), pts,
-                                np.asarray(poses, float).reshape(-1, 3),
-                                det.config.max_loops, allowed)
-
-    return verify_places
 
 
 def run_pass(mapper, result, ref, max_queries, label, npz):
@@ -148,11 +103,8 @@ def main() -> None:
               if args.relations else
               LoopSource(args.log, reference_from_log=True, odometry_noise=0,
                          folder=str(Path.cwd())))
-    if not args.default_only:
-        loop_bench.RecordingMapper = OriginsMapper
     mapper, result, ref = mapped_input(source, cfg)
     det = mapper.detector
-    det.verify_places = carrying_queries(det)
     kept = sum(r.nbytes for r in det._scan_ranges)
     print(f"{Path(args.log).name}: {len(ref)} keyframes, scans' free ranges kept "
           f"{kept / 1e6:.1f} MB", flush=True)

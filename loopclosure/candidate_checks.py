@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data import se2
+from loopclosure.free_space import SubmapPoints
 from loopclosure.geometric_check import NOT_A_REVISIT, LoopVerification, verify
 from loopclosure.keyframe_store import KeyframeStore
 from loopclosure.longer_check import is_degenerate, joined, recheck_longer, trailing_count
@@ -117,19 +118,25 @@ class CandidateChecks(KeyframeStore):
         docstring).  `poses` ``(n, 3)`` are the map's estimates of keyframes
         ``0..n-1`` (the candidates' poses; the query's own is not used).
         `query_points` is the query's submap (``(N, 2)`` [m], its sensor frame;
-        default ``submap(key)``).  Each check starts from the match's heading
-        hypotheses and a centroid-aligned translation, as for a candidate outside the
-        pose gate (and, when none is accepted, the whole-circle re-checks of
-        `circle_fallback`).  `allowed` (keys; None: every eligible keyframe) bounds the
-        keyframes a check may move to when it finds the query nearer another one
-        (`_nearer_place`): a benchmark's keyframes with a reference pose.  For
-        benchmarks that judge the appearance search alone (no search, no counters).
+        default ``submap(key)``), made of the keyframes up to `key` (their scans' free
+        space with ``check.free_space_origins = "scans"``).  Each check starts from the
+        match's heading hypotheses and a centroid-aligned translation, as for a
+        candidate outside the pose gate (and, when none is accepted, the whole-circle
+        re-checks of `circle_fallback`).  `allowed` (keys; None: every eligible
+        keyframe) bounds the keyframes a check may move to when it finds the query
+        nearer another one (`_nearer_place`): a benchmark's keyframes with a reference
+        pose.  For benchmarks that judge the appearance search alone (no search, no
+        counters).
         """
         self._check_key(key)
         for m in matches:
             self._check_key(int(m.key))
-        pts = self._submap_points(key) if query_points is None else np.asarray(
-            query_points, dtype=float).reshape(-1, 2)
+        if query_points is None:
+            pts = self._submap_points(key)
+        else:
+            pts = np.asarray(query_points, dtype=float).reshape(-1, 2)
+            if self._per_scan:  # a given submap holds the scans of keys up to `key`
+                pts = SubmapPoints(pts, self.submap_free_space(key, last=key))
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         return self._verify_free(key, list(matches), pts, poses, self.config.max_loops,
                                  allowed)

@@ -160,6 +160,7 @@ class Mapper:
             cfg.loops, submap=self.submap, submap_version=self.submap_version,
             trailing_map=self.trailing_map,
         )
+        self.detector.set_submap_origins(self.submap_origins)
         self.loops: list[LoopEvent] = []
         self._accepted_tally = (0, 0, False)  # `_accepted`: events counted, count, joined
         self._odometry_rows = GrowingRows(3)  # the front end's pose of every scan
@@ -532,6 +533,16 @@ class Mapper:
             del self._submaps[old]
             self._incomplete.discard(old)
         return pts
+
+    def submap_origins(self, key: int) -> tuple[Array, Array]:
+        """The keys `submap(key)` merges and their front-end sensor poses in `key`'s
+        sensor frame (``(k,)``, ``(k, 3)`` [m, rad]): where each of its scans was seen
+        from (the loop detector's ``check.free_space_origins = "scans"``)."""
+        first = max(self._span(key)[0], key - self.config.submap_neighbours())
+        keys = np.arange(first, self.submap_version(key) + 1)
+        inverse = se2.inverse(self._keyframe(key).odom_pose)
+        poses = [se2.compose(inverse, self._keyframe(j).odom_pose) for j in keys]
+        return keys, np.asarray(poses, dtype=float).reshape(-1, 3)
 
     def trailing_map(self, key: int, n: int) -> Array:
         """Keyframes ``key - n .. key`` of `key`'s session, in `key`'s sensor frame [m],

@@ -189,3 +189,29 @@ def test_the_default_keeps_nothing_and_hands_plain_points() -> None:
     assert det._scan_ranges == []
     assert type(det._submap_points(1)) is np.ndarray
     assert SCAN_FREE_SPACE not in det._target(1).derived
+
+
+# -- the pipeline's host side ---------------------------------------------------------
+
+
+def test_the_mapper_gives_each_submaps_scan_origins_and_maps_with_the_option() -> None:
+    from slam.config import PipelineConfig
+    from slam.pipeline import Mapper
+
+    run = simulate_run("box", seed=0)
+    cfg = PipelineConfig()
+    cfg.loops.check.free_space_origins = "scans"
+    mapper = Mapper(cfg)
+    result = mapper.run(run.scans[:120])
+    n = cfg.submap_neighbours()
+    key = len(result.keyframes) // 2
+    keys, poses = mapper.submap_origins(key)
+    np.testing.assert_array_equal(keys, np.arange(key - n, key + n + 1))
+    centre = result.keyframes[key].odom_pose
+    for j, pose in zip(keys, poses, strict=True):  # each keyframe seen from `key`'s frame
+        np.testing.assert_allclose(
+            se2.compose(centre, pose), result.keyframes[j].odom_pose, atol=1e-12)
+    np.testing.assert_allclose(poses[keys == key], [[0.0, 0.0, 0.0]], atol=1e-12)
+    free = mapper.detector.submap_free_space(key)  # the callback the mapper set
+    assert free.poses.shape == (len(keys), 3)
+    assert len(mapper.detector._scan_ranges) == len(result.keyframes)
