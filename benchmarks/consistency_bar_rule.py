@@ -35,9 +35,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
+from scan_origins_bench import loop_source  # noqa: E402
+
 from data import se2  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
-from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from loopclosure.free_space import Submap, consistency  # noqa: E402
 from loopclosure.registration import voxel_downsample  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
@@ -54,9 +55,7 @@ def pairs_of(log: str, relations: str | None, step: int) -> tuple[np.ndarray, np
     """``(keyframe, scans)`` consistencies of the log's front-end pairs (docstring)."""
     cfg = PipelineConfig()
     cfg.loops.check.free_space_origins = "scans"
-    source = (LoopSource(log, relations=relations, folder=str(Path.cwd())) if relations
-              else LoopSource(log, reference_from_log=True, odometry_noise=0,
-                              folder=str(Path.cwd())))
+    source = loop_source(log, relations)
     mapper, _, _ = mapped_input(source, cfg)
     return pairs_in(mapper, step)
 

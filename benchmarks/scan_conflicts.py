@@ -33,10 +33,11 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
+from scan_origins_bench import loop_source  # noqa: E402
+
 from benchmarks.rows_csv import write_rows  # noqa: E402
 from data import se2  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
-from evaluation.loop_bench_input import LoopSource  # noqa: E402
 from loopclosure.free_space import ScanFreeSpace, Submap, consistency  # noqa: E402
 from loopclosure.registration import voxel_downsample  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
@@ -100,10 +101,7 @@ def main() -> None:
     args = ap.parse_args()
     cfg = PipelineConfig()
     cfg.loops.check.free_space_origins = "scans"
-    source = (LoopSource(args.log, relations=args.relations, folder=str(Path.cwd()))
-              if args.relations else
-              LoopSource(args.log, reference_from_log=True, odometry_noise=0,
-                         folder=str(Path.cwd())))
+    source = loop_source(args.log, args.relations)
     mapper, _, ref = mapped_input(source, cfg)
     det = mapper.detector
     s = det.config.check.search

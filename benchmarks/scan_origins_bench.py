@@ -46,6 +46,14 @@ from loopclosure.free_space import SCAN_FREE_SPACE  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
 
+def loop_source(log: str, relations: str | None) -> LoopSource:
+    """`log` as ``bench loops`` reads it: against `relations` when given, else its
+    logged poses as the reference and the drifting odometry of seed 0."""
+    if relations:
+        return LoopSource(log, relations=relations, folder=str(Path.cwd()))
+    return LoopSource(log, reference_from_log=True, odometry_noise=0, folder=str(Path.cwd()))
+
+
 def run_pass(mapper, result, ref, max_queries, label, npz):
     det = mapper.detector
     covered = np.isfinite(ref).all(axis=1)
@@ -99,10 +107,7 @@ def main() -> None:
     default_bar = cfg.loops.check.min_consistency
     if not args.default_only:  # the store keeps the scans' free space
         cfg.loops.check.free_space_origins = "scans"
-    source = (LoopSource(args.log, relations=args.relations, folder=str(Path.cwd()))
-              if args.relations else
-              LoopSource(args.log, reference_from_log=True, odometry_noise=0,
-                         folder=str(Path.cwd())))
+    source = loop_source(args.log, args.relations)
     mapper, result, ref = mapped_input(source, cfg)
     det = mapper.detector
     kept = sum(r.nbytes for r in det._scan_ranges)
