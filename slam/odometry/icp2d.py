@@ -523,8 +523,8 @@ class Icp2dOdometry:
 
     def _deskewed(self, scan: Scan, points: Array) -> Array:
         """`scan_points` of `scan` with every beam moved by `deskew_points` (the
-        previous registered increment over the time it took); `points` unchanged
-        when that time was not positive or shorter than the sweep."""
+        registered motion over at least `deskew_baseline`, `_track_velocity`);
+        `points` unchanged while no tracked scan is that old."""
         cfg = self.config
         velocity, dt = self._track_velocity()
         if velocity is None:
