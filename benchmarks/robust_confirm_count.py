@@ -1,0 +1,124 @@
+"""Diagnosis: how much work the nonlinear check of admissions (``confirm``,
+`slam.admission.AdmissionPass._unconfirmed`) does on one corrupted pose graph.
+
+Run from the repository root::
+
+    python benchmarks/robust_confirm_count.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
+        [--policy random] [--ratio 50] [--seed 0] [--cache DIR] [--cap 600] [--rounds]
+
+Runs `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with the
+check counted: the rounds it judged (the innovation gate admitted loops), how many loops
+each admitted, how many leave-one-out minima it computed (`AdmissionPass._minimum`, from
+a copy of the iSAM2 prefix or by a batch solve of the whole accepted prefix), how many
+loops it turned back, and its CPU seconds.  ``--cap``: stop after that many CPU seconds
+of the process (ITIMER_PROF) and print the counts so far; ``--rounds``: one line per
+round that admitted several loops.  When the run finishes the cell's outcome follows
+(ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
+the outlier-free graph), true loops rejected, TLS gap to the clean optimum).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
+from slam.admission import AdmissionPass
+from slam.optimize import optimize
+
+
+@dataclass
+class ConfirmCount:
+    """Counts of the check's work (module docstring); `sizes`: rounds by the number of
+    loops the gate admitted; `cpu`: CPU seconds inside the check."""
+
+    rounds: int = 0
+    turned_back: int = 0
+    minima: int = 0
+    from_isam: int = 0
+    cpu: float = 0.0
+    sizes: Counter = field(default_factory=Counter)
+    verbose: bool = False
+
+
+def counted(count: ConfirmCount):  # type: ignore[no-untyped-def]
+    """Replacements of `AdmissionPass._unconfirmed` and `_minimum` that add to `count`
+    and call the originals (`restore` puts them back)."""
+    unconfirmed, minimum = AdmissionPass._unconfirmed, AdmissionPass._minimum
+
+    def _unconfirmed(self, fixed, pending, accepted, admitted, current, before, start):  # type: ignore[no-untyped-def]
+        began, minima = time.process_time(), count.minima
+        out = unconfirmed(self, fixed, pending, accepted, admitted, current, before, start)
+        spent = time.process_time() - began
+        count.cpu += spent
+        count.rounds += 1
+        count.sizes[len(admitted)] += 1
+        count.turned_back += len(out)
+        if count.verbose and len(admitted) > 1:
+            print(f"block {self.blocks}: admitted {len(admitted)}, turned back {len(out)}, "
+                  f"{count.minima - minima} minima, {spent:.2f} s CPU", flush=True)
+        return out
+
+    def _minimum(self, without, current, start, removed):  # type: ignore[no-untyped-def]
+        count.minima += 1
+        count.from_isam += self._isam is not None
+        return minimum(self, without, current, start, removed)
+
+    return _unconfirmed, _minimum
+
+
+def install(count: ConfirmCount) -> tuple:
+    """Count the check's work into `count`; returns the originals for `restore`."""
+    originals = (AdmissionPass._unconfirmed, AdmissionPass._minimum)
+    AdmissionPass._unconfirmed, AdmissionPass._minimum = counted(count)
+    return originals
+
+
+def restore(originals: tuple) -> None:
+    """Undo `install`."""
+    AdmissionPass._unconfirmed, AdmissionPass._minimum = originals
+
+
+class _Capped(Exception):
+    pass
+
+
+def _stop(*_) -> None:  # type: ignore[no-untyped-def]
+    raise _Capped()
+
+
+def main() -> None:
+    parser = cell_parser(__doc__.split("\n")[0])
+    parser.add_argument("--cap", type=float, default=0.0)
+    parser.add_argument("--rounds", action="store_true")
+    args = parser.parse_args()
+    graph, reference, corrupted, is_false = read_cell(args)
+    name = f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed}"
+    count = ConfirmCount(verbose=args.rounds)
+    install(count)
+    if args.cap > 0:
+        signal.signal(signal.SIGPROF, _stop)
+        signal.setitimer(signal.ITIMER_PROF, args.cap)
+    began = time.process_time()
+    try:
+        result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental")
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        out = cell_outcome(graph, reference, corrupted, is_false, result.poses)
+        status = (f"finished in {time.process_time() - began:.1f} s CPU: ATE {out.ate:.3g} m, "
+                  f"{len(out.false_obeyed)} F ({out.consistent}), {out.true_rejected} T, "
+                  f"gap {out.gap:+.1f}")
+    except _Capped:
+        status = f"capped at {time.process_time() - began:.1f} s CPU"
+    print(f"{name}: {status}; the check: {count.rounds} rounds, {count.minima} minima "
+          f"({count.from_isam} from iSAM2 copies), {count.turned_back} turned back, "
+          f"{count.cpu:.1f} s CPU; rounds by loops admitted {sorted(count.sizes.items())}")
+
+
+if __name__ == "__main__":
+    main()
