@@ -171,6 +171,38 @@ def _cached(target: RegistrationTarget, key: tuple, make):
     return target.derived[key]
 
 
+class _QueryProducts:
+    """What `match_prior_free` derives from the query alone (its voxelised points,
+    its free-space submap), kept for the last query seen: the loop detector checks
+    one query against several candidates in a row.  Each product is a deterministic
+    function of the query's coordinates and the product's parameters, so a product
+    made for an equal query is the one a fresh call would make."""
+
+    def __init__(self) -> None:
+        self._last: tuple[Array, dict] = (np.zeros((0, 2)), {})
+
+    def products(self, query: Array) -> dict:
+        """The products' dict of `query` (``(N, 2)`` [m]): the last one when its
+        coordinates are equal, else a new empty one."""
+        points, products = self._last  # one read: another thread may replace it
+        if points is query or (points.shape == query.shape
+                               and np.array_equal(points, query)):
+            return products
+        products = {}
+        self._last = (query, products)
+        return products
+
+    def get(self, query: Array, key: tuple, make):
+        """The product `key` of `query`, made by ``make()`` when not yet made."""
+        products = self.products(query)
+        if key not in products:
+            products[key] = make()
+        return products[key]
+
+
+_QUERY = _QueryProducts()
+
+
 def _two_level(query: Array, candidate: RegistrationTarget, angles: Array, radius: float,
                cfg: PriorFreeConfig) -> tuple[Array, Array]:
     """Lattice peaks ``(k, 3)`` and their fine scores ``(k,)``, best first: the coarse
@@ -181,11 +213,14 @@ def _two_level(query: Array, candidate: RegistrationTarget, angles: Array, radiu
         candidate, ("likelihood", cfg.grid_resolution, cfg.coarse_sigma, cfg.grid_sigma),
         lambda: correlative.LikelihoodGrid.widths(candidate.points, cfg.grid_resolution,
                                                   (cfg.coarse_sigma, cfg.grid_sigma)))
-    coarse = correlative.search(voxel_downsample(query, cfg.coarse_voxel),
-                                coarse_grid, angles, radius, cfg.coarse_step_cells)
+    coarse = correlative.search(
+        _QUERY.get(query, ("voxel", cfg.coarse_voxel),
+                   lambda: voxel_downsample(query, cfg.coarse_voxel)),
+        coarse_grid, angles, radius, cfg.coarse_step_cells)
     seeds, _ = correlative.peaks(coarse, cfg.coarse_peaks, cfg.peak_separation,
                                  np.radians(cfg.peak_separation_deg))
-    fine_points = voxel_downsample(query, cfg.fine_voxel)
+    fine_points = _QUERY.get(query, ("voxel", cfg.fine_voxel),
+                             lambda: voxel_downsample(query, cfg.fine_voxel))
     coarse_step = cfg.coarse_step_cells * cfg.grid_resolution
     poses, scores = [], []
     for seed in seeds:  # a few seeds: one compiled call each
@@ -193,9 +228,9 @@ def _two_level(query: Array, candidate: RegistrationTarget, angles: Array, radiu
             [seed[2]], np.radians(cfg.coarse_angle_step_deg), np.radians(cfg.angle_step_deg))
         fine = correlative.search(fine_points, fine_grid, fine_angles, coarse_step, 1,
                                   centre=seed[:2])
-        p, sc = correlative.peaks(fine, 1, 0.0, 0.0)
-        poses.append(p[0])
-        scores.append(sc[0])
+        flat = int(np.argmax(fine.scores))  # the best pose: `peaks` with count 1
+        poses.append(fine.pose(flat))
+        scores.append(float(fine.scores.ravel()[flat]))
     if not poses:
         return np.zeros((0, 3)), np.zeros(0)
     order = np.argsort(-np.asarray(scores), kind="stable")
@@ -274,7 +309,8 @@ def match_prior_free(
     starts, scores = starts[keep], scores[keep]
     if len(starts) == 0:
         return PriorFreeMatch()
-    source = voxel_downsample(query, source_voxel)
+    source = _QUERY.get(query, ("voxel", source_voxel),
+                        lambda: voxel_downsample(query, source_voxel))
     icp = dataclasses.replace(icp, max_correspondence_distance=cfg.icp_gate,
                               max_iterations=cfg.icp_iterations)
     if compiled:
@@ -290,7 +326,8 @@ def match_prior_free(
         candidate, key,
         lambda: Submap.of(voxel_downsample(candidate.points, cfg.submap_voxel), cfg.free_bins,
                           scans=c_scans))
-    query_submap = Submap.of(source, cfg.free_bins, scans=q_scans)
+    query_submap = _QUERY.get(query, ("free", source_voxel, cfg.free_bins, q_scans),
+                              lambda: Submap.of(source, cfg.free_bins, scans=q_scans))
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
     best = results[order[0]]

@@ -9,7 +9,7 @@ from data import se2
 from loopclosure.correlative import LikelihoodGrid, peaks, search, search_angles
 from loopclosure.free_space import RangeImage, Submap, consistency
 from loopclosure.geometric_check import GeometricCheckConfig, verify
-from loopclosure.prior_free import match_prior_free
+from loopclosure.prior_free import _QueryProducts, match_prior_free
 from loopclosure.registration import IcpConfig, RegistrationTarget, voxel_downsample
 from tests.test_geometric_check import ROOM, _seen_from, _walls
 
@@ -219,6 +219,44 @@ def test_the_likelihood_grid_is_cached_on_the_target() -> None:
                              source_voxel=0.1, icp=IcpConfig())
     assert all(target.derived[k] is v for k, v in grids.items()) and grids
     np.testing.assert_array_equal(first.results[0].pose, again.results[0].pose)
+
+
+def test_query_products_are_kept_for_an_equal_query_only() -> None:
+    cache = _QueryProducts()
+    query = np.array([[0.0, 0.0], [1.0, 2.0]])
+    made = cache.get(query, ("voxel", 0.1), lambda: query * 2)
+    np.testing.assert_array_equal(made, [[0.0, 0.0], [2.0, 4.0]])
+    # An equal copy (another array object) gets the same product, not a new one.
+    assert cache.get(query.copy(), ("voxel", 0.1), lambda: query * 3) is made
+    # Another parameter is another product of the same query.
+    assert cache.get(query, ("voxel", 0.2), lambda: query * 3)[1, 1] == 6.0
+    # A different query starts afresh, and the old one's products are dropped.
+    moved = query + np.array([0.0, 1e-12])
+    assert cache.get(moved, ("voxel", 0.1), lambda: moved * 5)[1, 1] == pytest.approx(10.0)
+    assert cache.get(query, ("voxel", 0.1), lambda: query * 7)[1, 1] == 14.0
+
+
+def test_one_query_against_several_candidates_matches_fresh_calls() -> None:
+    """The products kept for the last query change no figure of the next check: a
+    query checked against two candidates in a row, then each alone after another
+    query, gives the same runs bit for bit."""
+    a, b, c = np.array([1.0, 1.0, 0.3]), np.array([1.6, 0.8, 1.1]), np.array([2.0, 1.5, -0.4])
+    query, target_a, truth = _pair(a, b)
+    other, target_c, _ = _pair(c, a, seed=1)
+    kw = {"max_distance": 2.0, "source_voxel": 0.1, "icp": IcpConfig()}
+    in_a_row = [match_prior_free(query, t, headings=[truth[2]], **kw)
+                for t in (target_a, target_c)]
+    alone = []
+    for t in (target_a, target_c):
+        match_prior_free(other, target_a, headings=[0.0], **kw)  # another query between
+        alone.append(match_prior_free(query.copy(), t, headings=[truth[2]], **kw))
+    for x, y in zip(in_a_row, alone, strict=True):
+        assert len(x.results) == len(y.results) > 0
+        for r, s in zip(x.results, y.results, strict=True):
+            np.testing.assert_array_equal(r.pose, s.pose)
+            assert (r.fitness, r.rms) == (s.fitness, s.rms)
+        assert [f.hits for f in x.consistency] == [f.hits for f in y.consistency]
+        np.testing.assert_array_equal(x.peak_scores, y.peak_scores)
 
 
 def test_an_unknown_method_is_a_user_error() -> None:
