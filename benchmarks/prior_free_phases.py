@@ -258,10 +258,12 @@ def _same(a, b) -> bool:
 
 
 def speed(paths: list[Path], rev: str, repeat: int) -> None:
-    """The recorded checks replayed with revision `rev`'s `loopclosure.prior_free`
-    and the working tree's, `repeat` alternate passes each, in this process."""
+    """The recorded checks replayed with revision `rev`'s `loopclosure.prior_free` and
+    `loopclosure.correlative` and the working tree's, `repeat` alternate passes each,
+    in this process."""
     import tempfile
 
+    import loopclosure
     import loopclosure.geometric_check as gc
     from loopclosure.fast_icp import estimate_normals_fast
     from loopclosure.registration import RegistrationTarget
@@ -278,8 +280,15 @@ def speed(paths: list[Path], rev: str, repeat: int) -> None:
             records.append(r)
     cfg = gc.GeometricCheckConfig()
     now = gc.match_prior_free
+    now_corr = loopclosure.correlative
     with tempfile.TemporaryDirectory() as tmp:
         base = load_revision(rev, "loopclosure/prior_free.py", Path(tmp)).match_prior_free
+        base_corr = load_revision(rev, "loopclosure/correlative.py", Path(tmp))
+
+    def use(corr) -> None:
+        # `loopclosure.prior_free` imports the kernel module from the package when called
+        loopclosure.correlative = sys.modules["loopclosure.correlative"] = corr
+
     targets: dict = {}
     for r in records:  # the targets and their cached grids, shared by both codes
         if r["target"] not in targets:
@@ -291,8 +300,9 @@ def speed(paths: list[Path], rev: str, repeat: int) -> None:
     best = {(code, log): np.inf for code in ("baseline", "now") for log in logs}
     out: dict[str, list] = {}
     for _ in range(repeat):
-        for code, fn in (("baseline", base), ("now", now)):
+        for code, fn, corr in (("baseline", base, base_corr), ("now", now, now_corr)):
             gc.match_prior_free = fn
+            use(corr)
             spent: dict[str, float] = dict.fromkeys(logs, 0.0)
             verdicts = []
             try:
@@ -304,6 +314,7 @@ def speed(paths: list[Path], rev: str, repeat: int) -> None:
                     verdicts.append(v)
             finally:
                 gc.match_prior_free = now
+                use(now_corr)
             out[code] = verdicts
             for log in logs:
                 best[code, log] = min(best[code, log], spent[log])

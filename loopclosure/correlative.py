@@ -110,21 +110,42 @@ def _quantised(distance: Array, sigma: float) -> NDArray[np.uint8]:
 
 
 @numba.njit(cache=True)
-def _correlate(px, py, angles, grid, x0, y0, inv_res, half, step):  # pragma: no cover
-    """``(A, T, T)`` sums of (1) over the points, T = 2 half + 1; [a, j, i] = angle a,
-    y shift j - half, x shift i - half (in lattice steps); `x0`, `y0`: the grid origin
-    minus the lattice centre [m]."""
+def _correlate(px, py, angles, grid, split, x0, y0, inv_res, half, step, out):  # pragma: no cover
+    """``(A, T, T)`` the means (1) over the points, their sums accumulated in the zeroed
+    integer `out` of that shape, T = 2 half + 1;
+    [a, j, i] = angle a, y shift j - half, x shift i - half (in lattice steps); `x0`,
+    `y0`: the grid origin minus the lattice centre [m].  `split` ``(step, H,
+    ceil(W / step))``: the grid's columns by their remainder modulo `step`,
+    ``split[r, y, q] = grid[y, q step + r]`` (0 past the last column), so that a
+    point's x shifts read one contiguous run.
+
+    The sums are of whole numbers (the grid's uint8 values) in an integer `out`,
+    exact in any order: a point whose whole window of shifts lies inside the grid is
+    summed from `split` without bounds tests, the others cell by cell with them."""
     h, w = grid.shape
     t = 2 * half + 1
-    out = np.zeros((len(angles), t, t))
+    reach = half * step
     for a in range(len(angles)):
         c = np.cos(angles[a])
         s = np.sin(angles[a])
+        acc = out[a]
         for k in range(len(px)):
             x = c * px[k] - s * py[k]
             y = s * px[k] + c * py[k]
             ix = int(np.floor((x - x0) * inv_res))
             iy = int(np.floor((y - y0) * inv_res))
+            if ix - reach >= 0 and ix + reach < w and iy - reach >= 0 and iy + reach < h:
+                first = ix - reach
+                part = split[first % step]
+                q0 = first // step
+                for j in range(t):
+                    row = part[iy + (j - half) * step, q0:q0 + t]
+                    dst = acc[j]
+                    for i in range(t):  # contiguous: vectorised by the compiler
+                        dst[i] += row[i]
+                continue
+            if ix + reach < 0 or ix - reach >= w or iy + reach < 0 or iy - reach >= h:
+                continue  # the whole window off the grid: nothing to add
             for j in range(t):
                 gy = iy + (j - half) * step
                 if gy < 0 or gy >= h:
@@ -132,8 +153,19 @@ def _correlate(px, py, angles, grid, x0, y0, inv_res, half, step):  # pragma: no
                 for i in range(t):
                     gx = ix + (i - half) * step
                     if 0 <= gx < w:
-                        out[a, j, i] += grid[gy, gx]
-    return out
+                        acc[j, i] += grid[gy, gx]
+    return out / (255.0 * len(px))
+
+
+def _split_columns(values: NDArray[np.uint8], step: int) -> NDArray[np.uint8]:
+    """``(step, H, ceil(W / step))``: ``[r, y, q] = values[y, q step + r]``, 0 past W."""
+    h, w = values.shape
+    if step == 1:
+        return values[None]
+    width = -(-w // step)
+    padded = np.zeros((h, width * step), dtype=np.uint8)
+    padded[:, :w] = values
+    return np.ascontiguousarray(padded.reshape(h, width, step).transpose(2, 0, 1))
 
 
 @dataclass(slots=True)
@@ -201,10 +233,14 @@ def search(
     if len(pts) == 0 or len(ang) == 0:
         return SearchResult(np.zeros((len(ang), len(shifts), len(shifts))), ang, shifts, c0)
     # Cell of a point moved by a shift of whole cells = its cell shifted: exact.
-    sums = _correlate(pts[:, 0].copy(), pts[:, 1].copy(), ang, grid.values,
+    split = _split_columns(grid.values, int(step_cells))  # a copy of the grid: microseconds
+    # int32 holds any sum of fewer than 2^31 / 255 points of at most 255.
+    kind = np.int32 if 255 * len(pts) < 2**31 else np.int64
+    means = _correlate(pts[:, 0].copy(), pts[:, 1].copy(), ang, grid.values, split,
                       float(grid.origin[0] - c0[0]), float(grid.origin[1] - c0[1]),
-                      1.0 / grid.resolution, half, int(step_cells))
-    return SearchResult(sums / (255.0 * len(pts)), ang, shifts, c0)
+                      1.0 / grid.resolution, half, int(step_cells),
+                      np.zeros((len(ang), len(shifts), len(shifts)), dtype=kind))
+    return SearchResult(means, ang, shifts, c0)
 
 
 def peaks(result: SearchResult, count: int, separation: float,
