@@ -331,6 +331,61 @@ def speed(paths: list[Path], rev: str, repeat: int) -> None:
     print(f"  all: {b:.3f} / {n:.3f} s, ratio {b / n:.3f}, identical {sum(same)}/{len(same)}")
 
 
+def split(logs: list[Path]) -> None:
+    """Each log mapped as ``collect`` maps it, with `benchmarks/loop_time_split.py`'s
+    CPU timers around the stages of a run; prints their totals per log."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import loop_time_split as lts
+
+    from evaluation.slam_input import load_input
+    from loopclosure.warm_up import warm_up
+    from slam.config import PipelineConfig
+    from slam.pipeline import Mapper
+
+    warm_up()
+    lts.install()
+    for log in logs:
+        data = load_input(log, odometry_noise=0 if "corrected" in log.name else None)
+        lts.TOTAL.clear()
+        lts.CALLS.clear()
+        start = time.process_time()
+        Mapper(PipelineConfig(front_end_worker=False)).run(data.scans)
+        whole = time.process_time() - start
+        print(f"\n{log.name.split('.')[0]}: whole run {whole:.2f} s CPU", flush=True)
+        for label in sorted(lts.TOTAL, key=lambda k: -lts.TOTAL[k]):
+            print(f"  {label:26s} {lts.TOTAL[label]:7.2f} s {100 * lts.TOTAL[label] / whole:5.1f}%"
+                  f" {lts.CALLS[label]:7d} calls", flush=True)
+
+
+def outputs(logs: list[Path], out: Path) -> None:
+    """Each log mapped as ``collect`` maps it; writes ``<log>/loops.csv`` (every
+    candidate, `slam.outputs.write_loops_csv`) and ``<log>/poses.bin`` (the optimised
+    and front-end poses of every scan, float64 bytes) under `out`, for ``cmp`` against
+    another code's (run this file from outside the tree with the other code on
+    ``PYTHONPATH``)."""
+    from evaluation.slam_input import load_input
+    from loopclosure.warm_up import warm_up
+    from slam.config import PipelineConfig
+    from slam.outputs import write_loops_csv
+    from slam.pipeline import Mapper
+    from slam.results import loop_records
+
+    warm_up()
+    for log in logs:
+        data = load_input(log, odometry_noise=0 if "corrected" in log.name else None)
+        start = time.process_time()
+        result = Mapper(PipelineConfig(front_end_worker=False)).run(data.scans)
+        cpu = time.process_time() - start
+        folder = out / log.name.split(".")[0]
+        folder.mkdir(parents=True, exist_ok=True)
+        write_loops_csv(folder / "loops.csv", loop_records(result))
+        poses = np.concatenate([np.asarray(result.scan_poses, dtype=np.float64).ravel(),
+                                np.asarray(result.odometry_poses, dtype=np.float64).ravel()])
+        (folder / "poses.bin").write_bytes(poses.tobytes())
+        print(f"{folder.name}: {len(result.loops)} candidates, "
+              f"{len(result.accepted_loops)} loops, {cpu:.1f} s CPU", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -339,6 +394,11 @@ def main() -> None:
     c.add_argument("--out", type=Path, required=True)
     p = sub.add_parser("phases")
     p.add_argument("checks", type=Path)
+    t = sub.add_parser("split")
+    t.add_argument("logs", nargs="+", type=Path)
+    o = sub.add_parser("outputs")
+    o.add_argument("logs", nargs="+", type=Path)
+    o.add_argument("--out", type=Path, required=True)
     s = sub.add_parser("speed")
     s.add_argument("checks", nargs="+", type=Path)
     s.add_argument("--baseline", default="main")
@@ -346,6 +406,10 @@ def main() -> None:
     a = ap.parse_args()
     if a.cmd == "collect":
         collect(a.logs, a.out)
+    elif a.cmd == "outputs":
+        outputs(a.logs, a.out)
+    elif a.cmd == "split":
+        split(a.logs)
     elif a.cmd == "phases":
         phases(a.checks)
     else:
