@@ -198,7 +198,12 @@ def phases(path: Path) -> None:
                      scores[0]))
     print(f"replayed {len(records)} checks, {mismatch} verdicts differ from the run's")
     for log in cpu:
-        print(f"\n{log}:")
+        total: defaultdict = defaultdict(float)
+        for c in cpu[log].values():
+            for k, v in c.items():
+                total[k] += v
+        print(f"\n{log}: {sum(count[log].values())} checks; all: "
+              + ", ".join(f"{k} {v:.3f}" for k, v in total.items()))
         for kind, c in sorted(cpu[log].items(), key=lambda kv: -kv[1]["whole"]):
             parts = ", ".join(f"{k} {v:.3f}" for k, v in c.items() if k not in ("whole",))
             print(f"  {kind} x{count[log][kind]}: whole {c['whole']:.3f} s; {parts}")
