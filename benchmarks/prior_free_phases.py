@@ -391,6 +391,61 @@ def outputs(logs: list[Path], out: Path) -> None:
               f"{len(result.accepted_loops)} loops, {cpu:.1f} s CPU", flush=True)
 
 
+def runs(logs: list[Path], rev: str, repeat: int) -> None:
+    """Whole runs of each log (as ``collect`` maps it) with revision `rev`'s
+    `loopclosure.prior_free` and `loopclosure.correlative` and with the working
+    tree's, `repeat` alternate passes each in this process: best CPU s of a run and
+    of its checks with no prior, and whether every scan's pose is the same."""
+    import tempfile
+
+    import loopclosure
+    import loopclosure.geometric_check as gc
+    from evaluation.slam_input import load_input
+    from loopclosure.warm_up import warm_up
+    from slam.config import PipelineConfig
+    from slam.pipeline import Mapper
+
+    warm_up()
+    now, now_corr = gc.match_prior_free, loopclosure.correlative
+    with tempfile.TemporaryDirectory() as tmp:
+        base = load_revision(rev, "loopclosure/prior_free.py", Path(tmp)).match_prior_free
+        base_corr = load_revision(rev, "loopclosure/correlative.py", Path(tmp))
+    spent = [0.0]
+
+    def timed(fn):
+        def wrapper(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[0] += time.process_time() - start
+        return wrapper
+
+    print(f"whole runs, {repeat} alternate passes, best CPU s (baseline {rev} / now)")
+    for log in logs:
+        data = load_input(log, odometry_noise=0 if "corrected" in log.name else None)
+        best = {"baseline": (np.inf, np.inf), "now": (np.inf, np.inf)}
+        poses = {}
+        for _ in range(repeat):
+            for code, fn, corr in (("baseline", base, base_corr), ("now", now, now_corr)):
+                gc.match_prior_free = timed(fn)
+                loopclosure.correlative = sys.modules["loopclosure.correlative"] = corr
+                spent[0] = 0.0
+                try:
+                    start = time.process_time()
+                    result = Mapper(PipelineConfig(front_end_worker=False)).run(data.scans)
+                    whole = time.process_time() - start
+                finally:
+                    gc.match_prior_free = now
+                    loopclosure.correlative = sys.modules["loopclosure.correlative"] = now_corr
+                best[code] = (min(best[code][0], whole), min(best[code][1], spent[0]))
+                poses[code] = np.asarray(result.scan_poses, dtype=float)
+        (bw, bc), (nw, nc) = best["baseline"], best["now"]
+        print(f"  {log.name.split('.')[0]}: run {bw:.2f} / {nw:.2f} s (ratio {bw / nw:.3f}); "
+              f"match_prior_free {bc:.2f} / {nc:.2f} s (ratio {bc / nc:.3f}); poses "
+              f"identical {np.array_equal(poses['baseline'], poses['now'])}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -404,6 +459,10 @@ def main() -> None:
     o = sub.add_parser("outputs")
     o.add_argument("logs", nargs="+", type=Path)
     o.add_argument("--out", type=Path, required=True)
+    r = sub.add_parser("runs")
+    r.add_argument("logs", nargs="+", type=Path)
+    r.add_argument("--baseline", default="main")
+    r.add_argument("--repeat", type=int, default=2)
     s = sub.add_parser("speed")
     s.add_argument("checks", nargs="+", type=Path)
     s.add_argument("--baseline", default="main")
@@ -413,6 +472,8 @@ def main() -> None:
         collect(a.logs, a.out)
     elif a.cmd == "outputs":
         outputs(a.logs, a.out)
+    elif a.cmd == "runs":
+        runs(a.logs, a.baseline, a.repeat)
     elif a.cmd == "split":
         split(a.logs)
     elif a.cmd == "phases":

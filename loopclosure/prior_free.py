@@ -23,7 +23,9 @@ in the candidate's submap (the candidate's sensor frame) in three steps:
    pose of each seed, distinct ones only, best first: at most `refine` of them,
    those after the first only when they score at least `refine_ratio` of it.
    The likelihood grids (one Euclidean distance transform) are built once per
-   registration target and cached on it (`RegistrationTarget.derived`).
+   registration target and cached on it (`RegistrationTarget.derived`); the
+   query's voxelised points and free-space submap are kept for the next candidate
+   of the same query (`_QueryProducts`: the loop detector checks several in a row).
 3. **ICP** (`loopclosure.registration.register`, point to line, initial gate
    `icp_gate`, at most `icp_iterations`) of the query voxelised to the check's
    ``source_voxel`` from each of those poses; and the free-space
@@ -185,11 +187,11 @@ class _QueryProducts:
         """The products' dict of `query` (``(N, 2)`` [m]): the last one when its
         coordinates are equal, else a new empty one."""
         points, products = self._last  # one read: another thread may replace it
-        if points is query or (points.shape == query.shape
-                               and np.array_equal(points, query)):
+        if points.shape == query.shape and np.array_equal(points, query):
             return products
         products = {}
-        self._last = (query, products)
+        # A copy: a caller may change its array in place before the next call.
+        self._last = (query.copy(), products)
         return products
 
     def get(self, query: Array, key: tuple, make):

@@ -234,6 +234,9 @@ def test_query_products_are_kept_for_an_equal_query_only() -> None:
     moved = query + np.array([0.0, 1e-12])
     assert cache.get(moved, ("voxel", 0.1), lambda: moved * 5)[1, 1] == pytest.approx(10.0)
     assert cache.get(query, ("voxel", 0.1), lambda: query * 7)[1, 1] == 14.0
+    # The same array changed in place is another query.
+    query[1, 1] = 3.0
+    assert cache.get(query, ("voxel", 0.1), lambda: query * 7)[1, 1] == 21.0
 
 
 def test_one_query_against_several_candidates_matches_fresh_calls() -> None:
