@@ -196,3 +196,25 @@ def polygon_from_scan(scan: Scan, config: PolygonConfig | None = None) -> Polygo
     if 2 * np.pi - covered > np.deg2rad(cfg.max_gap_deg):
         pts = np.vstack([pts, [[0.0, 0.0]]])
     return Polygon(pts, min_vertices=cfg.min_vertices)
+
+
+def polygon_within(polygon: Polygon, radius: float) -> Polygon:
+    """The polygon as seen within `radius` [m] of the sensor origin.
+
+    Every vertex farther than `radius` from the origin is pulled in along its own ray
+    to distance `radius` (v -> v * radius / |v|); nearer vertices are kept.  For a scan
+    polygon this is rule 2 of the module docstring with ``range_cap = radius``, i.e.
+    `polygon_from_scan` with that cap, applied to a polygon already built: a place is
+    what lies within `radius` of the sensor.  Vertices that fall on one point (readings
+    along one beam, both beyond `radius`) are merged as in `Polygon`.
+    """
+    if not (np.isfinite(radius) and radius > 0):
+        raise UserError(f"radius must be a positive length [m], got {radius}")
+    v = polygon.vertices
+    r = np.hypot(v[:, 0], v[:, 1])
+    far = r > radius
+    if not far.any():
+        return polygon
+    out = v.copy()
+    out[far] *= (radius / r[far])[:, None]
+    return Polygon(out)

@@ -153,3 +153,26 @@ def test_large_database_query_is_accurate() -> None:
     np.testing.assert_allclose(d, exact, rtol=1e-3, atol=1e-4)
     assert d[7] == 0.0
     assert d[123] == pytest.approx(exact[123], rel=1e-6)
+
+
+def test_near_radius_describes_the_polygon_within_that_distance_of_the_sensor() -> None:
+    # Square of half side 10 m about the sensor: its corners (14.1 m) are pulled to 4 m
+    # along the diagonals, leaving the square of half side h = 4 / sqrt(2) = 2.83 m, whose
+    # mean range about its centre is h (4 / pi) ln(tan(3 pi / 8)).
+    d = FFTMatcher(near_radius=4.0).describe(Polygon(SQUARE * 10))
+    h = 4.0 / np.sqrt(2.0)
+    assert d.amplitudes[0] == pytest.approx(h * 4 / np.pi * np.log(np.tan(3 * np.pi / 8)), rel=1e-3)
+    assert d.range_function.max() == pytest.approx(4.0, rel=1e-3)
+    # A polygon already within the radius is described as without it.
+    near = Polygon(SQUARE * 2)
+    np.testing.assert_array_equal(
+        FFTMatcher(near_radius=4.0).describe(near).amplitudes, FFTMatcher().describe(near).amplitudes
+    )
+
+
+def test_near_radius_is_unused_when_scale_invariant_and_must_be_positive() -> None:
+    p = Polygon(SQUARE * 10)
+    a = FFTMatcher(scale_invariant=True, near_radius=4.0).describe(p).amplitudes
+    np.testing.assert_array_equal(a, FFTMatcher(scale_invariant=True).describe(p).amplitudes)
+    with pytest.raises(UserError):
+        FFTMatcher(near_radius=-1.0)

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from data.errors import UserError
 from loopclosure.matchers.ring_projection import RingProjectionMatcher, ring_profile
 from loopclosure.polygon import Polygon
 from tests.matcher_shapes import C_SHAPE, NOTCHED, SQUARE, random_star
@@ -110,3 +111,28 @@ def test_l1_and_l2_distances_of_arc_lengths_by_hand() -> None:
     l2 = RingProjectionMatcher(n_rings=2, max_radius=2.0)  # the default norm
     assert l2.distance(l2.describe(small), l2.describe(big)) == pytest.approx(
         np.sqrt(10) * np.pi, rel=1e-6)
+
+
+def test_near_radius_describes_the_polygon_within_that_distance_of_the_sensor() -> None:
+    # Square of half side 10 m about the sensor: its corners (14.1 m) are pulled to 4 m
+    # along the diagonals, leaving the square of half side h = 4 / sqrt(2) = 2.83 m.
+    p = Polygon(SQUARE * 10)
+    m = RingProjectionMatcher(arc_length=False, n_rings=20, max_radius=5.0, near_radius=4.0)
+    h = 4.0 / np.sqrt(2.0)
+    g = (np.arange(20) + 0.5) * 0.25
+    corners = 1 - 4 / np.pi * np.arccos(np.minimum(h / g, 1))
+    expected = np.where(g < h, 1.0, np.where(g < 4.0, corners, 0.0))
+    np.testing.assert_allclose(m.describe(p), expected, atol=1e-6)
+    # A polygon already within the radius is described as without it.
+    near = Polygon(SQUARE * 2)
+    np.testing.assert_array_equal(
+        m.describe(near), RingProjectionMatcher(arc_length=False, n_rings=20,
+                                                max_radius=5.0).describe(near))
+
+
+def test_near_radius_is_unused_when_scale_invariant_and_must_be_positive() -> None:
+    p = Polygon(SQUARE * 10)
+    a = RingProjectionMatcher(scale_invariant=True, near_radius=4.0).describe(p)
+    np.testing.assert_array_equal(a, RingProjectionMatcher(scale_invariant=True).describe(p))
+    with pytest.raises(UserError):
+        RingProjectionMatcher(near_radius=0.0)

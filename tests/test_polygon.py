@@ -14,6 +14,7 @@ from loopclosure.polygon import (
     Polygon,
     PolygonConfig,
     polygon_from_scan,
+    polygon_within,
     signed_area,
 )
 
@@ -258,3 +259,35 @@ def test_resample_equals_interp_of_linspace_exactly(seed: int, n: int) -> None:
     s = np.linspace(0.0, cum[-1], n, endpoint=False)
     ref = np.column_stack([np.interp(s, cum, closed[:, 0]), np.interp(s, cum, closed[:, 1])])
     np.testing.assert_array_equal(p.resample(n), ref)
+
+
+def test_polygon_within_pulls_far_vertices_onto_the_circle() -> None:
+    # (4, 4) is sqrt(32) = 5.657 m from the origin: pulled to (5/sqrt 2, 5/sqrt 2);
+    # (-1, -1) at 1.414 m, (4, -1) and (-1, 4) at 4.123 m stay.
+    quad = Polygon(np.array([[-1.0, -1.0], [4.0, -1.0], [4.0, 4.0], [-1.0, 4.0]]))
+    out = polygon_within(quad, 5.0)
+    h = 5.0 / np.sqrt(2.0)
+    np.testing.assert_allclose(out.vertices, [[-1.0, -1.0], [4.0, -1.0], [h, h], [-1.0, 4.0]])
+    assert polygon_within(quad, 10.0) is quad
+
+
+def test_polygon_within_equals_the_scan_rule_with_that_cap() -> None:
+    angles = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    ranges = 3.0 + 4.0 * np.abs(np.sin(2.0 * angles))  # 3..7 m
+    ranges[10:14] = 30.0  # no return
+    ranges[40] = 25.0  # a long real return next to a short one
+    whole = polygon_from_scan(full_scan(ranges))
+    capped = polygon_from_scan(full_scan(ranges), PolygonConfig(range_cap=5.0))
+    np.testing.assert_allclose(polygon_within(whole, 5.0).vertices, capped.vertices, atol=1e-12)
+
+
+def test_polygon_within_merges_vertices_of_one_beam() -> None:
+    # Two vertices on the ray at 0 degrees, 6 m and 8 m: both land on (5, 0).
+    v = np.array([[2.0, -2.0], [6.0, 0.0], [8.0, 0.0], [2.0, 2.0], [-2.0, 0.0]])
+    out = polygon_within(Polygon(v), 5.0)
+    np.testing.assert_allclose(out.vertices, [[2.0, -2.0], [5.0, 0.0], [2.0, 2.0], [-2.0, 0.0]])
+
+
+def test_polygon_within_rejects_a_non_positive_radius() -> None:
+    with pytest.raises(UserError):
+        polygon_within(Polygon(SQUARE - 1.0), 0.0)

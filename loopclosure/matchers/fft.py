@@ -63,6 +63,13 @@ Parameters (`FFTConfig`)
 - ``ray_hit`` = "farthest": which boundary hit a ray keeps (see above).
 - ``scale_invariant`` = False: places must not be scale invariant (rooms differing
   only in size are different places); True for MPEG-7.
+- ``near_radius`` = None [m]: when set, the descriptor is that of the polygon as seen
+  within this distance of the sensor origin (`loopclosure.polygon.polygon_within`:
+  every farther vertex pulled in along its ray), reference point and range function
+  included.  On 30 m virtual scans the far field (open space at the cap, walls seen
+  from only some of the local maps' paths) dominates the area, so the centroid moves
+  metres between two views of one place and the far ranges differ; within a few
+  metres of the sensor the centroid moves centimetres.  Unused when scale invariant.
 
 Departures from the paper
 -------------------------
@@ -90,7 +97,7 @@ from numpy.typing import NDArray
 from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
-from loopclosure.polygon import Polygon
+from loopclosure.polygon import Polygon, polygon_within
 
 Array = NDArray[np.float64]
 
@@ -106,14 +113,21 @@ class FFTConfig:
         n_harmonics: number K of Fourier amplitudes in the descriptor.
         ray_hit: ``"farthest"`` or ``"nearest"`` boundary hit per ray.
         scale_invariant: divide amplitudes by the mean range (and drop it).
+        near_radius: describe the polygon within this distance of the sensor [m]
+            (None: the whole polygon).
     """
 
     n_bins: int = 256
     n_harmonics: int = 16
     ray_hit: str = "farthest"
     scale_invariant: bool = False
+    near_radius: float | None = None
 
     def __post_init__(self) -> None:
+        if self.near_radius is not None and not (
+            np.isfinite(self.near_radius) and self.near_radius > 0
+        ):
+            raise UserError(f"near_radius must be a positive length [m], got {self.near_radius}")
         if self.n_bins < 8:
             raise UserError(f"n_bins must be >= 8, got {self.n_bins}")
         if not 1 <= self.n_harmonics <= self.n_bins // 2:
@@ -319,6 +333,8 @@ class FFTMatcher(Matcher):
     def describe(self, polygon: Polygon) -> FFTDescriptor:
         """Range function about the centroid and its first K Fourier amplitudes."""
         cfg = self.config
+        if cfg.near_radius is not None and not cfg.scale_invariant:
+            polygon = polygon_within(polygon, cfg.near_radius)
         v = polygon.vertices
         n = len(v)
         xy = np.empty((2, n + 1))  # closed vertices as rows (x, y)

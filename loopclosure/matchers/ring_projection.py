@@ -69,6 +69,15 @@ Parameters (`RingConfig`)
 - ``arc_length`` = True: the profile is the arc length gamma * f(gamma) [m] (the
   paper's implementation); False gives the fraction f / (2 pi), which weighs every ring
   equally.  Arc lengths weigh the outer rings more.
+- ``near_radius`` = None [m]: when set, the profile is that of the polygon as seen
+  within this distance of the sensor origin (`loopclosure.polygon.polygon_within`:
+  every farther vertex pulled in along its ray), its centroid included.  On 30 m
+  virtual scans the far field (open space at the cap, walls seen from only some of the
+  local maps' paths) dominates the area: the centroid moves metres between two views
+  of one place, a radial shift of the whole profile.  Within a few metres of the
+  sensor it moves centimetres, and the rings beyond the near field are all zero (the
+  fraction then weighs the near rings' differences as much as the arc length would
+  the outer ones').  Unused when scale invariant.
 
 Departures from the paper
 -------------------------
@@ -90,7 +99,7 @@ from numpy.typing import NDArray
 from data.errors import UserError
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.vector_search import VectorStack, stack_distances, stack_vectors
-from loopclosure.polygon import Polygon
+from loopclosure.polygon import Polygon, polygon_within
 
 Array = NDArray[np.float64]
 
@@ -107,6 +116,8 @@ class RingConfig:
         scale_invariant: rings span the polygon's largest centroid distance.
         arc_length: profile in metres of arc (gamma f) instead of the fraction inside.
         norm: ``"l2"`` (Euclidean, default) or ``"l1"``.
+        near_radius: describe the polygon within this distance of the sensor [m]
+            (None: the whole polygon).
     """
 
     n_rings: int = 32
@@ -114,8 +125,13 @@ class RingConfig:
     scale_invariant: bool = False
     arc_length: bool = True
     norm: str = "l2"
+    near_radius: float | None = None
 
     def __post_init__(self) -> None:
+        if self.near_radius is not None and not (
+            np.isfinite(self.near_radius) and self.near_radius > 0
+        ):
+            raise UserError(f"near_radius must be a positive length [m], got {self.near_radius}")
         if self.norm not in ("l1", "l2"):
             raise UserError(f"norm must be 'l1' or 'l2', got {self.norm!r}")
         if self.n_rings < 1:
@@ -206,6 +222,8 @@ class RingProjectionMatcher(Matcher):
     def describe(self, polygon: Polygon) -> NDArray[np.float32]:
         """``(R,)`` float32 ring profile (fraction inside, or arc length [m])."""
         cfg = self.config
+        if cfg.near_radius is not None and not cfg.scale_invariant:
+            polygon = polygon_within(polygon, cfg.near_radius)
         v = polygon.vertices
         closed = np.concatenate([v, v[:1]])
         x0, y0, x1, y1 = closed[:-1, 0], closed[:-1, 1], closed[1:, 0], closed[1:, 1]
