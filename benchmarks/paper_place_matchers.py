@@ -4,7 +4,7 @@ Run from the repository root::
 
     python benchmarks/paper_place_matchers.py --dataset box --dataset robot:DIR
         [--range-cap M] [--variant NAME:METHOD[:KEY=VALUE,KEY=VALUE ...] ...]
-        [--query-step S]
+        [--query-step S] [--per-log]
 
 Each data set is loaded as ``loopclosure bench places`` loads it
 (`evaluation.place_datasets.load_dataset`, seed 0; ``--range-cap`` for the robot
@@ -17,7 +17,9 @@ only; this runs options against them on the same polygons.
 Printed per variant and data set: the Bull's eye score [%] (`evaluation.retrieval`:
 the 2n nearest of every query).  With ``--query-step S`` only every S-th shape is a
 query (its distances to all shapes; the score is over those queries), for screening
-a slow matcher; the default 1 is the full score of ``bench places``.
+a slow matcher; the default 1 is the full score of ``bench places``.  With
+``--per-log`` the score of each log's queries (robot labels ``<log>/place<k>``; the
+part of a label before ``/``) is printed too, against all shapes.
 """
 
 from __future__ import annotations
@@ -57,12 +59,23 @@ def bullseye_rows(d: np.ndarray, labels: np.ndarray, rows: np.ndarray) -> float:
     return float(100.0 * hits.sum() / n.sum())
 
 
+def bullseye_by_group(
+    d: np.ndarray, labels: np.ndarray, rows: np.ndarray
+) -> dict[str, float]:
+    """Bull's eye [%] of the queries of each group (label part before ``/``)."""
+    groups = np.array([str(label).split("/", 1)[0] for label in labels[rows]])
+    return {
+        g: bullseye_rows(d[groups == g], labels, rows[groups == g]) for g in np.unique(groups)
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--dataset", action="append", required=True)
     ap.add_argument("--range-cap", type=float, default=None)
     ap.add_argument("--variant", action="append", default=[])
     ap.add_argument("--query-step", type=int, default=1)
+    ap.add_argument("--per-log", action="store_true")
     args = ap.parse_args()
     variants = [parse_variant(v) for v in args.variant] or [
         ("default", m, {}) for m in ("fft", "ring", "mrm")]
@@ -82,6 +95,9 @@ def main() -> None:
             print(f"{spec} cap={args.range_cap} {name} ({method} {options}): "
                   f"Bull's eye {score:.2f} % over {len(rows)} queries "
                   f"[{time.process_time() - start:.0f} s CPU]", flush=True)
+            if args.per_log:
+                parts = bullseye_by_group(d, np.asarray(labels), rows)
+                print("    " + "  ".join(f"{g} {v:.1f}" for g, v in parts.items()), flush=True)
 
 
 if __name__ == "__main__":
