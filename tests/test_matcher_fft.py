@@ -175,3 +175,25 @@ def test_near_radius_is_unused_when_scale_invariant_and_must_be_positive() -> No
     np.testing.assert_array_equal(a, FFTMatcher(scale_invariant=True).describe(p).amplitudes)
     with pytest.raises(UserError):
         FFTMatcher(near_radius=-1.0)
+
+
+def test_far_weight_appends_the_whole_polygons_amplitudes() -> None:
+    p = Polygon(SQUARE * 10)
+    m = FFTMatcher(near_radius=4.0, far_weight=0.5)
+    d = m.describe(p)
+    near = FFTMatcher(near_radius=4.0).describe(p)
+    whole = FFTMatcher().describe(p)
+    assert d.amplitudes.shape == (32,) and m.width == 32
+    np.testing.assert_array_equal(d.amplitudes[:16], near.amplitudes)
+    np.testing.assert_allclose(d.amplitudes[16:], 0.5 * whole.amplitudes, rtol=1e-6)
+    np.testing.assert_array_equal(d.range_function, near.range_function)
+    # Distance: sqrt(|near_a - near_b|^2 + w^2 |whole_a - whole_b|^2).  Squares of half
+    # side 10 and 12 m have the same near polygon (corners pulled to 4 m), so only the
+    # far term is left.
+    q = Polygon(SQUARE * 12)
+    dq = m.distance(d, m.describe(q))
+    far = np.linalg.norm(
+        FFTMatcher().describe(q).amplitudes.astype(float) - whole.amplitudes.astype(float))
+    assert dq == pytest.approx(0.5 * far, rel=1e-4)
+    with pytest.raises(UserError):
+        FFTMatcher(far_weight=-0.1)

@@ -70,6 +70,13 @@ Parameters (`FFTConfig`)
   from only some of the local maps' paths) dominates the area, so the centroid moves
   metres between two views of one place and the far ranges differ; within a few
   metres of the sensor the centroid moves centimetres.  Unused when scale invariant.
+- ``far_weight`` w = 0.0: with ``near_radius`` set and w > 0 the descriptor is the
+  near polygon's K amplitudes followed by w times the whole polygon's K amplitudes
+  (about its own area centroid), 2K values: a faint far field, for places whose near
+  field is open space (outdoors) while what is far away is seen from anywhere.  The
+  Euclidean distance is then sqrt(||a_near - b_near||^2 + w^2 ||a_whole - b_whole||^2).
+  Describing costs two range functions.  The range function and centre kept for the
+  heading are the near polygon's.
 
 Departures from the paper
 -------------------------
@@ -115,6 +122,8 @@ class FFTConfig:
         scale_invariant: divide amplitudes by the mean range (and drop it).
         near_radius: describe the polygon within this distance of the sensor [m]
             (None: the whole polygon).
+        far_weight: weight of the whole polygon's amplitudes appended to the near
+            polygon's (0: none; only with `near_radius`).
     """
 
     n_bins: int = 256
@@ -122,8 +131,11 @@ class FFTConfig:
     ray_hit: str = "farthest"
     scale_invariant: bool = False
     near_radius: float | None = None
+    far_weight: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.far_weight) and self.far_weight >= 0):
+            raise UserError(f"far_weight must be a finite weight >= 0, got {self.far_weight}")
         if self.near_radius is not None and not (
             np.isfinite(self.near_radius) and self.near_radius > 0
         ):
@@ -333,9 +345,18 @@ class FFTMatcher(Matcher):
     def describe(self, polygon: Polygon) -> FFTDescriptor:
         """Range function about the centroid and its first K Fourier amplitudes."""
         cfg = self.config
-        if cfg.near_radius is not None and not cfg.scale_invariant:
-            polygon = polygon_within(polygon, cfg.near_radius)
-        v = polygon.vertices
+        if cfg.near_radius is None or cfg.scale_invariant:
+            amp, r, centre = self._amplitudes(polygon.vertices)
+            return FFTDescriptor(amp.astype(np.float32), r, centre)
+        amp, r, centre = self._amplitudes(polygon_within(polygon, cfg.near_radius).vertices)
+        if cfg.far_weight > 0:
+            far, _, _ = self._amplitudes(polygon.vertices)
+            amp = np.concatenate([amp, cfg.far_weight * far])
+        return FFTDescriptor(amp.astype(np.float32), r, centre)
+
+    def _amplitudes(self, v: Array) -> tuple[Array, Array, Array]:
+        """``(K,)`` amplitudes, ``(B,)`` range function and centre of vertices `v` [m]."""
+        cfg = self.config
         n = len(v)
         xy = np.empty((2, n + 1))  # closed vertices as rows (x, y)
         xy[:, :n] = v.T
@@ -352,11 +373,18 @@ class FFTMatcher(Matcher):
             amp = spec[1 : k + 1] / max(spec[0], 1e-300)
         else:
             amp = spec[:k] * (1.0 / cfg.n_bins)
-        return FFTDescriptor(amp.astype(np.float32), r, centre)
+        return amp, r, centre
+
+    @property
+    def width(self) -> int:
+        """Length of the amplitude vector: K, or 2K with a far field appended."""
+        cfg = self.config
+        far = cfg.near_radius is not None and cfg.far_weight > 0 and not cfg.scale_invariant
+        return 2 * cfg.n_harmonics if far else cfg.n_harmonics
 
     def stack(self, descriptors: Sequence[FFTDescriptor]) -> FFTStack:
-        """``(M, K)`` float32 matrix of amplitudes and its row norms."""
-        return stack_vectors([d.amplitudes for d in descriptors], self.config.n_harmonics)
+        """``(M, K)`` (or ``(M, 2K)``, `width`) float32 matrix of amplitudes and its row norms."""
+        return stack_vectors([d.amplitudes for d in descriptors], self.width)
 
     def distances(self, query: FFTDescriptor, stacked: FFTStack) -> Array:
         """``(M,)`` Euclidean distances of the query amplitudes to every stacked row."""
