@@ -160,6 +160,53 @@ def _beam_points_kernel(ranges, cosines, sines, above, below, low, high, voxel):
     return _voxel_kernel(pts[:m], voxel)
 
 
+#: Relative margin of `within_radius`'s squared-distance test: far above the
+#: rounding of ``dx^2 + dy^2`` and of ``hypot`` (a few units in the last place).
+_RADIUS_MARGIN = 1e-9
+
+
+def within_radius(points: Array, center: ArrayLike, radius: float) -> NDArray[np.bool_]:
+    """``(N,)`` mask of the `points` (``(N, 2)`` float64 [m]) with ``np.hypot(*(points -
+    center).T) <= radius`` (`center` ``(2,)`` [m]), to the bit.
+
+    One compiled pass decides every point whose squared distance ``dx^2 + dy^2`` lies
+    clearly inside ``radius^2 (1 -+ margin)^2`` (the offsets ``dx, dy`` are numpy's
+    subtraction); only the few within the margin of the border take ``np.hypot`` as
+    the reference does.  The local map's crop ran a dozen numpy calls per rebuild."""
+    pts = np.ascontiguousarray(points, dtype=float)
+    c = np.asarray(center, dtype=float).reshape(2)
+    cx, cy = float(c[0]), float(c[1])
+    if not radius < 1e150:  # its square would overflow: numpy's own test
+        return np.hypot(pts[:, 0] - cx, pts[:, 1] - cy) <= radius
+    mask, unsure = _within_kernel(pts, cx, cy, float(radius), _RADIUS_MARGIN)
+    if unsure:
+        idx = np.flatnonzero(mask == 2)
+        mask[idx] = np.hypot(pts[idx, 0] - cx, pts[idx, 1] - cy) <= radius
+    return mask.view(np.bool_)
+
+
+@numba.njit(cache=True)
+def _within_kernel(pts, cx, cy, radius, margin):
+    """1 inside, 0 outside, 2 too near the border to tell from ``dx^2 + dy^2``; and
+    whether any point is 2."""
+    inside = (radius * (1.0 - margin)) ** 2
+    outside = (radius * (1.0 + margin)) ** 2
+    mask = np.empty(pts.shape[0], dtype=np.uint8)
+    unsure = False
+    for i in range(pts.shape[0]):
+        dx = pts[i, 0] - cx
+        dy = pts[i, 1] - cy
+        d2 = dx * dx + dy * dy
+        if d2 <= inside:
+            mask[i] = 1
+        elif d2 > outside:
+            mask[i] = 0
+        else:  # near the border, or NaN
+            mask[i] = 2
+            unsure = True
+    return mask, unsure
+
+
 @numba.njit(cache=True)
 def _scan_cell(c, px, py, start, pts, best, best_d2):
     for k in range(start[c], start[c + 1]):
@@ -753,4 +800,4 @@ def register_target(source: ArrayLike, target: RegistrationTarget | None,
 __all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE",
            "KIND_NONE", "KIND_UNKNOWN", "TARGET_GRID_CELL", "GridTarget", "estimate_normals_fast",
            "overlap_bound", "overlap_screen", "register_fast", "register_target",
-           "voxel_downsample_fast"]
+           "voxel_downsample_fast", "within_radius"]

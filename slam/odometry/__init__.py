@@ -30,6 +30,7 @@ Frames and conventions (all front ends)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -151,6 +152,11 @@ class MotionNoise:
         d = np.asarray(delta, dtype=float).reshape(3)
         dist = float(np.hypot(d[0], d[1]))
         rot = float(abs(se2.wrap_angle(d[2])))
+        return self.diagonal(dist, rot)
+
+    def diagonal(self, dist: float, rot: float) -> Array:
+        """`covariance` of an increment of length `dist` [m] (``hypot(dx, dy)``) and
+        turn `rot` [rad] (``|wrap(dtheta)|``), for a caller that has both already."""
         return np.diag(
             [
                 self.along_per_m**2 * dist + self.along_per_rad**2 * rot + self.min_sigma_xy**2,
@@ -194,6 +200,11 @@ def scan_odometry(scan: Scan) -> Array | None:
     odom = getattr(scan, "odom", None)
     if odom is None:
         return None
+    if type(odom) is np.ndarray and odom.dtype == np.float64 and odom.shape == (3,):
+        # A reader's usual odometry (every scan of a log): three float checks instead
+        # of numpy's conversions, reshape and reduction.
+        x, y, theta = odom.tolist()
+        return odom if math.isfinite(x) and math.isfinite(y) and math.isfinite(theta) else None
     odom = np.asarray(odom, dtype=float)
     if odom.shape == (4, 4):
         odom = se2.from_matrix(odom)

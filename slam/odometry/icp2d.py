@@ -115,6 +115,7 @@ odometry jump.
 from __future__ import annotations
 
 import functools
+import math
 import statistics
 import time
 from collections import deque
@@ -126,6 +127,7 @@ from numpy.typing import NDArray
 
 from data import se2
 from data.errors import UserError
+from data.se2 import _wrap  # the scalar wrap `_between` must share with se2
 from data.types import Scan
 from loopclosure.headings import heading_hypotheses
 from loopclosure.multi_start import MultiResult, initial_guesses, register_multi
@@ -366,6 +368,19 @@ def _fast():
     return fast_icp
 
 
+def _between(a: Array, b: Array) -> tuple[float, float, float]:
+    """``se2.between(a, b)`` of two ``(3,)`` poses [m, m, rad] as three floats: the same
+    scalar operations in the same order (`se2.inverse`, then `se2.compose`, each on
+    Python floats), so the same bits, without their array conversions (three calls
+    per scan)."""
+    ax, ay, at = a.tolist()
+    bx, by, bt = b.tolist()
+    c, s = math.cos(at), math.sin(at)
+    ix, iy, it = -c * ax - s * ay, s * ax - c * ay, _wrap(-at)
+    c, s = math.cos(it), math.sin(it)
+    return ix + c * bx - s * by, iy + s * bx + c * by, _wrap(it + bt)
+
+
 def _frame_rotation(theta: float) -> Array:
     """``blockdiag(R(theta), 1)``: right perturbation at heading theta -> additive."""
     c, s = np.cos(theta), np.sin(theta)
@@ -395,6 +410,7 @@ class Icp2dOdometry:
         self._view: Array | None = None
         self._grid: GridTarget | None = None
         self._trig: tuple[Array, Array, Array] | None = None  # `_bearings`
+        self._trig_source: Array | None = None  # `_bearings`: the array it came from
         self._floor_cov: Array | None = None  # `_floor`
         self._stamp: float | None = None  # stamp of the previous scan (`deskew`)
         # (stamp, pose) of the earlier scans, newest last (`deskew`'s velocity).
@@ -485,7 +501,7 @@ class Icp2dOdometry:
             self._accept(pred, u, points, extra)
             return self._estimate(scan, pred, u, cov, res.fitness, "failed", t0, extra)
         pose = res.pose
-        delta = se2.between(prev, pose)
+        delta = np.array(_between(prev, pose))
         if jump:
             status = "odometry_jump"
             extra["kidnap"] = False
@@ -556,19 +572,23 @@ class Icp2dOdometry:
         of the same laser (equal bearings: a cosine depends only on its bearing, so
         ``np.cos(angles)[keep]`` is ``np.cos(angles[keep])``)."""
         cached = self._trig
+        if cached is not None and angles is self._trig_source:
+            return cached[1], cached[2]  # the reader's one read-only array of a laser
         if (cached is not None and cached[0].shape == angles.shape
                 and np.array_equal(cached[0], angles)):
             return cached[1], cached[2]
         a = np.array(angles, dtype=float)  # a copy: the key of the next comparison
         self._trig = (a, np.cos(a), np.sin(a))
+        # The same object again is the same bearings only if nothing can write to it.
+        self._trig_source = None if angles.flags.writeable else angles
         return self._trig[1], self._trig[2]
 
     def _prediction(self, odom: Array | None) -> tuple[Array, Array, bool]:
         """Increment ``u``, its covariance and whether it is an odometry jump."""
         cfg = self.config
         if odom is not None and self._odom is not None:
-            u = se2.between(self._odom, odom)
-            step, turn = float(np.hypot(u[0], u[1])), float(abs(u[2]))
+            ux, uy, ut = _between(self._odom, odom)
+            step, turn = float(np.hypot(ux, uy)), abs(ut)
             usual_step, usual_turn = self._usual_motion()
             jump = bool(step > max(cfg.max_step, cfg.jump_ratio * usual_step)
                         or turn > max(cfg.max_step_rotation, cfg.jump_ratio * usual_turn))
@@ -577,7 +597,9 @@ class Icp2dOdometry:
                 # increments that were not jumps (a jump the map confirms adds its
                 # registered increment in `process`), so a kidnap does not raise it.
                 self._recent_steps.append((step, turn))
-            return u, cfg.odometry_noise.covariance(u), jump
+            # `MotionNoise.covariance(u)` from the step it measures the same way.
+            cov = cfg.odometry_noise.diagonal(step, abs(_wrap(ut)))
+            return np.array([ux, uy, ut]), cov, jump
         u = self._velocity.copy()
         return u, np.diag(np.square(cfg.velocity_sigma)), False
 
@@ -700,9 +722,9 @@ class Icp2dOdometry:
         self._velocity = np.asarray(delta, dtype=float).copy()
         due = force_keyframe
         if not due and self._keyframe_pose is not None and len(points) >= cfg.min_points:
-            step = se2.between(self._keyframe_pose, self._pose)
-            due = bool(np.hypot(step[0], step[1]) >= cfg.keyframe_distance
-                       or abs(step[2]) >= cfg.keyframe_rotation)
+            dx, dy, dt = _between(self._keyframe_pose, self._pose)
+            due = bool(np.hypot(dx, dy) >= cfg.keyframe_distance
+                       or abs(dt) >= cfg.keyframe_rotation)
         extra["keyframe"] = due
         if due:
             self._keyframe_pose = self._pose.copy()
@@ -728,7 +750,10 @@ class Icp2dOdometry:
             frames = [p[facing(p, n, self._view)]
                       for p, n in zip(frames, self._normals, strict=True)]
         pts = voxel(np.vstack(frames), cfg.map_voxel)
-        near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
+        if cfg.compiled:  # the same mask, in one compiled pass
+            near = fast.within_radius(pts, self._keyframe_pose[:2], cfg.map_radius)
+        else:
+            near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
         if cfg.compiled:
             self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
                                          anchor_radius=cfg.line_anchor_radius,
