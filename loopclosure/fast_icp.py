@@ -185,6 +185,35 @@ def within_radius(points: Array, center: ArrayLike, radius: float) -> NDArray[np
     return mask.view(np.bool_)
 
 
+def points_within(points: Array, center: ArrayLike, radius: float) -> Array:
+    """``points[within_radius(points, center, radius)]``: the same rows in the same
+    order, `points` itself (not a copy) when every row is kept, else compacted in one
+    compiled pass (numpy's boolean indexing of ``(N, 2)`` rows costs several times
+    the test)."""
+    pts = np.ascontiguousarray(points, dtype=float)
+    mask = within_radius(pts, center, radius)
+    return _compact(pts, mask)
+
+
+@numba.njit(cache=True)
+def _compact(pts, mask):
+    """The rows of `pts` where `mask` holds, in order; `pts` itself when it holds for all."""
+    kept = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            kept += 1
+    if kept == pts.shape[0]:
+        return pts
+    out = np.empty((kept, 2))
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            out[k, 0] = pts[i, 0]
+            out[k, 1] = pts[i, 1]
+            k += 1
+    return out
+
+
 @numba.njit(cache=True)
 def _within_kernel(pts, cx, cy, radius, margin):
     """1 inside, 0 outside, 2 too near the border to tell from ``dx^2 + dy^2``; and
@@ -280,6 +309,76 @@ def _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts):
 
 
 @numba.njit(cache=True)
+def _scan_cell_bound(c, px, py, start, pts, best, best_d2, other_d2):
+    """`_scan_cell`, also keeping the smallest squared distance `other_d2` of the
+    points it met that are not the best (a replaced best included)."""
+    for k in range(start[c], start[c + 1]):
+        dx = pts[k, 0] - px
+        dy = pts[k, 1] - py
+        d2 = dx * dx + dy * dy
+        if d2 < best_d2 or (d2 == best_d2 and (best < 0 or k < best)):
+            if best >= 0 and best_d2 < other_d2:
+                other_d2 = best_d2
+            best, best_d2 = k, d2
+        elif d2 < other_d2:
+            other_d2 = d2
+    return best, best_d2, other_d2
+
+
+@numba.njit(cache=True)
+def _nearest_bound(px, py, gate, ox, oy, cell, nx, ny, start, pts):
+    """`_nearest` (the same cells visited, the same answer) and a lower bound [m] on
+    the distance from ``(px, py)`` of every grid point other than the answer (of
+    every point when there is none): the nearest of the others it met, the gaps of
+    the cells it skipped (less `_BOX_SLACK`) and, beyond the rings it visited, the
+    query's distance to their outer border (less `_BOX_SLACK`).  `_match` keeps an
+    answer while the point moves less than half the difference."""
+    ci = int(np.floor((px - ox) / cell))
+    cj = int(np.floor((py - oy) / cell))
+    fx = px - ox - ci * cell
+    fy = py - oy - cj * cell
+    margin = max(min(fx, cell - fx, fy, cell - fy), 0.0)
+    rings = int(np.ceil(gate / cell))
+    best, best_d2 = -1, gate * gate
+    other_d2 = np.inf
+    beyond = rings * cell + margin
+    for r in range(rings + 1):
+        for i in range(ci - r, ci + r + 1):
+            if i < 0 or i >= nx:
+                continue
+            gx = _cell_gap(i, ci, fx, cell)
+            gx2 = gx * gx
+            if gx2 > best_d2:
+                other_d2 = min(other_d2, gx2)  # every cell of column i in this ring
+                continue
+            edge = i == ci - r or i == ci + r
+            step = 1 if edge else 2 * r
+            j = cj - r
+            while j <= cj + r:
+                if 0 <= j < ny:
+                    gy = _cell_gap(j, cj, fy, cell)
+                    g2 = gx2 + gy * gy
+                    if g2 <= best_d2:
+                        best, best_d2, other_d2 = _scan_cell_bound(i * ny + j, px, py, start,
+                                                                   pts, best, best_d2, other_d2)
+                    elif g2 < other_d2:
+                        other_d2 = g2
+                if step == 0:
+                    break
+                j += step
+        if best >= 0 and best_d2 <= (r * cell + margin) ** 2:
+            beyond = r * cell + margin
+            break
+    beyond = max(beyond - _BOX_SLACK, 0.0)
+    return best, np.sqrt(best_d2), np.sqrt(min(other_d2, beyond * beyond))
+
+
+#: Slack [m] of `_match`'s reuse test: far above the rounding of the distances and
+#: of a moved point's coordinates, far below any distance between map points.
+_REUSE_SLACK = 1e-9
+
+
+@numba.njit(cache=True)
 def _upper_median_abs(values, n):
     """The upper median ``sorted(|values[:n]|)[n // 2]`` (``n >= 1``), by selection
     (`np.partition`: the element a sort puts there, in linear time instead of a
@@ -290,10 +389,22 @@ def _upper_median_abs(values, n):
 
 @numba.njit(cache=True)
 def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist, params,
-           normals, anchors):
+           normals, anchors, near, bound, last, norms):
     """Rows of the correspondences at pose `x`: point-to-line rows first, then the x rows
     and the y rows of the point-to-point matches.  Returns (rows, lines, points).  A
-    nearest point of unknown kind (a lazy grid) is resolved first (`resolve_point`)."""
+    nearest point of unknown kind (a lazy grid) is resolved first (`resolve_point`).
+
+    Nearest neighbours carried between the iterations of one run: `near` and `bound`
+    hold each source point's nearest map point (-1: none within the gate when it was
+    searched) and a lower bound [m] on the distance of every other map point (of
+    every point for -1; `_nearest_bound`), at pose
+    `last` (``last[3] = 0``: none yet); `norms` the points' distances from the source
+    origin [m].  A point moves by at most ``delta = |dtheta| |p| + |dt|`` from `last`
+    to `x`; where its nearest point, at distance ``d`` now, is nearer than ``bound -
+    delta`` (less `_REUSE_SLACK`), no other point can be as near, so it is the
+    answer of a new search (and none within the gate stays none while ``bound - delta``
+    exceeds the gate, which never grows); the bound becomes ``bound - delta``.  Other
+    points search again.  The same correspondences as searching every point."""
     n = src.shape[0]
     c, s = np.cos(x[2]), np.sin(x[2])
     lines = 0
@@ -301,10 +412,35 @@ def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist,
     csel = np.empty(n, dtype=np.int64)
     cj = np.empty(n, dtype=np.int64)
     cd = np.empty(n)
+    carry = last[3] > 0.0
+    turn = abs(_wrap(x[2] - last[2]))
+    shift = np.hypot(x[0] - last[0], x[1] - last[1])
+    gate2 = gate * gate
     for i in range(n):
         px = c * src[i, 0] - s * src[i, 1] + x[0]
         py = s * src[i, 0] + c * src[i, 1] + x[1]
-        j, d = _nearest(px, py, gate, ox, oy, cell, nx, ny, start, pts)
+        found = False
+        if carry:
+            delta = (turn * norms[i] + shift) * (1.0 + _REUSE_SLACK) + _REUSE_SLACK
+            left = bound[i] - delta
+            j = near[i]
+            if j >= 0:
+                dx = pts[j, 0] - px
+                dy = pts[j, 1] - py
+                d2 = dx * dx + dy * dy
+                d = np.sqrt(d2)
+                if d < left:  # still the nearest; a match if within the gate
+                    found = True
+                    bound[i] = left
+                    if d2 > gate2:
+                        j = -1
+            elif left > gate:
+                found = True
+                bound[i] = left
+        if not found:
+            j, d, b = _nearest_bound(px, py, gate, ox, oy, cell, nx, ny, start, pts)
+            near[i] = j
+            bound[i] = b
         if j < 0:
             continue
         if kind[j] < 0:
@@ -325,6 +461,10 @@ def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist,
             sel[r] = csel[k]
             jdx[r] = cj[k]
             dist[r] = cd[k]
+    last[0] = x[0]
+    last[1] = x[1]
+    last[2] = x[2]
+    last[3] = 1.0
     return lines + 2 * clut, lines, lines + clut
 
 
@@ -440,6 +580,12 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, para
     w = np.empty(2 * n)
     jac = np.empty((2 * n, 3))
     nrm = np.empty((2 * n, 2))
+    near = np.empty(n, dtype=np.int64)  # `_match`'s neighbours carried between iterations
+    bound = np.empty(n)
+    last = np.zeros(4)
+    norms = np.empty(n)
+    for i in range(n):
+        norms[i] = np.hypot(src[i, 0], src[i, 1])
     x = x0.copy()
     gate = gate0
     iterations = 0
@@ -448,7 +594,8 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, para
     for it in range(1, max_iterations + 1):
         iterations = it
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
-                                     sel, jdx, dist, params, normals, anchors)
+                                     sel, jdx, dist, params, normals, anchors, near, bound,
+                                     last, norms)
         if points < min_corr:
             return x0.copy(), iterations, False, False, gate, rows, lines, points, sel, jdx, -1
         _rows(src, x, rows, lines, points, sel, jdx, pts, anchors, normals, r, jac, nrm)
@@ -484,7 +631,8 @@ def _icp(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals, kind, para
                 return x, iterations, False, True, gate, rows, lines, points, sel, jdx, m
     if not converged:
         rows, lines, points = _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind,
-                                     sel, jdx, dist, params, normals, anchors)
+                                     sel, jdx, dist, params, normals, anchors, near, bound,
+                                     last, norms)
     return x, iterations, converged, True, gate, rows, lines, points, sel, jdx, -1
 
 
@@ -614,6 +762,42 @@ def _register_kernel(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals
             fitness, degeneracy, axis)
 
 
+def _source_points(source: ArrayLike) -> Array:
+    """``np.ascontiguousarray(as_points(source, "source points"))``, the same array and
+    the same error; a C-contiguous ``(N, 2)`` float64 array (every scan of the front
+    end) is checked by one compiled pass instead of numpy's conversions and reduction."""
+    if (type(source) is np.ndarray and source.dtype == np.float64 and source.ndim == 2
+            and source.shape[1] == 2 and source.flags.c_contiguous):
+        if not _all_finite(source):
+            raise UserError("source points holds non-finite coordinates")
+        return source
+    return np.ascontiguousarray(as_points(source, "source points"))
+
+
+@numba.njit(cache=True)
+def _all_finite(pts):
+    for i in range(pts.shape[0]):
+        if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
+            return False
+    return True
+
+
+#: The grid `_matchable` last found matchable (one entry: the front end registers
+#: every scan onto the same local map until it is rebuilt).
+_MATCHABLE: list[GridTarget] = []
+
+
+def _matchable(grid: GridTarget) -> bool:
+    """`GridTarget.matchable`, remembered for the last grid that was: whether a grid
+    has a matchable point is fixed by its points (lazy resolution only finds out)."""
+    if _MATCHABLE and _MATCHABLE[0] is grid:
+        return True
+    if not grid.matchable():
+        return False
+    _MATCHABLE[:] = [grid]
+    return True
+
+
 def _register_grid(
     source: ArrayLike, target: GridTarget, initial: ArrayLike, config: IcpConfig | None,
     prior: ArrayLike | None, prior_covariance: ArrayLike | None, joins: Array,
@@ -624,7 +808,7 @@ def _register_grid(
     stopped there (`register_target`).  One compiled call (`_register_kernel`): the
     few small numpy calls of the figures cost as much as the iterations."""
     cfg = config or target.config
-    src = np.ascontiguousarray(as_points(source, "source points"))
+    src = _source_points(source)
     x0 = np.asarray(initial, dtype=float).reshape(3).copy()
     x_prior, prior_cov = _NO_PRIOR, _NO_PRIOR_COV
     if prior is not None:
@@ -632,7 +816,7 @@ def _register_grid(
             raise UserError("register: a prior needs its prior_covariance (got None)")
         x_prior = np.asarray(prior, dtype=float).reshape(3).copy()
         prior_cov = np.ascontiguousarray(np.asarray(prior_covariance, dtype=float).reshape(3, 3))
-    if len(src) < cfg.min_correspondences or not target.matchable():
+    if len(src) < cfg.min_correspondences or not _matchable(target):
         return _failed(x0, 0, 0, None if prior is None else prior_cov)
     kernel, kconst = _KERNELS[cfg.kernel], KERNEL_CONSTANTS[cfg.kernel]
     nx, ny = target.shape
@@ -799,5 +983,5 @@ def register_target(source: ArrayLike, target: RegistrationTarget | None,
 
 __all__ = ["ANCHORS", "JOIN_ROTATION", "JOIN_TRANSLATION", "KIND_CLUTTER", "KIND_LINE",
            "KIND_NONE", "KIND_UNKNOWN", "TARGET_GRID_CELL", "GridTarget", "estimate_normals_fast",
-           "overlap_bound", "overlap_screen", "register_fast", "register_target",
-           "voxel_downsample_fast", "within_radius"]
+           "overlap_bound", "overlap_screen", "points_within", "register_fast",
+           "register_target", "voxel_downsample_fast", "within_radius"]

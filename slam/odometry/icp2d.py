@@ -750,16 +750,16 @@ class Icp2dOdometry:
             frames = [p[facing(p, n, self._view)]
                       for p, n in zip(frames, self._normals, strict=True)]
         pts = voxel(np.vstack(frames), cfg.map_voxel)
-        if cfg.compiled:  # the same mask, in one compiled pass
-            near = fast.within_radius(pts, self._keyframe_pose[:2], cfg.map_radius)
+        if cfg.compiled:  # the same rows, compiled
+            pts = fast.points_within(pts, self._keyframe_pose[:2], cfg.map_radius)
         else:
-            near = np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius
+            pts = pts[np.hypot(*(pts - self._keyframe_pose[:2]).T) <= cfg.map_radius]
         if cfg.compiled:
-            self._grid = fast.GridTarget(pts[near], cfg.icp, anchor=cfg.line_anchor,
+            self._grid = fast.GridTarget(pts, cfg.icp, anchor=cfg.line_anchor,
                                          anchor_radius=cfg.line_anchor_radius,
                                          anchor_band=cfg.line_anchor_band, lazy=True)
         else:
-            target = RegistrationTarget(pts[near], cfg.icp)
+            target = RegistrationTarget(pts, cfg.icp)
             self._grid = (fast.GridTarget.from_target(target) if target.tree is not None
                           else None)
         if self._grid is not None and not self._grid.matchable():
