@@ -140,8 +140,9 @@ def beam_points_fast(ranges: Array, cosines: Array, sines: Array, bounds: tuple[
     beams' bearings, computed once per laser): each point is the same product as
     ``ranges[keep] * np.cos(angles[keep])``, in beam order, so the result is the same
     to the bit as masking, stacking and `voxel_downsample_fast`."""
-    above, below, low, high = (float(b) for b in bounds)
-    return _beam_points_kernel(ranges, cosines, sines, above, below, low, high, float(voxel))
+    above, below, low, high = bounds
+    return _beam_points_kernel(ranges, cosines, sines, float(above), float(below), float(low),
+                               float(high), float(voxel))
 
 
 @numba.njit(cache=True)

@@ -157,15 +157,11 @@ class MotionNoise:
     def diagonal(self, dist: float, rot: float) -> Array:
         """`covariance` of an increment of length `dist` [m] (``hypot(dx, dy)``) and
         turn `rot` [rad] (``|wrap(dtheta)|``), for a caller that has both already."""
-        return np.diag(
-            [
-                self.along_per_m**2 * dist + self.along_per_rad**2 * rot + self.min_sigma_xy**2,
-                self.lateral_per_m**2 * dist
-                + self.lateral_per_rad**2 * rot
-                + self.min_sigma_xy**2,
-                self.rot_per_m**2 * dist + self.rot_per_rad**2 * rot + self.min_sigma_theta**2,
-            ]
-        )
+        xx = self.along_per_m**2 * dist + self.along_per_rad**2 * rot + self.min_sigma_xy**2
+        yy = self.lateral_per_m**2 * dist + self.lateral_per_rad**2 * rot + self.min_sigma_xy**2
+        tt = self.rot_per_m**2 * dist + self.rot_per_rad**2 * rot + self.min_sigma_theta**2
+        # np.diag of the three, without its conversions (the front end asks every scan)
+        return np.array([[xx, 0.0, 0.0], [0.0, yy, 0.0], [0.0, 0.0, tt]])
 
 
 def adjoint(pose: ArrayLike) -> Array:

@@ -368,6 +368,16 @@ def _fast():
     return fast_icp
 
 
+def _median(values: list[float]) -> float:
+    """``float(statistics.median(values))`` of a non-empty list of floats: the middle
+    value, or ``(a + b) / 2`` of the two middle ones, without its type dispatch."""
+    ordered = sorted(values)
+    half = len(ordered) // 2
+    if len(ordered) % 2:
+        return float(ordered[half])
+    return float((ordered[half - 1] + ordered[half]) / 2)
+
+
 def _between(a: Array, b: Array) -> tuple[float, float, float]:
     """``se2.between(a, b)`` of two ``(3,)`` poses [m, m, rad] as three floats: the same
     scalar operations in the same order (`se2.inverse`, then `se2.compose`, each on
@@ -615,8 +625,8 @@ class Icp2dOdometry:
             return max(steps), max(turns)
         # A few dozen numbers: plain Python (np.median's per-call overhead is tens of
         # microseconds, paid at every scan); the mean of the two middle values for an
-        # even count.
-        return float(statistics.median(steps)), float(statistics.median(turns))
+        # even count, as `statistics.median` takes it (`_median`).
+        return _median(steps), _median(turns)
 
     def _register(self, points: Array, pred: Array, u_cov: Array) -> IcpResult:
         grid = self._grid
