@@ -21,7 +21,10 @@ configuration (``PipelineConfig().odometry`` with ``front_end_config()``) over
 every scan in file order, timed by ``time.process_time``.  The script prints the
 best and median CPU seconds of either code, the ratio of their medians (old / new:
 above 1 is faster now), microseconds per scan, and whether every estimate (pose,
-increment, covariance as float64 bytes, status, fitness) is bit-identical.
+increment, covariance as float64 bytes, status, fitness) is bit-identical.  With
+``--whole-runs`` it then runs ``loopclosure run LOG --no-map`` (defaults, the front
+end in its worker) once with either code, each in its own process, and says whether
+their ``loops.csv`` and ``trajectory.tum`` are byte-identical.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.run_speed import ROOT, checkout, revision_parser
+from benchmarks.run_speed import ROOT, checkout, identical, revision_parser, run_once
 
 LOGS = ("carmen-corrected/orebro-corrected.log.gz,carmen-corrected/freiburg-101-corrected.log.gz,"
         "carmen-corrected/belgioioso-corrected.log.gz")
@@ -105,6 +108,8 @@ def run(code: dict[str, Any], scans: list[Any]) -> tuple[float, str]:
 def main() -> None:
     parser = revision_parser(__doc__.split("\n")[0], LOGS)
     parser.add_argument("--limit", type=int, default=0, help="first N scans (0: all)")
+    parser.add_argument("--whole-runs", action="store_true",
+                        help="also compare loopclosure run's loops.csv and trajectory.tum")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         base = checkout(args.baseline, Path(tmp) / "baseline")
@@ -132,6 +137,12 @@ def main() -> None:
             print(f"{name:<46} {n:>6} {min(cpu['old']):8.3f} {min(cpu['new']):8.3f} "
                   f"{old_m:8.3f} {new_m:8.3f} {old_m / new_m:6.3f} {1e6 * old_m / n:7.1f} "
                   f"{1e6 * new_m / n:7.1f}  {same}", flush=True)
+            if args.whole_runs:
+                del scans
+                outs = {label: Path(tmp) / f"{label}-{log.name}" for label in codes}
+                for label, code in (("old", base), ("new", now)):
+                    run_once(code, log, outs[label], worker=True)
+                print(f"    loopclosure run: {identical(outs['old'], outs['new'])}", flush=True)
 
 
 if __name__ == "__main__":
