@@ -3,8 +3,9 @@
 `loopclosure.warm_up` covers the front end, the place descriptors and the geometric
 checks; this module adds the front end's local-map crop
 (`loopclosure.fast_icp.points_within`) and the back end's selected-inverse kernels of
-the final pass's re-check (`slam.selected_inverse_kernel`).  `warm_up` makes both layers' first calls (here on
-a 4-pose chain's information matrix, factorised as the re-check factorises it by
+the final pass's re-check (`slam.selected_inverse_kernel`).  `warm_up` makes both
+layers' first calls (here on a 4-pose chain's information matrix, factorised as the
+re-check factorises it by
 `slam.least_squares.factor_information`, with the same argument types).
 `warm_up_isolated` compiles in a spawned child when either layer's cache is cold, so
 that LLVM's memory leaves with the child and the mapper's peak memory is the
