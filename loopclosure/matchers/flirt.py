@@ -84,7 +84,9 @@ distance is asymmetric in general (A's features search B's); the ROC and P-R
 measures of evaluation.retrieval symmetrise it.
 
 Parameters (`FlirtConfig`; the detection ones are forwarded to
-`FlirtFeatureConfig`): descriptor_distance ["euclidean" | "chi2"],
+`FlirtFeatureConfig`, among them the contour-sampling option sample_step,
+max_samples, max_range and border_sigmas, off by default): descriptor_distance
+["euclidean" | "chi2"],
 candidates [3], scale_ratio [2.0], orientation_tolerance [0.6 rad],
 inlier_factor [0.5, tau per unit scale], max_hypotheses [400], min_inliers [4,
 the paper's n_min], seed [0], compiled [True: steps 1-5 run in the numba kernel
@@ -139,6 +141,11 @@ class FlirtConfig:
     beam_stride: int = 2
     viewpoint: str = "auto"
     scale_invariant: bool = False
+    # Contour sampling (flirt_features; 0: off, the defaults above unchanged).
+    sample_step: float = 0.0
+    max_samples: int = 4096
+    max_range: float = 0.0
+    border_sigmas: float = 2.0
     # Matching.
     descriptor_distance: str = "euclidean"
     candidates: int = 3

@@ -93,11 +93,25 @@ viewpoint ["auto" | "origin" | "centroid"], scale_invariant [False: when True th
 polygon is first divided by sqrt(area)], compiled [True: the hit and miss counts of
 step 4 come from the numba kernel of `loopclosure.matchers.flirt_grid_kernel`,
 equal to the numpy version's but where a chord sample sits on a bin border].
+
+Contour sampling (an option; off by default, when the steps above are unchanged):
+sample_step [0: off; length units, e.g. 0.2 m] resamples the boundary every
+``sample_step`` by arc length, ``N = clip(round(perimeter / sample_step), 16,
+max_samples)`` samples instead of ``n_samples`` whatever the perimeter, so that the
+step h, and with it every scale in length units, does not change with how much open
+space a viewpoint sees.  max_range [0: off; length units] drops the boundary's edges
+with an end at or beyond ``max_range`` from the sensor origin (no-return beams placed
+at the range cap, and the jump edges that lead to them): the curve is still smoothed
+whole (step 2), but no interest point is taken on a dropped edge's samples or within
+``border_sigmas * sigma`` samples (arc length) of one, where the smoothing kernel
+reaches into them (FLIRT's detector works on the scan's connected segments and drops
+what the cap made), and a dropped sample is neither a beam end of the beta-grids nor
+a fallback point (step 4: the samples of kept edges only).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -134,6 +148,13 @@ class FlirtFeatureConfig:
         scale_invariant: divide the polygon by sqrt(area) first.
         compiled: count the beta-grids' hits and misses with the numba kernel of
             `loopclosure.matchers.flirt_grid_kernel` (False: numpy).
+        sample_step: boundary sampling step [length] (0: `n_samples` samples whatever
+            the perimeter; module docstring, contour sampling).
+        max_samples: most samples of a boundary sampled by `sample_step`.
+        max_range: edges with an end at or beyond this distance from the sensor
+            origin are dropped [length] (0: none dropped).
+        border_sigmas: with `max_range`, interest points closer than this many
+            sigma (arc length) to a dropped edge's sample are not taken.
     """
 
     n_samples: int = 256
@@ -153,10 +174,23 @@ class FlirtFeatureConfig:
     viewpoint: str = "auto"
     scale_invariant: bool = False
     compiled: bool = True
+    sample_step: float = 0.0
+    max_samples: int = 4096
+    max_range: float = 0.0
+    border_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
-        if self.n_samples < 16:
-            raise UserError(f"n_samples must be >= 16, got {self.n_samples}")
+        if self.n_samples < 16 or self.max_samples < 16:
+            raise UserError(
+                f"n_samples and max_samples must be >= 16, got {self.n_samples} and "
+                f"{self.max_samples}"
+            )
+        if not (np.isfinite(self.sample_step) and self.sample_step >= 0):
+            raise UserError(f"sample_step must be >= 0 (0: off), got {self.sample_step}")
+        if not (np.isfinite(self.max_range) and self.max_range >= 0):
+            raise UserError(f"max_range must be >= 0 (0: off), got {self.max_range}")
+        if not (np.isfinite(self.border_sigmas) and self.border_sigmas >= 0):
+            raise UserError(f"border_sigmas must be >= 0, got {self.border_sigmas}")
         if self.viewpoint not in ("auto", "origin", "centroid"):
             raise UserError(f"viewpoint must be auto, origin or centroid, got {self.viewpoint!r}")
         if min(self.rings, self.sectors, self.levels_per_octave, self.max_features) < 1:
@@ -353,10 +387,48 @@ def _detect(
     return idx[order], level[order], delta
 
 
+def sample_count(polygon: Polygon, config: FlirtFeatureConfig, unit: float = 1.0) -> int:
+    """Boundary samples N of `polygon`: `n_samples`, or with `sample_step` the
+    perimeter over the step (both in the polygon's units divided by `unit`), rounded
+    and clipped to ``16 .. max_samples`` (module docstring, contour sampling)."""
+    if config.sample_step <= 0:
+        return config.n_samples
+    n = round(polygon.perimeter / unit / config.sample_step)
+    return int(min(max(n, 16), config.max_samples))
+
+
+def kept_samples(polygon: Polygon, n: int, max_range: float) -> NDArray[np.bool_]:
+    """``(n,)`` True for the samples of ``polygon.resample(n)`` on a kept edge: one
+    whose two ends both lie closer than `max_range` to the sensor origin [polygon
+    units] (a sample on a vertex belongs to the edge that starts there)."""
+    v = polygon.vertices
+    near = np.hypot(v[:, 0], v[:, 1]) < max_range
+    kept_edge = near & np.roll(near, -1)
+    cum = np.concatenate(([0.0], np.cumsum(polygon.edge_lengths())))
+    s = np.arange(n, dtype=float) * (cum[-1] / n)
+    edge = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(v) - 1)
+    return kept_edge[edge]
+
+
+def border_distance(kept: NDArray[np.bool_]) -> Array:
+    """``(N,)`` circular distance [samples] of every sample to the nearest sample that
+    is not kept (``inf`` when all are kept; 0 on a dropped sample)."""
+    n = len(kept)
+    out_idx = np.flatnonzero(~kept)
+    if not len(out_idx):
+        return np.full(n, np.inf)
+    ext = np.concatenate((out_idx - n, out_idx, out_idx + n))
+    i = np.arange(n)
+    pos = np.searchsorted(ext, i)
+    return np.minimum(ext[pos] - i, i - ext[pos - 1]).astype(float)
+
+
 def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatures:
     """Interest points and beta-grids of `polygon` (module docstring, steps 1-4)."""
     cfg = config
     unit = float(np.sqrt(polygon.area)) if cfg.scale_invariant else 1.0
+    if cfg.sample_step > 0 or cfg.max_range > 0:
+        return _describe_sampled(polygon, cfg, unit)
     curve = polygon.resample(cfg.n_samples) / unit
     step = polygon.perimeter / unit / cfg.n_samples
     sigmas = scale_levels(cfg)
@@ -375,6 +447,47 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     scales = sigmas[level] * step
     view = _viewpoint(polygon, cfg.viewpoint, unit)
     occ, evidence = beta_grids(points, scales, orient, curve[:: cfg.beam_stride], view, cfg)
+    return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
+
+
+def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) -> FlirtFeatures:
+    """`describe_polygon` with the contour-sampling option (module docstring): N from
+    `sample_count`, and with `max_range` the dropped edges' samples and their borders
+    excluded from detection, fallback points and beams."""
+    n = sample_count(polygon, cfg, unit)
+    curve = polygon.resample(n) / unit
+    step = polygon.perimeter / unit / n
+    sized = replace(cfg, n_samples=n)
+    sigmas = scale_levels(sized)
+    smooth, deriv = _smoothed_complex(curve, sigmas)
+    delta = _responses(curve, step, sigmas, smooth, deriv)
+    mag = np.abs(delta)
+    peak = _local_maxima(mag) & (mag >= cfg.min_response)
+    if cfg.max_range > 0:
+        kept = kept_samples(polygon, n, cfg.max_range)
+        clear = border_distance(kept)[None, :] > cfg.border_sigmas * sigmas[:, None]
+        peak &= clear & kept[None, :]
+    else:
+        kept = np.ones(n, dtype=bool)
+    level, idx = np.nonzero(peak)
+    order = np.argsort(-mag[level, idx], kind="stable")[: cfg.max_features]
+    idx, level = idx[order], level[order]
+    if len(idx) < cfg.min_features:
+        k = cfg.min_features + 1
+        pool = np.flatnonzero(kept) if kept.any() else np.arange(n)
+        idx = pool[(np.arange(k) * len(pool)) // k]
+        level = np.full(k, len(sigmas) // 2)
+        responses = np.zeros(k)
+    else:
+        responses = delta[level, idx]
+    tangent = deriv[level, idx]
+    orient = np.arctan2(-tangent.real, tangent.imag)  # angle of (t_y, -t_x)
+    points = curve[idx]
+    scales = sigmas[level] * step
+    view = _viewpoint(polygon, cfg.viewpoint, unit)
+    beams = np.flatnonzero(kept)[:: cfg.beam_stride] if not kept.all() else \
+        np.arange(0, n, cfg.beam_stride)
+    occ, evidence = beta_grids(points, scales, orient, curve[beams], view, cfg)
     return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
 
 
