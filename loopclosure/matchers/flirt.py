@@ -85,7 +85,7 @@ measures of evaluation.retrieval symmetrise it.
 
 Parameters (`FlirtConfig`; the detection ones are forwarded to
 `FlirtFeatureConfig`, among them the contour-sampling option sample_step,
-max_samples, max_range and border_sigmas, off by default): descriptor_distance
+max_samples, max_range, max_jump and border_sigmas, off by default): descriptor_distance
 ["euclidean" | "chi2"],
 candidates [3], scale_ratio [2.0], orientation_tolerance [0.6 rad],
 inlier_factor [0.5, tau per unit scale], max_hypotheses [400], min_inliers [4,
@@ -145,6 +145,7 @@ class FlirtConfig:
     sample_step: float = 0.0
     max_samples: int = 4096
     max_range: float = 0.0
+    max_jump: float = 0.0
     border_sigmas: float = 2.0
     # Matching.
     descriptor_distance: str = "euclidean"

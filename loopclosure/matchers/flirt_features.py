@@ -101,7 +101,10 @@ max_samples)`` samples instead of ``n_samples`` whatever the perimeter, so that 
 step h, and with it every scale in length units, does not change with how much open
 space a viewpoint sees.  max_range [0: off; length units] drops the boundary's edges
 with an end at or beyond ``max_range`` from the sensor origin (no-return beams placed
-at the range cap, and the jump edges that lead to them): the curve is still smoothed
+at the range cap, and the jump edges that lead to them), and max_jump [0: off; length
+units] the edges whose ends' ranges differ by more than ``max_jump`` (depth jumps
+between a near and a far surface, where FLIRT splits a scan into segments): the
+curve is still smoothed
 whole (step 2), but no interest point is taken on a dropped edge's samples or within
 ``border_sigmas * sigma`` samples (arc length) of one, where the smoothing kernel
 reaches into them (FLIRT's detector works on the scan's connected segments and drops
@@ -153,7 +156,9 @@ class FlirtFeatureConfig:
         max_samples: most samples of a boundary sampled by `sample_step`.
         max_range: edges with an end at or beyond this distance from the sensor
             origin are dropped [length] (0: none dropped).
-        border_sigmas: with `max_range`, interest points closer than this many
+        max_jump: edges whose ends' ranges from the sensor origin differ by more
+            than this are dropped [length] (depth jumps; 0: none dropped).
+        border_sigmas: with `max_range` or `max_jump`, interest points closer than this many
             sigma (arc length) to a dropped edge's sample are not taken.
     """
 
@@ -177,6 +182,7 @@ class FlirtFeatureConfig:
     sample_step: float = 0.0
     max_samples: int = 4096
     max_range: float = 0.0
+    max_jump: float = 0.0
     border_sigmas: float = 2.0
 
     def __post_init__(self) -> None:
@@ -189,6 +195,8 @@ class FlirtFeatureConfig:
             raise UserError(f"sample_step must be >= 0 (0: off), got {self.sample_step}")
         if not (np.isfinite(self.max_range) and self.max_range >= 0):
             raise UserError(f"max_range must be >= 0 (0: off), got {self.max_range}")
+        if not (np.isfinite(self.max_jump) and self.max_jump >= 0):
+            raise UserError(f"max_jump must be >= 0 (0: off), got {self.max_jump}")
         if not (np.isfinite(self.border_sigmas) and self.border_sigmas >= 0):
             raise UserError(f"border_sigmas must be >= 0, got {self.border_sigmas}")
         if self.viewpoint not in ("auto", "origin", "centroid"):
@@ -397,13 +405,18 @@ def sample_count(polygon: Polygon, config: FlirtFeatureConfig, unit: float = 1.0
     return int(min(max(n, 16), config.max_samples))
 
 
-def kept_samples(polygon: Polygon, n: int, max_range: float) -> NDArray[np.bool_]:
+def kept_samples(polygon: Polygon, n: int, max_range: float, max_jump: float = 0.0
+                 ) -> NDArray[np.bool_]:
     """``(n,)`` True for the samples of ``polygon.resample(n)`` on a kept edge: one
-    whose two ends both lie closer than `max_range` to the sensor origin [polygon
-    units] (a sample on a vertex belongs to the edge that starts there)."""
+    whose two ends both lie closer than `max_range` to the sensor origin (0: no
+    limit) and, with `max_jump` > 0, whose ends' ranges differ by at most `max_jump`
+    [polygon units] (a sample on a vertex belongs to the edge that starts there)."""
     v = polygon.vertices
-    near = np.hypot(v[:, 0], v[:, 1]) < max_range
+    r = np.hypot(v[:, 0], v[:, 1])
+    near = r < max_range if max_range > 0 else np.ones(len(v), dtype=bool)
     kept_edge = near & np.roll(near, -1)
+    if max_jump > 0:
+        kept_edge &= np.abs(np.roll(r, -1) - r) <= max_jump
     cum = np.concatenate(([0.0], np.cumsum(polygon.edge_lengths())))
     s = np.arange(n, dtype=float) * (cum[-1] / n)
     edge = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(v) - 1)
@@ -427,7 +440,7 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     """Interest points and beta-grids of `polygon` (module docstring, steps 1-4)."""
     cfg = config
     unit = float(np.sqrt(polygon.area)) if cfg.scale_invariant else 1.0
-    if cfg.sample_step > 0 or cfg.max_range > 0:
+    if cfg.sample_step > 0 or cfg.max_range > 0 or cfg.max_jump > 0:
         return _describe_sampled(polygon, cfg, unit)
     curve = polygon.resample(cfg.n_samples) / unit
     step = polygon.perimeter / unit / cfg.n_samples
@@ -463,8 +476,8 @@ def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) ->
     delta = _responses(curve, step, sigmas, smooth, deriv)
     mag = np.abs(delta)
     peak = _local_maxima(mag) & (mag >= cfg.min_response)
-    if cfg.max_range > 0:
-        kept = kept_samples(polygon, n, cfg.max_range)
+    if cfg.max_range > 0 or cfg.max_jump > 0:
+        kept = kept_samples(polygon, n, cfg.max_range, cfg.max_jump)
         clear = border_distance(kept)[None, :] > cfg.border_sigmas * sigmas[:, None]
         peak &= clear & kept[None, :]
     else:
