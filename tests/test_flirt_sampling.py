@@ -55,6 +55,24 @@ def test_kept_samples_drop_the_edges_touching_a_far_vertex() -> None:
     assert kept_samples(poly, 12, 31.0).all()  # nothing reaches 31 m
 
 
+def test_kept_samples_drop_the_depth_jumps() -> None:
+    # Counter-clockwise from (2, -2): a radial jump edge out to the far wall x = 6, the
+    # far wall, a jump edge back, the near wall x = 2 (vertex ranges 2.83, 8.49, 8.49,
+    # 2.83).  Edge ranges differ by 5.66, 0, 5.66, 0: with max_jump 1 m edges 0 and 2
+    # go.  Edge lengths 5.66, 12, 5.66, 4 (ends at s = 5.66, 17.66, 23.31, 27.31 m); 8
+    # samples every 3.41 m: s = 0, 3.41 on edge 0; 6.83 .. 17.07 on edge 1; 20.49 on
+    # edge 2; 23.90 on edge 3.
+    v = np.array([[2.0, -2.0], [6.0, -6.0], [6.0, 6.0], [2.0, 2.0]])
+    poly = Polygon(v)
+    np.testing.assert_array_equal(poly.vertices, v)  # already counter-clockwise
+    np.testing.assert_array_equal(kept_samples(poly, 8, 0.0, 1.0),
+                                  [False, False, True, True, True, True, False, True])
+    # max_range 5 m also drops the far wall (edge 1): only edge 3 is kept.
+    np.testing.assert_array_equal(kept_samples(poly, 8, 5.0, 1.0),
+                                  [False, False, False, False, False, False, False, True])
+    assert kept_samples(poly, 8, 0.0, 6.0).all()
+
+
 def test_border_distance_is_circular_in_samples() -> None:
     kept = np.array([True, True, False, True, True, True, True, True])
     np.testing.assert_array_equal(border_distance(kept), [2, 1, 0, 1, 2, 3, 4, 3])
@@ -90,7 +108,7 @@ def test_no_interest_point_on_or_near_a_dropped_edge() -> None:
 
 def test_config_rejects_bad_sampling_values() -> None:
     for bad in ({"sample_step": -0.1}, {"max_range": float("nan")}, {"max_samples": 8},
-                {"border_sigmas": -1.0}):
+                {"border_sigmas": -1.0}, {"max_jump": -1.0}):
         with pytest.raises(UserError):
             FlirtFeatureConfig(**bad)
     matcher = FlirtMatcher(sample_step=0.2, max_range=29.0)
