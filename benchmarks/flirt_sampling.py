@@ -79,8 +79,10 @@ def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
 def repeatability(bench: Any, mapper: Any, radius: float = 0.5) -> tuple[float, float, float]:
     """Median share and count of a revisit query's own-view FLIRT keypoints repeated
     within `radius` [m] by its nearest true place (module docstring), and the median
-    keypoint count of a query."""
+    keypoint count of a query (NaN without FLIRT among the stages)."""
     db = mapper.detector.database
+    if "flirt" not in db.matchers:
+        return float("nan"), float("nan"), float("nan")
     ref = np.asarray(bench.reference, float)
     share, count, size = [], [], []
     for row, k in enumerate(bench.query_keys.tolist()):
