@@ -14,13 +14,8 @@ from data import se2
 from data.errors import UserError
 from data.raycast import LaserModel, trace
 from loopclosure.matchers.flirt import FlirtConfig, FlirtMatcher
-from loopclosure.matchers.flirt_features import (
-    FlirtFeatureConfig,
-    border_distance,
-    describe_polygon,
-    kept_samples,
-    sample_count,
-)
+from loopclosure.matchers.flirt_features import FlirtFeatureConfig, describe_polygon
+from loopclosure.matchers.flirt_sampling import border_distance, kept_samples, sample_count
 from loopclosure.polygon import Polygon, polygon_from_scan
 
 SQUARE = Polygon(np.array([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]))
@@ -29,13 +24,13 @@ SQUARE = Polygon(np.array([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]))
 def test_sample_count_is_the_perimeter_over_the_step_clipped() -> None:
     # Perimeter 16 m: 0.2 m -> 80 samples; 0.3 m -> round(53.3) = 53; a 1 m step
     # gives 16 (the floor); 1 mm would be 16000, clipped to max_samples.
-    assert sample_count(SQUARE, FlirtFeatureConfig()) == 256  # option off
-    assert sample_count(SQUARE, FlirtFeatureConfig(sample_step=0.2)) == 80
-    assert sample_count(SQUARE, FlirtFeatureConfig(sample_step=0.3)) == 53
-    assert sample_count(SQUARE, FlirtFeatureConfig(sample_step=1.0)) == 16
-    assert sample_count(SQUARE, FlirtFeatureConfig(sample_step=1e-3, max_samples=500)) == 500
-    # In units of sqrt(area) (scale invariant): perimeter 16 / 4 = 4, step 0.25 -> 16.
-    assert sample_count(SQUARE, FlirtFeatureConfig(sample_step=0.1), unit=4.0) == 40
+    assert sample_count(SQUARE, 0.0, 256, 4096) == 256  # option off
+    assert sample_count(SQUARE, 0.2, 256, 4096) == 80
+    assert sample_count(SQUARE, 0.3, 256, 4096) == 53
+    assert sample_count(SQUARE, 1.0, 256, 4096) == 16
+    assert sample_count(SQUARE, 1e-3, 256, 500) == 500
+    # In units of sqrt(area) (scale invariant): perimeter 16 / 4 = 4, step 0.1 -> 40.
+    assert sample_count(SQUARE, 0.1, 256, 4096, unit=4.0) == 40
     features = describe_polygon(SQUARE, FlirtFeatureConfig(sample_step=0.2))
     assert features.step == pytest.approx(0.2)
 

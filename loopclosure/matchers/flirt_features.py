@@ -120,6 +120,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from data.errors import UserError
+from loopclosure.matchers.flirt_sampling import border_distance, kept_samples, sample_count
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
@@ -395,47 +396,6 @@ def _detect(
     return idx[order], level[order], delta
 
 
-def sample_count(polygon: Polygon, config: FlirtFeatureConfig, unit: float = 1.0) -> int:
-    """Boundary samples N of `polygon`: `n_samples`, or with `sample_step` the
-    perimeter over the step (both in the polygon's units divided by `unit`), rounded
-    and clipped to ``16 .. max_samples`` (module docstring, contour sampling)."""
-    if config.sample_step <= 0:
-        return config.n_samples
-    n = round(polygon.perimeter / unit / config.sample_step)
-    return int(min(max(n, 16), config.max_samples))
-
-
-def kept_samples(polygon: Polygon, n: int, max_range: float, max_jump: float = 0.0
-                 ) -> NDArray[np.bool_]:
-    """``(n,)`` True for the samples of ``polygon.resample(n)`` on a kept edge: one
-    whose two ends both lie closer than `max_range` to the sensor origin (0: no
-    limit) and, with `max_jump` > 0, whose ends' ranges differ by at most `max_jump`
-    [polygon units] (a sample on a vertex belongs to the edge that starts there)."""
-    v = polygon.vertices
-    r = np.hypot(v[:, 0], v[:, 1])
-    near = r < max_range if max_range > 0 else np.ones(len(v), dtype=bool)
-    kept_edge = near & np.roll(near, -1)
-    if max_jump > 0:
-        kept_edge &= np.abs(np.roll(r, -1) - r) <= max_jump
-    cum = np.concatenate(([0.0], np.cumsum(polygon.edge_lengths())))
-    s = np.arange(n, dtype=float) * (cum[-1] / n)
-    edge = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(v) - 1)
-    return kept_edge[edge]
-
-
-def border_distance(kept: NDArray[np.bool_]) -> Array:
-    """``(N,)`` circular distance [samples] of every sample to the nearest sample that
-    is not kept (``inf`` when all are kept; 0 on a dropped sample)."""
-    n = len(kept)
-    out_idx = np.flatnonzero(~kept)
-    if not len(out_idx):
-        return np.full(n, np.inf)
-    ext = np.concatenate((out_idx - n, out_idx, out_idx + n))
-    i = np.arange(n)
-    pos = np.searchsorted(ext, i)
-    return np.minimum(ext[pos] - i, i - ext[pos - 1]).astype(float)
-
-
 def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatures:
     """Interest points and beta-grids of `polygon` (module docstring, steps 1-4)."""
     cfg = config
@@ -467,7 +427,7 @@ def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) ->
     """`describe_polygon` with the contour-sampling option (module docstring): N from
     `sample_count`, and with `max_range` the dropped edges' samples and their borders
     excluded from detection, fallback points and beams."""
-    n = sample_count(polygon, cfg, unit)
+    n = sample_count(polygon, cfg.sample_step, cfg.n_samples, cfg.max_samples, unit)
     curve = polygon.resample(n) / unit
     step = polygon.perimeter / unit / n
     sized = replace(cfg, n_samples=n)
