@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -111,3 +113,113 @@ def test_length_slack_finds_a_pair_across_a_bin_edge():
         index = PairVoteIndex(PairVoteConfig(normalise=False, n_labels=1, length_slack=slack))
         index.add(*stored)
         assert index.scores(*query).tolist() == [expected]
+
+
+def brute_force_scores(places, query, cfg):
+    """Every query pair against every stored directed pair, cells counted in a dict
+    (the module docstring's vote, written out pair by pair)."""
+    qk, qa, qphi = pair_keys(query[0], query[1], cfg, False, query[2])
+    na2 = cfg.n_angle ** 2 * cfg.n_labels ** 2
+    out = []
+    for place in places:
+        sk, sa, sphi = pair_keys(place[0], place[1], cfg, True, place[2])
+        cells = {}
+        for i in range(len(qk)):
+            for j in range(len(sk)):
+                if abs(int(qk[i]) - int(sk[j])) % na2 or abs(int(qk[i]) - int(sk[j])) > \
+                        cfg.length_slack * na2:
+                    continue
+                theta = np.mod(qphi[i] - sphi[j], 2 * np.pi)
+                c, s = np.cos(theta), np.sin(theta)
+                p = place[0][sa[j]]
+                t = query[0][qa[i]] - np.array([c * p[0] - s * p[1], s * p[0] + c * p[1]])
+                if np.hypot(*t) > cfg.max_translation:
+                    continue
+                half = cfg.n_translation // 2
+                cell = (int(theta // cfg.theta_step) % cfg.n_theta,
+                        min(max(int(np.floor(t[0] / cfg.translation_step)) + half, 0),
+                            cfg.n_translation - 1),
+                        min(max(int(np.floor(t[1] / cfg.translation_step)) + half, 0),
+                            cfg.n_translation - 1))
+                cells[cell] = cells.get(cell, 0) + 1
+        out.append(max(cells.values(), default=0))
+    return np.array(out, float)
+
+
+def random_places(n, seed=0):
+    """`n` noisy partial views of one random set of 14 keypoints (labels 0..1)."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(-5, 5, (14, 2))
+    normals = rng.uniform(0, 2 * np.pi, 14)
+    labels = rng.integers(0, 2, 14)
+    out = []
+    for _ in range(n):
+        keep = rng.random(14) < 0.8
+        p, o = moved(base[keep], normals[keep], rng.uniform(-np.pi, np.pi),
+                     rng.normal(0, 1.0, 2))
+        out.append((p + rng.normal(0, 0.04, p.shape), o + rng.normal(0, 0.05, len(o)),
+                    labels[keep]))
+    return out
+
+
+def test_incremental_index_votes_as_the_brute_force_while_it_grows():
+    cfg = PairVoteConfig(normalise=False, n_labels=2)
+    places = random_places(9, seed=1)
+    query = random_places(1, seed=2)[0]
+    index = PairVoteIndex(cfg)
+    for n, place in enumerate(places, 1):
+        index.add(*place)
+        # a query between insertions sees every place stored so far
+        assert index.scores(*query).tolist() == brute_force_scores(places[:n], query,
+                                                                   cfg).tolist()
+    # blocks of 8 and 1 places (a binary counter over the 9 insertions)
+    assert [b[0] for b in index._blocks] == [8, 1]
+    assert index.postings == sum(len(pair_keys(p[0], p[1], cfg, True, p[2])[0]) for p in places)
+
+
+def test_key_start_table_of_a_large_block_finds_the_same_postings():
+    from loopclosure.place_vote import TABLE_PLACES
+
+    cfg = PairVoteConfig(normalise=False, n_labels=2)
+    places = random_places(TABLE_PLACES, seed=3)
+    query = random_places(1, seed=4)[0]
+    index = PairVoteIndex(cfg)
+    for place in places:
+        index.add(*place)
+    assert index._blocks[0][0] == TABLE_PLACES and index._blocks[0][6] is not None
+    assert index.scores(*query).tolist() == brute_force_scores(places, query, cfg).tolist()
+
+
+def test_stop_list_skips_a_key_most_places_hold():
+    # a 2-point place stored 3 times and a 4-point place once: the 2-point pair's key
+    # has 3 postings (per direction) of 4 places
+    two = (np.array([[0.0, 0.0], [2.0, 0.0]]), np.array([1.0, 2.0]))
+    cfg = PairVoteConfig(normalise=False, n_labels=1)
+    for share, expected in ((0.0, [1.0, 1.0, 1.0, 0.0]), (0.5, [0.0, 0.0, 0.0, 0.0])):
+        index = PairVoteIndex(replace(cfg, stop_share=share))
+        for _ in range(3):
+            index.add(*two)
+        index.add(PLACE, NORMALS)
+        assert index.scores(*two).tolist() == expected
+    # the 4-point place's keys have 1 posting each: kept at share 0.5
+    index = PairVoteIndex(replace(cfg, stop_share=0.5))
+    for _ in range(3):
+        index.add(*two)
+    index.add(PLACE, NORMALS)
+    assert index.scores(PLACE, NORMALS).tolist() == [0.0, 0.0, 0.0, 6.0]
+    with pytest.raises(UserError):
+        PairVoteConfig(stop_share=-0.1)
+
+
+def test_vote_keypoints_of_a_room_are_near_the_sensor_and_labelled():
+    from loopclosure.place_vote import vote_keypoints
+    from loopclosure.polygon import Polygon
+
+    # an L-shaped room, 12 m x 8 m, sensor at the origin
+    room = np.array([[-2.0, -2.0], [10.0, -2.0], [10.0, 2.0], [3.0, 2.0], [3.0, 6.0],
+                     [-2.0, 6.0]])
+    p, o, lab = vote_keypoints(Polygon(room), step=0.2, max_range=15.0)
+    assert len(p) >= 4 and len(p) == len(o) == len(lab)
+    assert set(lab.tolist()) <= set(range(6))
+    near, _, _ = vote_keypoints(Polygon(room), step=0.2, max_range=5.0)
+    assert len(near) < len(p) and np.hypot(*near.T).max() <= 5.0
