@@ -110,6 +110,7 @@ from evaluation.loop_bench_queries import (
     QueryRecords,
     RecordingMapper,
     query_all,
+    vote_rows,
 )
 from evaluation.loop_bench_truth import (
     PRCurve,
@@ -564,7 +565,7 @@ def _evaluate(
                         pr_curve(final_score, final_ok, revisits),
                         1e3 * float(np.mean(secs)) if secs else float("nan"))
     recall_k = {}
-    for r in (*config.loops.database.prefilter, "prefilter"):
+    for r in (*config.loops.database.prefilter, "prefilter", *vote_rows(config.loops.database)):
         hits = np.asarray(raw.hits.get(r, []), bool).reshape(len(q), max(RECALL_KS))
         recall_k[r] = recall_at_k(hits, has, RECALL_KS)
     pre = np.asarray(raw.hits.get("prefilter", []), bool).reshape(len(q), max(RECALL_KS))

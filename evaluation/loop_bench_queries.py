@@ -24,7 +24,7 @@ from data.errors import UserError
 from evaluation.loop_bench_misses import nearest_place, submap_overlap
 from loopclosure.place_choice import merge_views
 from loopclosure.place_database import PlaceDatabase
-from loopclosure.place_shortlist import rank_interleave_with_distance
+from loopclosure.place_shortlist import rank_interleave_with_distance, vote_fused_order
 from slam.config import PipelineConfig
 from slam.pipeline import Mapper
 
@@ -37,6 +37,8 @@ RECALL_KS: tuple[int, ...] = (1, 10, 50)
 CHECK_FIGURES: tuple[str, ...] = ("fitness", "consistency", "matched_length", "margin",
                                   "degeneracy", "axis_length", "axis_hold", "pinned_length")
 ALONE = "-alone"
+VOTE_ROW = "prefilter+vote"
+"""Recall@K row of the pair vote (`PlaceDatabaseConfig.vote`)."""
 """Suffix of a row that runs one matcher over the whole database (``flirt-alone``)."""
 
 
@@ -200,7 +202,7 @@ def _one_query(
             out.put(r, *none)
         if not cascade:
             return
-        for r in (*cfg.prefilter, "prefilter"):
+        for r in (*cfg.prefilter, "prefilter", *vote_rows(cfg)):
             out.hits.setdefault(r, []).append(np.zeros(kmax, bool))
         out.candidate_hit.append(False)
         out.candidate_count.append(0)
@@ -270,6 +272,8 @@ def _cascade_rows(
         hit[: len(top)] = near[top]
         out.hits.setdefault(r, []).append(hit)
         out.time(r, t_pre)
+        if r == "prefilter" and cfg.vote == "fuse":
+            _vote_row(out, db, desc, sel, order, near, kmax)
     t = time.perf_counter()
     matches = db.query(desc, allowed=mask)
     if wide_desc is not None:
@@ -311,6 +315,25 @@ def _cascade_rows(
     out.figures.append(np.array([float(getattr(v, f)) if v is not None else np.nan
                                  for f in CHECK_FIGURES]))
     out.accepted_places.append(len(accepted))
+
+
+def vote_rows(cfg: Any) -> tuple[str, ...]:
+    """The recall@K row of the pair vote (`PlaceDatabaseConfig.vote`), if on."""
+    return (VOTE_ROW,) if cfg.vote == "fuse" else ()
+
+
+def _vote_row(out: QueryRecords, db: PlaceDatabase, desc: dict[str, Any],
+              sel: NDArray[np.intp], order: NDArray[np.intp], near: NDArray[np.bool_],
+              kmax: int) -> None:
+    """The recall@K hits of the ``prefilter+vote`` row: the prefilter row's order
+    with the vote's places among its first K as the database picks its candidates
+    (`loopclosure.place_shortlist.vote_fused_order`)."""
+    cfg = db.config
+    fused = vote_fused_order(order, db.vote_scores(desc, sel), cfg.vote_split, cfg.top_k)
+    top = fused[:kmax]
+    hit = np.zeros(kmax, bool)
+    hit[: len(top)] = near[top]
+    out.hits.setdefault(VOTE_ROW, []).append(hit)
 
 
 def interleaved_order(per_view: Sequence[Array]) -> tuple[NDArray[np.intp], Array]:

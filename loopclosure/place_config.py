@@ -26,6 +26,9 @@ FUSION_MODES = ("logistic", "rank", "verifier", "prefilter", "auto")
 VIEWPOINT_ORDERS = ("min", "interleave")
 """How a query's viewpoints rank the stored keyframes (`PlaceDatabaseConfig`)."""
 
+VOTE_MODES = ("off", "fuse")
+"""Whether the keypoint-pair vote picks candidates (`PlaceDatabaseConfig.vote`)."""
+
 # Default logistic model of the place database (stages "pairs" and "flirt"): fitted by
 # `loopclosure.fusion.fit_logistic` (ridge 1) on the 10 prefilter candidates of every
 # query (no pose prior; same place = within 2 m) of the simulated Box world (seed 0)
@@ -129,6 +132,20 @@ class PlaceDatabaseConfig:
             (`PlaceDatabase.prefilter_lists`), so the own descriptions' best places
             keep their ranks among the first and each side's viewpoints' best fill
             the places between them.
+        vote: ``"off"`` (default) or ``"fuse"``: a keypoint-pair vote
+            (`loopclosure.place_vote`) picks candidates too: the first ``vote_split``
+            of the prefilter's K are kept and the rest of the K are the vote's best
+            places not among them (then the prefilter's order, when the vote has too
+            few places with a vote).  Only a query with the vote's keypoints
+            (`PlaceDatabase.describe` makes them when on) against the database's own
+            descriptions (`PlaceDatabase.candidates`; not `query_stored`).
+        vote_split: prefilter candidates kept before the vote's (K or more: the vote
+            adds none).
+        vote_step: boundary sampling step of the vote's keypoints [m].
+        vote_range: farthest vote keypoint from the sensor [m].
+        vote_features: strongest interest points a place keeps for the vote.
+        vote_stop_share: stop-list of the vote: a key with more postings than this
+            share of the places stored is skipped (0: none).
     """
 
     prefilter: tuple[str, ...] = ("pairs",)
@@ -156,6 +173,12 @@ class PlaceDatabaseConfig:
     viewpoint_scores: bool = False
     stored_viewpoints: bool = True
     viewpoint_order: str = "min"
+    vote: str = "off"
+    vote_split: int = 5
+    vote_step: float = 0.2
+    vote_range: float = 15.0
+    vote_features: int = 80
+    vote_stop_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.viewpoint_order not in VIEWPOINT_ORDERS:
@@ -163,6 +186,15 @@ class PlaceDatabaseConfig:
                 f"place database: viewpoint_order must be one of "
                 f"{', '.join(VIEWPOINT_ORDERS)}, got {self.viewpoint_order!r}"
             )
+        if self.vote not in VOTE_MODES:
+            raise UserError(f"place database: vote must be one of {', '.join(VOTE_MODES)}, "
+                            f"got {self.vote!r}")
+        if self.vote_split < 0 or self.vote_features < 1:
+            raise UserError("place database: need vote_split >= 0 and vote_features >= 1")
+        if not all(np.isfinite(x) and x > 0 for x in (self.vote_step, self.vote_range)):
+            raise UserError("place database: vote_step and vote_range must be positive [m]")
+        if not (np.isfinite(self.vote_stop_share) and self.vote_stop_share >= 0):
+            raise UserError("place database: vote_stop_share must be >= 0 (0: no stop-list)")
         if not self.prefilter:
             raise UserError("place database: at least one prefilter stage is needed")
         for s in self.prefilter:
@@ -241,6 +273,7 @@ __all__ = [
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
     "VIEWPOINT_ORDERS",
+    "VOTE_MODES",
     "WIDE_LOGISTIC",
     "PlaceDatabaseConfig",
 ]

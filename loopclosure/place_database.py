@@ -46,6 +46,13 @@ and a query runs three steps:
    ``"auto"``: logistic unless ``scale_invariant`` (then rank; `resolved_fusion`).
    Candidates are returned by decreasing score (ties: prefilter order).
 
+Keypoint-pair vote (``vote="fuse"``, default off): every keyframe is also described
+by FLIRT keypoints (`loopclosure.place_vote.vote_keypoints`, descriptor ``vote``) and
+stored in an incremental inverted index of keypoint pairs (`PairVoteIndex`); a query's
+K candidates are then the prefilter's first ``vote_split`` and the vote's best other
+places up to K (the grids' extras kept after them), so a revisit that shares only
+part of its view with a stored keyframe can still be a candidate.
+
 Heading hypotheses: for every candidate, headings of the query in the candidate's
 frame, the starting rotations of the geometric check, best first: the peaks of the
 correlation of the two places' polar occupancy grids (``grid_headings``), then those
@@ -102,9 +109,12 @@ from loopclosure.place_views import (
     viewpoint_sets,
     with_viewpoints,
 )
+from loopclosure.place_vote import PairVoteConfig, PairVoteIndex, vote_keypoints
 from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
+VOTE = "vote"
+"""Descriptor key of the vote's keypoints ``(points, orientations, labels)``."""
 
 
 class PlaceDatabase:
@@ -165,6 +175,8 @@ class PlaceDatabase:
         if cfg.fixed_scales:
             self._scales = np.asarray(cfg.fixed_scales, float)
         self._fusion = StageFusion(cfg)
+        self._vote = (PairVoteIndex(PairVoteConfig(stop_share=cfg.vote_stop_share))
+                      if cfg.vote == "fuse" else None)
 
     # -- contents ---------------------------------------------------------------------
 
@@ -192,6 +204,10 @@ class PlaceDatabase:
             out[HEADING] = self._heading_matcher.describe(polygon)
         if self._grid_on:
             out[GRID] = polar_grid(polygon, self.config)
+        if self._vote is not None:
+            cfg = self.config
+            out[VOTE] = vote_keypoints(polygon, cfg.vote_step, cfg.vote_range,
+                                       cfg.vote_features)
         return out
 
     def descriptors(self, key: Hashable) -> Descriptors:
@@ -254,6 +270,10 @@ class PlaceDatabase:
                 kept[GRID] = descriptors[GRID]
             assert self._dilated is not None
             self._dilated.append(descriptors.get(GRID))
+        if self._vote is not None:  # a keyframe without keypoints gets no votes
+            none = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64))
+            kept[VOTE] = descriptors.get(VOTE, none)
+            self._vote.add(*kept[VOTE])
         self._descriptors.append(kept)
         self._keys.add(key)
         self._stamps.append(stamp)
@@ -461,11 +481,51 @@ class PlaceDatabase:
         k = self.config.top_k if top_k is None else int(top_k)
         if k < 1:
             raise UserError(f"top_k must be >= 1, got {k}")
-        short = self._shortlist(q, self._selection(allowed, exclude_keys), k, keep_prefilter)
+        mask = self._selection(allowed, exclude_keys)
+        short = self._shortlist(q, mask, k, keep_prefilter)
         keep = short.chosen(k, self.config)
         pick, pre = short.rows[keep], short.prefilter[keep]
-        dist = self._stage_distances(q, pick, {s: d[keep] for s, d in short.raw.items()})
+        raw = {s: d[keep] for s, d in short.raw.items()}
+        if self._vote is not None and q.get(VOTE) is not None:
+            pick, pre, raw = self._with_votes(q, mask, min(k, len(pick)), pick, pre, raw)
+        dist = self._stage_distances(q, pick, raw)
         return CandidateSet(pick, pre, dist, self._fuse(dist, pre), short.prefilter_all)
+
+    def vote_scores(self, query: Polygon | Descriptors,
+                    rows: NDArray[np.intp] | None = None) -> Array:
+        """The pair vote's score of `rows` (default: all) for a query (0: no vote; the
+        database needs ``vote="fuse"``; `loopclosure.place_vote`)."""
+        if self._vote is None:
+            raise UserError("place database: vote_scores needs vote='fuse'")
+        q = self._query_descriptors(query)
+        scores = self._vote.scores(*q[VOTE])
+        return scores if rows is None else scores[rows]
+
+    def _with_votes(self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int,
+                    pick: NDArray[np.intp], pre: Array, raw: dict[str, Array]
+                    ) -> tuple[NDArray[np.intp], Array, dict[str, Array]]:
+        """The candidates with the vote's (module docstring): the first ``vote_split``
+        of the prefilter's K, the vote's best allowed rows not among the candidates
+        (decreasing score, ties by row) up to K, then the prefilter's next ones, and
+        the grids' extras (positions K and on) last."""
+        split = min(self.config.vote_split, k)
+        if split >= k:
+            return pick, pre, raw
+        scores = self._vote.scores(*q[VOTE])
+        if mask is not None:
+            scores[~mask] = 0.0
+        scores[pick[:split]] = 0.0
+        scores[pick[k:]] = 0.0
+        voted = np.flatnonzero(scores > 0)
+        voted = voted[np.lexsort((voted, -scores[voted]))][: k - split]
+        rest = np.flatnonzero(~np.isin(pick[split:k], voted)) + split
+        take = np.concatenate([np.arange(split), rest[: k - split - len(voted)]]).astype(np.intp)
+        extra = np.arange(k, len(pick))
+        new_pre, new_raw = self._exact_prefilter(q, voted.astype(np.intp), scored=True)
+        rows = np.concatenate([pick[take], voted, pick[extra]]).astype(np.intp)
+        pre = np.concatenate([pre[take], new_pre, pre[extra]])
+        raw = {s: np.concatenate([d[take], new_raw[s], d[extra]]) for s, d in raw.items()}
+        return rows, pre, raw
 
     def _shortlist(
         self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int, keep_prefilter: bool

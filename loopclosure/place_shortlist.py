@@ -55,6 +55,29 @@ def rank_interleave_with_distance(
     return np.lexsort((np.arange(d.shape[1]), distance, best)), distance
 
 
+def vote_fused_order(order: NDArray[np.intp], votes: Array, split: int, k: int
+                     ) -> NDArray[np.intp]:
+    """Positions ordered as a query with the pair vote picks its K candidates
+    (`PlaceDatabaseConfig.vote`): the first `split` of the prefilter's `order`, then
+    the positions with the highest vote (> 0; ties by position) not among them, up to
+    `k`, then the rest of `order`.
+
+    Args:
+        order: ``(M,)`` the prefilter's order of the positions (a permutation).
+        votes: ``(M,)`` vote score of every position (0: no vote).
+        split: positions of `order` kept first; k: candidates in all.
+    """
+    order = np.asarray(order, np.intp)
+    votes = np.asarray(votes, float)
+    head = order[: min(split, k)]
+    free = votes > 0
+    free[head] = False
+    voted = np.flatnonzero(free)
+    voted = voted[np.lexsort((voted, -votes[voted]))][: max(k - len(head), 0)]
+    first = np.concatenate([head, voted]).astype(np.intp)
+    return np.concatenate([first, order[~np.isin(order, first)]]).astype(np.intp)
+
+
 def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
     """Boolean mask ``(m,)`` over insertion order holding `rows`."""
     mask = np.zeros(m, bool)
@@ -98,4 +121,4 @@ class Shortlist:
                           similarity, None)
 
 
-__all__ = ["Shortlist", "rank_interleave", "rows_mask"]
+__all__ = ["Shortlist", "rank_interleave", "rows_mask", "vote_fused_order"]

@@ -364,3 +364,18 @@ def test_prefilter_row_interleaves_the_viewpoint_lists(
     assert asked and max(asked) == 2
     r = bench.recall_at_k["prefilter"]
     assert 0.0 <= r[1] <= r[10] <= r[50] <= 1.0
+
+
+def test_the_vote_row_keeps_the_prefilter_s_first_places(sim: SimulatedRun) -> None:
+    """With ``loops.database.vote=fuse`` a ``prefilter+vote`` recall row is reported;
+    its first ``vote_split`` places are the prefilter row's, so recall@1 is the same."""
+    from slam.config_io import apply_overrides
+
+    config = apply_overrides(PipelineConfig(), ["loops.database.vote=fuse"])
+    bench = lb.run_loop_bench("sim", sim.scans[:200], config, _truth(sim), max_queries=8)
+    r, pre = bench.recall_at_k["prefilter+vote"], bench.recall_at_k["prefilter"]
+    assert r[1] == pre[1] and 0.0 <= r[1] <= r[10] <= r[50] <= 1.0
+    off = lb.run_loop_bench("sim", sim.scans[:200], PipelineConfig(), _truth(sim),
+                            max_queries=8)
+    assert "prefilter+vote" not in off.recall_at_k
+    assert off.recall_at_k["prefilter"] == pre

@@ -389,3 +389,54 @@ def test_a_stored_key_asked_again_queries_only_the_new_keys(
     db.query_stored(26, allowed=np.arange(20))
     db.query_stored(26, allowed=np.arange(1, 20))
     assert asked[-2:] == [20, 19]
+
+
+def test_vote_fused_order_by_hand() -> None:
+    from loopclosure.place_shortlist import vote_fused_order
+
+    order = np.array([3, 1, 0, 2, 4])
+    votes = np.array([0.0, 5.0, 2.0, 9.0, 2.0])
+    # head 3, 1; then the voted others by score, ties by position: 2, 4; then 0
+    assert vote_fused_order(order, votes, 2, 4).tolist() == [3, 1, 2, 4, 0]
+    assert vote_fused_order(order, votes, 2, 3).tolist() == [3, 1, 2, 0, 4]
+    assert vote_fused_order(order, votes, 5, 5).tolist() == order.tolist()
+    assert vote_fused_order(order, np.zeros(5), 1, 4).tolist() == order.tolist()
+
+
+def moved_polygon(polygon: Polygon, theta: float, t: tuple[float, float]) -> Polygon:
+    c, s = np.cos(theta), np.sin(theta)
+    return Polygon(np.asarray(polygon.vertices) @ np.array([[c, s], [-s, c]]) + np.asarray(t))
+
+
+def test_the_vote_brings_a_moved_copy_into_the_candidates(polygons: list[Polygon]) -> None:
+    query = polygons[0]
+    stored = [*polygons[1:13], moved_polygon(query, 0.4, (0.6, -0.3)), *polygons[13:20]]
+    off = quick_db()
+    on = quick_db(vote="fuse", vote_split=0)
+    for i, p in enumerate(stored):
+        off.add(i, p)
+        on.add(i, p)
+    assert "vote" not in off.describe(query) and "vote" in on.describe(query)
+    votes = on.vote_scores(query)
+    assert int(np.argmax(votes)) == 12 and votes[12] > 2 * np.sort(votes)[-2]
+    c_on = on.candidates(query)
+    assert int(c_on.indices[0]) == 12  # vote_split 0: the vote's best comes first
+    assert len(c_on.indices) == 5 and len(set(c_on.indices.tolist())) == 5
+    # prefilter distances of the vote's rows are the exact ones of those rows
+    p_all, _ = on.prefilter_distances(query)
+    assert np.allclose(c_on.prefilter, p_all[c_on.indices])
+    # all K from the prefilter: the candidates of the database without the vote
+    all_pre = quick_db(vote="fuse", vote_split=5)
+    for i, p in enumerate(stored):
+        all_pre.add(i, p)
+    c_off, c_all = off.candidates(query), all_pre.candidates(query)
+    assert c_all.indices.tolist() == c_off.indices.tolist()
+    assert np.array_equal(c_all.scores, c_off.scores)
+    # a gated-out row never enters through the vote
+    mask = np.ones(len(stored), bool)
+    mask[12] = False
+    assert 12 not in on.candidates(query, allowed=mask).indices.tolist()
+    with pytest.raises(UserError):
+        off.vote_scores(query)
+    with pytest.raises(UserError):
+        PlaceDatabaseConfig(vote="on")
