@@ -56,6 +56,9 @@ from loopclosure.polygon import Polygon
 
 Array = NDArray[np.float64]
 TWO_PI = 2.0 * np.pi
+CHUNK_PLACES = 128
+"""Places counted together by the vote (`place_vote_kernel.fullest_cells`): their
+counter, ``CHUNK_PLACES`` x cells per place x 4 bytes, stays in cache."""
 TABLE_PLACES = 64
 """A block of at least this many places keeps a table of where each key starts
 (``n_keys + 1`` offsets) instead of being binary-searched per query."""
@@ -188,8 +191,7 @@ class PairVoteIndex:
     costs O(log M) merges of its postings amortised and a query looks each key up in
     O(log M) blocks (a block of ``TABLE_PLACES`` or more by a table of key starts).
     Per posting: key, place row, ``R(-phi) p`` of its first keypoint [m] and its
-    direction phi [rad] (`place_vote_kernel`).  The vote's
-    counter (one 16-bit count per place and (theta, t) cell) is kept between queries.
+    direction phi [rad] (`place_vote_kernel`).
 
     Stop-list (``stop_share`` > 0): a query skips a key whose postings number more
     than ``stop_share`` times the places stored (a key so common it says little
@@ -200,7 +202,6 @@ class PairVoteIndex:
         # (places, keys, rows, u, v, phi, key starts or None), key-sorted
         self._blocks: list[tuple] = []
         self._pairs: list[int] = []
-        self._counter = np.zeros(0, np.uint16)
 
     def __len__(self) -> int:
         return len(self._pairs)
@@ -254,7 +255,7 @@ class PairVoteIndex:
     def scores(self, points: Array, orientations: Array,
                labels: NDArray[np.integer] | None = None) -> Array:
         """``(len(self),)`` vote score of every stored place for the query keypoints."""
-        from loopclosure.place_vote_kernel import reset_cells, vote_block
+        from loopclosure.place_vote_kernel import fullest_cells, vote_block
 
         cfg = self.config
         out = np.zeros(len(self))
@@ -281,19 +282,18 @@ class PairVoteIndex:
         cos, sin = np.cos(ph), np.sin(ph)
         nt, n_theta = cfg.n_translation, cfg.n_theta
         n_cells = n_theta * nt * nt
-        if len(self._counter) < len(self) * n_cells:
-            grown = np.zeros(2 * len(self) * n_cells, np.uint16)
-            self._counter = grown
-        best = np.zeros(len(self), np.int64)
-        touched = np.empty(total, np.int64)
+        if len(self) * n_cells >= 2 ** 31:
+            raise UserError("pair vote: too many places for 32-bit vote codes")
+        codes = np.empty(total, np.int32)
         n = 0
         max_t2 = float(cfg.max_translation) ** 2
+        qx, qy = p[:, 0].copy(), p[:, 1].copy()
         for (lo, hi), b in zip(ranges, self._blocks, strict=True):
-            n = vote_block(lo, hi, ph, cos, sin, p[:, 0].copy(), p[:, 1].copy(), b[2],
-                           b[3], b[4], b[5], max_t2, float(cfg.theta_step), n_theta,
-                           float(cfg.translation_step), nt, self._counter, best,
-                           touched, n)
-        reset_cells(self._counter, touched, n)
+            n = vote_block(lo, hi, ph, cos, sin, qx, qy, b[2], b[3], b[4], b[5], max_t2,
+                           float(cfg.theta_step), n_theta, float(cfg.translation_step),
+                           nt, codes, n)
+        best = np.zeros(len(self), np.int64)
+        fullest_cells(codes, n, len(self), n_cells, CHUNK_PLACES, best)
         out[:] = best
         if cfg.normalise:
             out /= np.sqrt(np.maximum(np.asarray(self._pairs, float), 1.0))

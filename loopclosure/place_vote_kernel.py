@@ -10,8 +10,10 @@ stored pair s in it, the rigid transform of the stored place's frame into the qu
 with ``(u_s, v_s) = R(-phi_s) p_s`` stored (so ``R(theta) p_s = R(phi_q) R(-phi_s) p_s``
 costs no trigonometry per posting).  A transform with ``|t| <= max_translation``
 votes for the cell ``(floor(theta / theta_step), floor(t / translation_step))`` of
-its place; the place's score is its fullest cell's count.  The counter is shared
-between queries and left zero: the cells a query touched are recorded and reset.
+its place; the place's score is its fullest cell's count.  The votes are written as
+one integer code per vote (`vote_block`) and counted by blocks of places
+(`fullest_cells`): a dense counter over every place and cell would be touched at
+random, one cache miss per vote.
 
 numba is imported with this module (the index imports it on first use).
 """
@@ -26,8 +28,8 @@ TWO_PI = 2.0 * np.pi
 
 @numba.njit(cache=True, nogil=True)
 def vote_block(lo, hi, qphi, qcos, qsin, qx, qy, srows, su, sv, sphi, max_t2,
-               theta_step, n_theta, t_step, nt, counter, best, touched, n_touched):
-    """Add one block's votes to `counter` ``(rows * n_cells,)`` and `best` ``(rows,)``.
+               theta_step, n_theta, t_step, nt, codes, n):
+    """Append one block's votes to `codes` as ``row * n_cells + cell``.
 
     Args:
         lo, hi: ``(L,)`` posting range in the block of each looked-up query pair.
@@ -37,11 +39,10 @@ def vote_block(lo, hi, qphi, qcos, qsin, qx, qy, srows, su, sv, sphi, max_t2,
             direction phi_s [rad].
         max_t2: squared largest translation [m^2]; theta_step [rad], t_step [m];
             n_theta, nt: cells per angle and per translation axis.
-        counter, best: votes per (row, cell) and each row's fullest cell (updated).
-        touched, n_touched: indices of the non-zero counter cells and their number.
+        codes, n: the votes so far and their number.
 
     Returns:
-        The new number of touched cells.
+        The new number of votes.
     """
     half = nt // 2
     n_cells = n_theta * nt * nt
@@ -58,27 +59,46 @@ def vote_block(lo, hi, qphi, qcos, qsin, qx, qy, srows, su, sv, sphi, max_t2,
             theta = pq - sphi[j]
             theta = theta - TWO_PI * np.floor(theta / TWO_PI)
             tb = int(np.floor(theta / theta_step)) % n_theta
-            xb = int(np.floor(tx / t_step)) + half
-            yb = int(np.floor(ty / t_step)) + half
-            xb = min(max(xb, 0), nt - 1)
-            yb = min(max(yb, 0), nt - 1)
-            row = srows[j]
-            cell = row * n_cells + (tb * nt + xb) * nt + yb
-            v = counter[cell] + 1
-            counter[cell] = v
-            if v == 1:
-                touched[n_touched] = cell
-                n_touched += 1
-            if v > best[row]:
-                best[row] = v
-    return n_touched
+            xb = min(max(int(np.floor(tx / t_step)) + half, 0), nt - 1)
+            yb = min(max(int(np.floor(ty / t_step)) + half, 0), nt - 1)
+            codes[n] = srows[j] * n_cells + (tb * nt + xb) * nt + yb
+            n += 1
+    return n
 
 
 @numba.njit(cache=True, nogil=True)
-def reset_cells(counter, touched, n_touched):
-    """Zero the counter cells a query touched."""
-    for i in range(n_touched):
-        counter[touched[i]] = 0
+def fullest_cells(codes, n, n_rows, n_cells, chunk_rows, best):
+    """``best[row]`` = the largest count of one code among ``codes[:n]`` of that row.
+
+    The codes are first partitioned by blocks of `chunk_rows` rows (one counting
+    pass and one scatter), then counted block by block in a dense counter of
+    ``chunk_rows * n_cells`` cells small enough to stay in cache, and the counter is
+    zeroed behind each block: O(n + rows) and no memory kept between queries."""
+    span = chunk_rows * n_cells
+    n_chunks = (n_rows + chunk_rows - 1) // chunk_rows
+    starts = np.zeros(n_chunks + 1, np.int64)
+    for i in range(n):
+        starts[codes[i] // span + 1] += 1
+    for c in range(n_chunks):
+        starts[c + 1] += starts[c]
+    at = starts[:-1].copy()
+    part = np.empty(n, codes.dtype)
+    for i in range(n):
+        c = codes[i] // span
+        part[at[c]] = codes[i]
+        at[c] += 1
+    counter = np.zeros(span, np.int32)
+    for c in range(n_chunks):
+        base = c * span
+        for i in range(starts[c], starts[c + 1]):
+            local = part[i] - base
+            v = counter[local] + 1
+            counter[local] = v
+            row = part[i] // n_cells
+            if v > best[row]:
+                best[row] = v
+        for i in range(starts[c], starts[c + 1]):
+            counter[part[i] - base] = 0
 
 
 @numba.njit(cache=True, nogil=True)
