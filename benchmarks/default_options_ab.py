@@ -21,7 +21,8 @@ calls it (``gnc``, incremental, from the odometry chain), each one of ``default`
 (the defaults), ``confirm-off``, ``stall-on``, ``stall-off``, ``confirm-off-stall-on``,
 ``stiff-on`` (the
 defaults with ``slam.least_squares.STIFF_CHOLESKY`` on: dogleg by Cholesky, stiff factors'
-poses first).  One line each:
+poses first), ``screen`` (the check of admissions with its linearised leave-one-out
+screen, ``confirm="screen"``).  One line each:
 ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
 the outlier-free graph), true loops rejected, TLS objective's gap to the clean optimum,
 wall and CPU seconds, solver; then, for each later run, whether it obeys the same loops
@@ -55,6 +56,7 @@ RUNS = {
     "stall-off": {"stall": False},
     "confirm-off-stall-on": {"confirm": False, "stall": True},
     "stiff-on": {},  # the defaults with slam.least_squares.STIFF_CHOLESKY = True
+    "screen": {"confirm": "screen"},
 }
 
 

@@ -5,14 +5,17 @@ Run from the repository root::
 
     python benchmarks/robust_confirm_count.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--cache DIR] [--cap 600] [--rounds]
+        [--confirm exact|screen]
 
 Runs `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with the
 check counted: the rounds it judged (the innovation gate admitted loops), how many loops
-each admitted, how many leave-one-out minima it computed (`AdmissionPass._minimum`, from
-a copy of the iSAM2 prefix or by a batch solve of the whole accepted prefix), how many
+each admitted, how many leave-one-out minima it computed (`AdmissionPass._solved_without`,
+from a copy of the iSAM2 prefix or by a batch solve of the whole accepted prefix), how many
 loops it turned back, and its CPU seconds.  ``--cap``: stop after that many CPU seconds
 of the process (ITIMER_PROF) and print the counts so far; ``--rounds``: one line per
-round that admitted several loops.  When the run finishes the cell's outcome follows
+round that admitted several loops; ``--confirm screen``: the check with the linearised
+leave-one-out screen (``optimize(confirm="screen")``), whose screenings are counted too.
+When the run finishes the cell's outcome follows
 (ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
 the outlier-free graph), true loops rejected, TLS gap to the clean optimum).
 """
@@ -41,6 +44,7 @@ class ConfirmCount:
     rounds: int = 0
     turned_back: int = 0
     minima: int = 0
+    screens: int = 0
     from_isam: int = 0
     cpu: float = 0.0
     sizes: Counter = field(default_factory=Counter)
@@ -48,9 +52,10 @@ class ConfirmCount:
 
 
 def counted(count: ConfirmCount):  # type: ignore[no-untyped-def]
-    """Replacements of `AdmissionPass._unconfirmed` and `_minimum` that add to `count`
-    and call the originals (`restore` puts them back)."""
-    unconfirmed, minimum = AdmissionPass._unconfirmed, AdmissionPass._minimum
+    """Replacements of `AdmissionPass._unconfirmed`, `_solved_without` and `_screened`
+    that add to `count` and call the originals (`restore` puts them back)."""
+    unconfirmed, minimum = AdmissionPass._unconfirmed, AdmissionPass._solved_without
+    screened = AdmissionPass._screened
 
     def _unconfirmed(self, fixed, pending, accepted, admitted, current, before, start):  # type: ignore[no-untyped-def]
         began, minima = time.process_time(), count.minima
@@ -70,19 +75,26 @@ def counted(count: ConfirmCount):  # type: ignore[no-untyped-def]
         count.from_isam += self._isam is not None
         return minimum(self, without, current, start, removed)
 
-    return _unconfirmed, _minimum
+    def _screened(self, kept, current, loops):  # type: ignore[no-untyped-def]
+        count.screens += 1
+        return screened(self, kept, current, loops)
+
+    return _unconfirmed, _minimum, _screened
 
 
 def install(count: ConfirmCount) -> tuple:
     """Count the check's work into `count`; returns the originals for `restore`."""
-    originals = (AdmissionPass._unconfirmed, AdmissionPass._minimum)
-    AdmissionPass._unconfirmed, AdmissionPass._minimum = counted(count)
+    originals = (AdmissionPass._unconfirmed, AdmissionPass._solved_without,
+                 AdmissionPass._screened)
+    (AdmissionPass._unconfirmed, AdmissionPass._solved_without,
+     AdmissionPass._screened) = counted(count)
     return originals
 
 
 def restore(originals: tuple) -> None:
     """Undo `install`."""
-    AdmissionPass._unconfirmed, AdmissionPass._minimum = originals
+    (AdmissionPass._unconfirmed, AdmissionPass._solved_without,
+     AdmissionPass._screened) = originals
 
 
 class _Capped(Exception):
@@ -97,9 +109,11 @@ def main() -> None:
     parser = cell_parser(__doc__.split("\n")[0])
     parser.add_argument("--cap", type=float, default=0.0)
     parser.add_argument("--rounds", action="store_true")
+    parser.add_argument("--confirm", default="exact", choices=("exact", "screen"))
     args = parser.parse_args()
     graph, reference, corrupted, is_false = read_cell(args)
-    name = f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed}"
+    name = (f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed} "
+            f"confirm {args.confirm}")
     count = ConfirmCount(verbose=args.rounds)
     install(count)
     if args.cap > 0:
@@ -107,7 +121,8 @@ def main() -> None:
         signal.setitimer(signal.ITIMER_PROF, args.cap)
     began = time.process_time()
     try:
-        result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental")
+        result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
+                          confirm=True if args.confirm == "exact" else args.confirm)
         signal.setitimer(signal.ITIMER_PROF, 0)
         out = cell_outcome(graph, reference, corrupted, is_false, result.poses)
         status = (f"finished in {time.process_time() - began:.1f} s CPU: ATE {out.ate:.3g} m, "
@@ -116,7 +131,8 @@ def main() -> None:
     except _Capped:
         status = f"capped at {time.process_time() - began:.1f} s CPU"
     print(f"{name}: {status}; the check: {count.rounds} rounds, {count.minima} minima "
-          f"({count.from_isam} from iSAM2 copies), {count.turned_back} turned back, "
+          f"({count.from_isam} from iSAM2 copies), {count.screens} screens, "
+          f"{count.turned_back} turned back, "
           f"{count.cpu:.1f} s CPU; rounds by loops admitted {sorted(count.sizes.items())}")
 
 

@@ -42,6 +42,7 @@ from slam.innovation import (
     InnovationTest,
     admission_costs,
     greedy_admission,
+    removal_costs,
     tls_threshold,
 )
 from slam.isam_prefix import IsamPrefix, isam_or_batch
@@ -59,6 +60,10 @@ GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
+CONFIRM_MODES = ("exact", "screen")  # `AdmissionPass`'s confirm (True is "exact")
+# The screen (`confirm="screen"`) clears an admitted loop without its leave-one-out solve
+# when its linearised leave-one-out cost is at most this fraction of ``c``.
+SCREEN_FRACTION = 0.5
 
 
 @dataclass(slots=True)
@@ -257,7 +262,7 @@ class AdmissionPass:
         solver: StickySolver | None = None, barred: Sequence[int] = (),
         prefix_solver: str = "auto", unit: list[gtsam.NonlinearFactor] | None = None,
         record: bool = False, defer: bool = False, wait: int | None = None,
-        undo: bool = False, confirm: bool = False,
+        undo: bool = False, confirm: bool | str = False,
     ) -> None:
         if prefix_solver not in PREFIX_SOLVERS:
             raise UserError(f"unknown prefix solver {prefix_solver!r}; use "
@@ -266,6 +271,9 @@ class AdmissionPass:
             raise UserError(f"unknown gate {gate!r}; use {', '.join(GATES)}")
         if undo and defer:
             raise UserError("the undo hypotheses and the deferral do not combine")
+        if not isinstance(confirm, bool) and confirm not in CONFIRM_MODES:
+            raise UserError(f"unknown confirm mode {confirm!r}; use True, False or "
+                            f"{', '.join(CONFIRM_MODES)}")
         self.prefix_solver = "isam2" if prefix_solver == "auto" else prefix_solver
         self._isam = IsamPrefix() if self.prefix_solver == "isam2" else None
         self._solve = solver or StickySolver()
@@ -290,7 +298,8 @@ class AdmissionPass:
         self._fixed = gtsam.NonlinearFactorGraph()
         self._base = gtsam.NonlinearFactorGraph()  # `_fixed` without its loops
         self.undo = undo
-        self.confirm = confirm  # step-2 admissions re-checked by their nonlinear cost
+        self.confirm = bool(confirm)  # step-2 admissions re-checked by their nonlinear cost
+        self.screen = confirm == "screen"  # ... after the linearised screen (`_unconfirmed`)
         self.refused = 0  # step-2 admissions the nonlinear check turned back
         self._held = False  # the last admission stopped the iSAM2 prefix converging
         self._block = block
@@ -536,9 +545,25 @@ class AdmissionPass:
         none is turned back, and a lone admitted loop's cost is exactly that.  Only
         rounds that admitted several loops at a joint cost above ``c`` re-solve the
         prefix without each (`_minimum`).
+
+        With `screen` (not exact): those rounds first factorise the accepted prefix
+        once at `current` and take every admitted loop's linearised leave-one-out cost
+        ``rho_q = 0.5 b_q^T (I - M_q)^-1 b_q`` (`slam.innovation.removal_costs`), the
+        Gauss-Newton approximation at the joint solution of the cost defined above; a
+        loop with ``rho_q <= SCREEN_FRACTION c`` is cleared with ``rho_q`` as its cost,
+        and only the others get the re-solve.  The screen is exact on a linear problem
+        and errs only by the curvature of the cost between the joint solution and the
+        solution without the loop: a loop that bends a long stretch of loose odometry
+        through a large rotation can cost more than ``rho_q``, and a loop cleared
+        whose actual cost is above ``c`` stays admitted where the exact check would
+        turn it back.  The margin absorbs an actual cost up to ``1 / SCREEN_FRACTION``
+        times ``rho_q``; nothing bounds the ratio beyond that.  When a loop is turned back
+        the prefix without it is the solution its re-solve already found (not solved
+        again), and the loops left are screened again at it.
         """
         unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
         out: list[int] = []
+        solutions: dict[int, gtsam.Values] = {}
         while left:
             kept = _with(fixed, unit, pending[accepted])
             total = kept.error(current)
@@ -546,14 +571,23 @@ class AdmissionPass:
                 break
             costs = [total - before]
             if len(left) > 1:
-                costs = []
-                for q in left:
+                rho = self._screened(kept, current, pending[left]) if self.screen else None
+                costs, solutions = [], {}
+                for n, q in enumerate(left):
+                    if rho is not None and rho[n] <= SCREEN_FRACTION * self._c:
+                        costs.append(float(rho[n]))
+                        continue
                     others = accepted.copy()
                     others[q] = False
                     without = _with(fixed, unit, pending[others])
                     try:
-                        costs.append(total - self._minimum(without, current, start,
-                                                           pending[[*out, q]]))
+                        if self.screen:
+                            error, solutions[q] = self._solved_without(
+                                without, current, start, pending[[*out, q]])
+                            costs.append(total - error)
+                        else:
+                            costs.append(total - self._minimum(without, current, start,
+                                                               pending[[*out, q]]))
                     except RuntimeError:  # a failed solve: the admission stands
                         costs.append(-np.inf)
             worst = int(np.argmax(costs))
@@ -562,9 +596,25 @@ class AdmissionPass:
             q = left.pop(worst)
             out.append(q)
             accepted[q] = False
-            if left:
+            if left and q in solutions:
+                current = solutions[q]
+            elif left:
                 current = self._solve(_with(fixed, unit, pending[accepted]), current)
         return np.array(out, dtype=np.int64)
+
+    def _screened(
+        self, kept: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        loops: NDArray[np.int64],
+    ) -> Array | None:
+        """Linearised leave-one-out cost (`slam.innovation.removal_costs`, gtsam error
+        units) of each of `loops` (indices into `graph.loops`, all in `kept`) at
+        `current`, the solution of `kept`; None when its information is singular."""
+        try:
+            test = InnovationTest(kept, current, list(current.keys()), self._d)
+            b, gram = test.blocks([self.unit[k] for k in loops])
+        except RuntimeError:
+            return None
+        return removal_costs(b, gram)
 
     def _minimum(
         self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
@@ -577,6 +627,13 @@ class AdmissionPass:
         them) and `start` (the solution before the round's admissions) it is lower at: a
         false loop's removal undoes the bend it caused, so the solution before it is
         the nearer start."""
+        return self._solved_without(without, current, start, removed)[0]
+
+    def _solved_without(
+        self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
+        start: gtsam.Values, removed: NDArray[np.int64],
+    ) -> tuple[float, gtsam.Values]:
+        """`_minimum` and the solution it is the error at."""
         if self._isam is not None:
             trial = self._isam.copy()
             trial.remove(int(k) for k in removed)
@@ -585,9 +642,10 @@ class AdmissionPass:
             except RuntimeError:  # gtsam IndeterminateLinearSystemException
                 estimate = None
             if estimate is not None and trial.converged:
-                return float(without.error(estimate))
+                return float(without.error(estimate)), estimate
         x0 = start if without.error(start) < without.error(current) else current
-        return float(without.error(self._solve(without, x0)))
+        solved = self._solve(without, x0)
+        return float(without.error(solved)), solved
 
     def _turned_back(
         self, factors: gtsam.NonlinearFactorGraph, current: gtsam.Values,

@@ -261,6 +261,31 @@ def admission_costs(gains: _Gains) -> Array:
     return 0.5 * np.einsum("ma,ma->m", gains.b, np.linalg.solve(s, gains.b[..., None])[..., 0])
 
 
+def removal_costs(b: Array, gram: Array) -> Array:
+    """Linearised leave-one-out cost of factors already in a solved graph (gtsam error
+    units): for factor ``q`` with whitened residual ``b_q`` (d,) and ``M_q = B_q H^-1 B_q^T``
+    (d, d) at the optimum ``x*`` of a graph whose information ``H`` includes ``q``
+    (`InnovationTest.blocks` of the graph with ``q``), the drop of the graph's minimum
+    when ``q`` is taken out, by the Gauss-Newton model of the cost at ``x*``::
+
+        rho_q = 0.5 b_q^T (I - M_q)^-1 b_q
+
+    the downdate form of the innovation ``delta`` (module docstring): on a linear
+    problem ``rho_q`` equals ``q``'s ``delta`` against the graph without it, bit for
+    rounding.  ``I - M_q`` is positive definite when the other factors alone constrain
+    ``q``'s relative pose; where it is not (``q`` is all that fixes it, or rounding),
+    ``rho_q`` is ``inf``.  Shapes (m, d) and (m, d, d); returns (m,)."""
+    m, d = b.shape
+    eye = np.eye(d)
+    rest = eye - gram
+    out = np.full(m, np.inf)
+    ok = np.linalg.eigvalsh(0.5 * (rest + rest.transpose(0, 2, 1)))[:, 0] > 1e-9
+    if ok.any():
+        x = np.linalg.solve(rest[ok], b[ok][..., None])[..., 0]
+        out[ok] = 0.5 * np.einsum("ma,ma->m", b[ok], x)
+    return out
+
+
 def greedy_admission(
     gains: _Gains, gate: float, costs: list[float] | None = None
 ) -> tuple[list[int], Array]:

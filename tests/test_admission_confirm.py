@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from data.errors import UserError
 from slam.admission import AdmissionPass
 from slam.admission_undo import with_loops
 from slam.optimize import initial_guess
@@ -66,3 +68,67 @@ def test_the_check_never_keeps_more_false_loops() -> None:
     plain, checked = _pass(graph, False), _pass(graph, True)
     assert checked.weights[false] <= plain.weights[false]
     assert checked.result().tls_cost <= plain.result().tls_cost * (1 + 1e-9)
+
+
+def _apart() -> tuple[PoseGraph, int, int]:
+    """`_square`'s line with a false loop (1, 3) saying 0 m (2 m against 0.1 m sigmas
+    over two steps: far above c) and a true loop (4, 7) saying 3 m on another stretch:
+    at their joint solution the true loop's residual, and its leave-one-out cost, are
+    about zero."""
+    graph = PoseGraph(dim=2)
+    for k in range(8):
+        graph.add_pose(k, np.array([float(k), 0.0, 0.0]))
+    graph.fixed.add(0)
+    for k in range(1, 8):
+        graph.add_odometry(k - 1, k, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
+    info = np.diag([400.0, 400.0, 2500.0])
+    false = graph.add_loop(1, 3, np.zeros(3), info)
+    true = graph.add_loop(4, 7, np.array([3.0, 0.0, 0.0]), info)
+    return graph, true, false
+
+
+def test_the_screen_turns_back_the_false_loop_with_one_solve() -> None:
+    graph, true, false = _apart()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    run = AdmissionPass(graph, values, block=10, prefix_solver="batch", confirm="screen")
+    run.advance()
+    pending = np.array([true, false])
+    kept = with_loops(run._base, run.unit, pending)
+    current = run._solve(kept, run.current)
+    before = run._base.error(run._solve(run._base, run.current))
+    rho = run._screened(kept, current, pending)
+    assert rho[0] < 1e-6 * run._c < run._c < rho[1]
+    solves: list[int] = []
+    solved_without = run._solved_without
+
+    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
+        solves.append(int(removed[-1]))
+        return solved_without(without, current, start, removed)
+
+    run._solved_without = counted  # type: ignore[method-assign]
+    back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
+                            current, before, run.current)
+    np.testing.assert_array_equal(back, [1])
+    # the true loop is cleared by the screen: only the false loop's minimum is solved
+    assert solves == [false]
+    run.screen = False  # the exact check turns back the same loop
+    exact = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
+                             current, before, run.current)
+    np.testing.assert_array_equal(exact, back)
+
+
+def test_the_screen_changes_nothing_on_a_consistent_return() -> None:
+    graph, _ = loose_lap(TRUE_LOOPS, False)
+    exact = _pass(graph, True)
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    screened = AdmissionPass(graph, values, block=10, prefix_solver="batch", confirm="screen")
+    screened.advance()
+    assert screened.refused == 0
+    np.testing.assert_array_equal(exact.weights, screened.weights)
+
+
+def test_an_unknown_confirm_mode_is_refused() -> None:
+    graph, _, _ = _square()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    with pytest.raises(UserError):
+        AdmissionPass(graph, values, confirm="approximate")
