@@ -39,7 +39,7 @@ from scan_origins_bench import loop_source  # noqa: E402
 
 from data import se2  # noqa: E402
 from evaluation.loop_bench import mapped_input  # noqa: E402
-from loopclosure.free_space import Submap, consistency  # noqa: E402
+from loopclosure.free_space import ScanFreeSpace, Submap, consistency  # noqa: E402
 from loopclosure.registration import voxel_downsample  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
@@ -51,23 +51,32 @@ def matched_bar(keyframe: np.ndarray, scans: np.ndarray, bar: float) -> float:
     return float(np.quantile(np.asarray(scans), share))
 
 
-def pairs_of(log: str, relations: str | None, step: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(keyframe, scans)`` consistencies of the log's front-end pairs (docstring)."""
+def pairs_of(log: str, relations: str | None, step: int,
+             caps=(1.0,)) -> tuple[np.ndarray, dict[float, np.ndarray]]:
+    """``(keyframe, {cap: scans})`` consistencies of the log's front-end pairs
+    (docstring; `pairs_in_caps`)."""
     cfg = PipelineConfig()
     cfg.loops.check.free_space_origins = "scans"
     source = loop_source(log, relations)
     mapper, _, _ = mapped_input(source, cfg)
-    return pairs_in(mapper, step)
+    return pairs_in_caps(mapper, step, caps)
 
 
 def pairs_in(mapper, step: int) -> tuple[np.ndarray, np.ndarray]:
     """`pairs_of` on a mapped `slam.pipeline.Mapper` (its store keeping the scans' free space)."""
+    one, per = pairs_in_caps(mapper, step, (1.0,))
+    return one, per[1.0]
+
+
+def pairs_in_caps(mapper, step: int, caps) -> tuple[np.ndarray, dict[float, np.ndarray]]:
+    """`pairs_in` with (1') at each surface cap of `caps` (`ScanFreeSpace.surface_cap`;
+    1: the margin along the ray): the keyframe model's and each cap's consistencies."""
     det = mapper.detector
     check, s = det.config.check, det.config.check.search
     n = mapper.config.submap_neighbours()
     from loopclosure.fast_icp import voxel_downsample_fast
 
-    one, per = [], []
+    one, per = [], {float(c): [] for c in caps}
     for k in range(n, len(mapper.keyframes.keyframes) - n - 1, step):
         m = k + n + 1
         q_pts = voxel_downsample_fast(mapper.trailing_map(k, n), check.source_voxel)
@@ -78,11 +87,15 @@ def pairs_in(mapper, step: int) -> tuple[np.ndarray, np.ndarray]:
         args = (pose, s.consistency_tolerance, s.free_margin)
         one.append(consistency(Submap.of(q_pts, s.free_bins), Submap.of(c_pts, s.free_bins),
                                *args).consistency)
-        per.append(consistency(
-            Submap.of(q_pts, s.free_bins, scans=det.submap_free_space(k, last=k)),
-            Submap.of(c_pts, s.free_bins, scans=det.submap_free_space(m, last=m)),
-            *args).consistency)
-    return np.array(one), np.array(per)
+        q_free, c_free = det.submap_free_space(k, last=k), det.submap_free_space(m, last=m)
+        for cap, out in per.items():
+            out.append(consistency(
+                Submap.of(q_pts, s.free_bins,
+                          scans=ScanFreeSpace(q_free.poses, q_free.ranges, cap)),
+                Submap.of(c_pts, s.free_bins,
+                          scans=ScanFreeSpace(c_free.poses, c_free.ranges, cap)),
+                *args).consistency)
+    return np.array(one), {c: np.array(v) for c, v in per.items()}
 
 
 def main() -> None:
@@ -91,23 +104,32 @@ def main() -> None:
     ap.add_argument("--relations", help="for a log without its own reference (one log)")
     ap.add_argument("--step", type=int, default=3)
     ap.add_argument("--bar", type=float, default=PipelineConfig().loops.check.min_consistency)
-    ap.add_argument("--out", help="save every log's pairs here (npz)")
+    ap.add_argument("--surface-cap", type=float, action="append",
+                    help="(1'') with this cap (`ScanFreeSpace.surface_cap`) besides (1') "
+                         "along the ray; repeatable")
+    ap.add_argument("--out", help="save every log's pairs here (npz: keyframe, then "
+                                  "each cap's row, 1 first)")
     args = ap.parse_args()
+    caps = [1.0] + [c for c in args.surface_cap or [] if c != 1.0]
     q = [1, 5, 10, 25, 50]
-    pooled_one, pooled_per, saved = [], [], {}
+    pooled_one, pooled_per, saved = [], {c: [] for c in caps}, {}
     for log in args.logs:
-        one, per = pairs_of(log, args.relations, args.step)
+        one, per = pairs_of(log, args.relations, args.step, caps)
         pooled_one.append(one)
-        pooled_per.append(per)
-        saved[Path(log).name.split("-corrected")[0].split(".")[0]] = np.stack([one, per])
+        saved[Path(log).name.split("-corrected")[0].split(".")[0]] = np.stack(
+            [one] + [per[c] for c in caps])
         print(f"{Path(log).name}: {len(one)} pairs; below {args.bar} with (1) "
               f"{np.mean(one < args.bar):.3f}; quantiles {q}%: (1) "
-              f"{np.round(np.percentile(one, q), 3).tolist()} (1') "
-              f"{np.round(np.percentile(per, q), 3).tolist()}; matched bar "
-              f"{matched_bar(one, per, args.bar):.3f}", flush=True)
-    one, per = np.concatenate(pooled_one), np.concatenate(pooled_per)
-    print(f"pooled: {len(one)} pairs; below {args.bar} with (1) {np.mean(one < args.bar):.3f}; "
-          f"matched bar of (1') {matched_bar(one, per, args.bar):.3f}")
+              f"{np.round(np.percentile(one, q), 3).tolist()}", flush=True)
+        for c in caps:
+            pooled_per[c].append(per[c])
+            print(f"  cap {c:g}: quantiles {np.round(np.percentile(per[c], q), 3).tolist()}; "
+                  f"matched bar {matched_bar(one, per[c], args.bar):.3f}", flush=True)
+    one = np.concatenate(pooled_one)
+    print(f"pooled: {len(one)} pairs; below {args.bar} with (1) {np.mean(one < args.bar):.3f}")
+    for c in caps:
+        bar = matched_bar(one, np.concatenate(pooled_per[c]), args.bar)
+        print(f"  cap {c:g}: matched bar {bar:.3f}")
     if args.out:
         np.savez(args.out, **saved)
 

@@ -30,6 +30,23 @@ of the submap with its sensor pose ``s_k`` in the submap's frame, each scan's
 
     exists k:  rho_k < r_k(b_k) - margin,   (rho_k, b_k) = polar (s_k^-1 p)      (1')
 
+The margin of (1') is taken along the ray.  Where the ray meets the surface at an
+incidence alpha from its normal, a point a distance d in front of the surface *across*
+it lies d / cos(alpha) in front of it along the ray: two passes' walls a few
+centimetres apart sideways are far apart along an oblique ray.  The surface margin
+(`ScanFreeSpace` with ``surface_cap > 1``) measures the margin across the scan's local
+surface instead.  In polar form ``r(theta)`` about the scan's origin the surface has
+
+    1 / cos(alpha) = sqrt(1 + (r' / r)^2),   r' = dr / dtheta                    (3)
+
+with r' the smaller of the two one-sided slopes of the sector ranges over
+`SURFACE_STEP` sectors (a depth jump at an edge is not a slope; the continuous side
+holds the surface), and (1') becomes
+
+    rho_k < r_k(b_k) - margin min(cap, sqrt(1 + (r'_k / r_k)^2))                  (1'')
+
+the cap bounding the along-ray margin of a surface seen at grazing incidence.
+
 Consistency (`consistency`) of the query submap Q (query frame) and the candidate
 submap P (candidate frame) at the pose T of the query in the candidate's frame:
 a point of Q is a *hit* when ``T q`` is within `tolerance` [m] of a point of P, a
@@ -54,6 +71,12 @@ from scipy.spatial import cKDTree
 from data import se2
 
 Array = NDArray[np.float64]
+SURFACE_STEP = 4
+"""Sectors over which (3) takes a one-sided slope of a scan's free ranges: twice the
+default ``spread``.  A beam's return fills up to ``2 spread + 1`` sectors (the nearest
+of the neighbouring sectors' returns), so an oblique wall's ranges are a staircase
+whose neighbouring sectors often repeat one beam's range: a shorter step reads a
+zero slope there."""
 SCAN_FREE_SPACE = "scan_free_space"
 """Key of a registration target's ``derived`` cache holding its submap's
 `ScanFreeSpace` (set by the loop detector's keyframe store)."""
@@ -105,14 +128,20 @@ class ScanFreeSpace:
         bins: bearing sectors (`RangeImage`'s convention).
     """
 
-    __slots__ = ("bins", "poses", "ranges")
+    __slots__ = ("_secant", "bins", "poses", "ranges", "surface_cap")
 
-    def __init__(self, poses: ArrayLike, ranges: ArrayLike) -> None:
+    def __init__(self, poses: ArrayLike, ranges: ArrayLike, surface_cap: float = 1.0) -> None:
+        """`surface_cap`: 1, the margin along the ray (1'); above 1, across the scan's
+        surface (1''), the along-ray margin at most `surface_cap` times `margin`."""
         self.poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         self.ranges = np.atleast_2d(np.asarray(ranges, dtype=np.float32))
         if len(self.ranges) != len(self.poses):
             raise ValueError(f"{len(self.poses)} scan poses but {len(self.ranges)} range rows")
+        if not surface_cap >= 1.0:
+            raise ValueError(f"surface_cap must be at least 1, got {surface_cap}")
         self.bins = self.ranges.shape[1]
+        self.surface_cap = float(surface_cap)
+        self._secant: NDArray[np.float32] | None = None
 
     @classmethod
     def of(cls, poses: ArrayLike, scans: list[ArrayLike], bins: int = 720,
@@ -122,9 +151,19 @@ class ScanFreeSpace:
         return cls(poses, np.array([RangeImage(s, bins, spread).ranges for s in scans],
                                    dtype=np.float32).reshape(-1, bins))
 
+    @property
+    def secant(self) -> NDArray[np.float32]:
+        """``(K, bins)`` the factor of (1''): ``min(surface_cap, 1 / cos(alpha))`` by (3)
+        per scan and sector; 1 where a sector or both its neighbours at `SURFACE_STEP`
+        saw nothing (no surface to measure across)."""
+        if self._secant is None:
+            self._secant = surface_secant(self.ranges, self.surface_cap)
+        return self._secant
+
     def free(self, points: ArrayLike, margin: float) -> NDArray[np.bool_]:
         """``(N,)`` True where a point [m] (the submap's frame) lies in the observed
-        free space of any scan (1'): every scan's test at once, ``(K, N)``."""
+        free space of any scan (1'), or (1'') with a `surface_cap` above 1: every
+        scan's test at once, ``(K, N)``."""
         pts = np.asarray(points, dtype=float).reshape(-1, 2)
         if len(pts) == 0 or len(self.poses) == 0:
             return np.zeros(len(pts), bool)
@@ -136,12 +175,36 @@ class ScanFreeSpace:
         sector = ((np.arctan2(v, u) + np.pi) * (self.bins / (2 * np.pi))).astype(np.intp)
         sector %= self.bins
         free_range = np.take_along_axis(self.ranges, sector, axis=1)
+        if self.surface_cap > 1.0:
+            free_range = free_range - (margin * np.take_along_axis(self.secant, sector, axis=1))
+            return (np.hypot(u, v) < free_range).any(axis=0)
         return (np.hypot(u, v) < free_range - margin).any(axis=0)
 
     @property
     def nbytes(self) -> int:
         """Memory held [bytes]."""
         return self.poses.nbytes + self.ranges.nbytes
+
+
+def surface_secant(ranges: ArrayLike, cap: float, step: int = SURFACE_STEP) -> NDArray[np.float32]:
+    """(3): ``min(cap, sqrt(1 + (r' / r)^2))`` for ``(K, bins)`` free ranges [m] per
+    bearing sector (0: nothing observed), r' [m/rad] the smaller magnitude of the
+    slopes to the sectors `step` before and after (a sector with nothing observed gives
+    no slope; 1 where neither side gives one or the sector itself observed nothing)."""
+    r = np.atleast_2d(np.asarray(ranges, dtype=np.float64))
+    if r.size == 0:
+        return np.ones(r.shape, np.float32)
+    dtheta = step * 2 * np.pi / r.shape[1]
+    slopes = []
+    for side in (step, -step):
+        other = np.roll(r, side, axis=1)
+        slope = np.abs(r - other) / dtheta
+        slopes.append(np.where(other > 0, slope, np.inf))
+    slope = np.minimum(*slopes)
+    seen = (r > 0) & np.isfinite(slope)
+    out = np.ones(r.shape)
+    out[seen] = np.minimum(cap, np.sqrt(1.0 + (slope[seen] / r[seen]) ** 2))
+    return out.astype(np.float32)
 
 
 @dataclass(slots=True)

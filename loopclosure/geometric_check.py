@@ -202,6 +202,11 @@ class GeometricCheckConfig:
             own (``derived[SCAN_FREE_SPACE]``), as the loop detector's keyframe store
             provides them; a pair lacking either (a longer check's joined submaps)
             keeps (1).
+        free_space_surface_cap: with ``free_space_origins = "scans"``, above 1 the
+            free-space margin is measured across each scan's surface instead of along
+            its ray (`loopclosure.free_space` (1''), (3)), the along-ray margin at most
+            this many times ``search.free_margin`` (a wall seen at grazing incidence);
+            1 (the default): along the ray (1').
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -271,6 +276,7 @@ class GeometricCheckConfig:
     min_matched_length: float = 2.0
     min_consistency: float = 0.92
     free_space_origins: str = "keyframe"
+    free_space_surface_cap: float = 1.0
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -290,6 +296,9 @@ class GeometricCheckConfig:
         if self.free_space_origins not in ("keyframe", "scans"):
             raise UserError("loops.check.free_space_origins must be keyframe or scans, got "
                             f"{self.free_space_origins!r}")
+        if not self.free_space_surface_cap >= 1.0:
+            raise UserError("loops.check.free_space_surface_cap must be at least 1, got "
+                            f"{self.free_space_surface_cap!r}")
 
 
 @dataclass(slots=True)

@@ -146,7 +146,7 @@ class KeyframeStore:
         bins = self.config.check.search.free_bins
         ranges = (np.stack([self._scan_ranges[k] for k in keys]) if len(keys)
                   else np.zeros((0, bins), np.float32))
-        return ScanFreeSpace(poses, ranges)
+        return ScanFreeSpace(poses, ranges, self.config.check.free_space_surface_cap)
 
     # -- keyframes -------------------------------------------------------------------
 
