@@ -4,7 +4,8 @@ overlaps.
 Run from the repository root::
 
     python benchmarks/consistency_bar_rule.py LOG [LOG ...] [--relations FILE] [--step S]
-        [--bar 0.92] [--out FILE.npz]
+        [--bar 0.92] [--surface-cap C ...] [--return-window W ...] [--variant C:W ...]
+        [--out FILE.npz]
 
 Each log is mapped as ``loopclosure bench loops`` maps it (`scan_origins_bench.py`).
 For every `step`-th keyframe k, two submaps made of disjoint scans overlap by
@@ -64,19 +65,21 @@ def pairs_of(log: str, relations: str | None, step: int,
 
 def pairs_in(mapper, step: int) -> tuple[np.ndarray, np.ndarray]:
     """`pairs_of` on a mapped `slam.pipeline.Mapper` (its store keeping the scans' free space)."""
-    one, per = pairs_in_caps(mapper, step, (1.0,))
-    return one, per[1.0]
+    one, per = pairs_in_caps(mapper, step, ((1.0, 0),))
+    return one, per[(1.0, 0)]
 
 
-def pairs_in_caps(mapper, step: int, caps) -> tuple[np.ndarray, dict[float, np.ndarray]]:
-    """`pairs_in` with (1') at each surface cap of `caps` (`ScanFreeSpace.surface_cap`;
-    1: the margin along the ray): the keyframe model's and each cap's consistencies."""
+def pairs_in_caps(mapper, step: int, caps) -> tuple[np.ndarray, dict]:
+    """`pairs_in` with (1') at each variant of `caps`: a surface cap
+    (`ScanFreeSpace.surface_cap`; 1: the margin along the ray) or a pair (cap,
+    return window) (`ScanFreeSpace.return_window`): the keyframe model's and each
+    variant's consistencies."""
     det = mapper.detector
     check, s = det.config.check, det.config.check.search
     n = mapper.config.submap_neighbours()
     from loopclosure.fast_icp import voxel_downsample_fast
 
-    one, per = [], {float(c): [] for c in caps}
+    one, per = [], {c: [] for c in caps}
     for k in range(n, len(mapper.keyframes.keyframes) - n - 1, step):
         m = k + n + 1
         q_pts = voxel_downsample_fast(mapper.trailing_map(k, n), check.source_voxel)
@@ -88,12 +91,13 @@ def pairs_in_caps(mapper, step: int, caps) -> tuple[np.ndarray, dict[float, np.n
         one.append(consistency(Submap.of(q_pts, s.free_bins), Submap.of(c_pts, s.free_bins),
                                *args).consistency)
         q_free, c_free = det.submap_free_space(k, last=k), det.submap_free_space(m, last=m)
-        for cap, out in per.items():
+        for variant, out in per.items():
+            v = variant if isinstance(variant, tuple) else (variant,)
             out.append(consistency(
                 Submap.of(q_pts, s.free_bins,
-                          scans=ScanFreeSpace(q_free.poses, q_free.ranges, cap)),
+                          scans=ScanFreeSpace(q_free.poses, q_free.ranges, *v)),
                 Submap.of(c_pts, s.free_bins,
-                          scans=ScanFreeSpace(c_free.poses, c_free.ranges, cap)),
+                          scans=ScanFreeSpace(c_free.poses, c_free.ranges, *v)),
                 *args).consistency)
     return np.array(one), {c: np.array(v) for c, v in per.items()}
 
@@ -107,10 +111,17 @@ def main() -> None:
     ap.add_argument("--surface-cap", type=float, action="append",
                     help="(1'') with this cap (`ScanFreeSpace.surface_cap`) besides (1') "
                          "along the ray; repeatable")
+    ap.add_argument("--return-window", type=int, action="append",
+                    help="(4) with this window (`ScanFreeSpace.return_window`), margin "
+                         "along the ray; repeatable")
+    ap.add_argument("--variant", action="append", metavar="CAP:WINDOW",
+                    help="(1'') with cap CAP and (4) with window WINDOW; repeatable")
     ap.add_argument("--out", help="save every log's pairs here (npz: keyframe, then "
                                   "each cap's row, 1 first)")
     args = ap.parse_args()
-    caps = [1.0] + [c for c in args.surface_cap or [] if c != 1.0]
+    caps = ([(1.0, 0)] + [(c, 0) for c in args.surface_cap or [] if c != 1.0]
+            + [(1.0, w) for w in args.return_window or [] if w > 0]
+            + [(float(v.split(":")[0]), int(v.split(":")[1])) for v in args.variant or []])
     q = [1, 5, 10, 25, 50]
     pooled_one, pooled_per, saved = [], {c: [] for c in caps}, {}
     for log in args.logs:
@@ -123,13 +134,14 @@ def main() -> None:
               f"{np.round(np.percentile(one, q), 3).tolist()}", flush=True)
         for c in caps:
             pooled_per[c].append(per[c])
-            print(f"  cap {c:g}: quantiles {np.round(np.percentile(per[c], q), 3).tolist()}; "
+            quant = np.round(np.percentile(per[c], q), 3).tolist()
+            print(f"  cap {c[0]:g} window {c[1]}: quantiles {quant}; "
                   f"matched bar {matched_bar(one, per[c], args.bar):.3f}", flush=True)
     one = np.concatenate(pooled_one)
     print(f"pooled: {len(one)} pairs; below {args.bar} with (1) {np.mean(one < args.bar):.3f}")
     for c in caps:
         bar = matched_bar(one, np.concatenate(pooled_per[c]), args.bar)
-        print(f"  cap {c:g}: matched bar {bar:.3f}")
+        print(f"  cap {c[0]:g} window {c[1]}: matched bar {bar:.3f}")
     if args.out:
         np.savez(args.out, **saved)
 

@@ -3,7 +3,7 @@
 Run from the repository root, after `scan_origins_bench.py LOG --npz PREFIX`::
 
     python benchmarks/scan_conflicts.py LOG --npz PREFIX [--default keyframe-0.92]
-        [--option scans-0.88] [--pairs Q:M,...] [--csv OUT.csv]
+        [--option scans-0.88] [--pairs Q:M,...] [--csv OUT.csv] [--surface-cap C]
 
 The log is mapped as `scan_origins_bench.py` maps it.  The pairs examined: the
 queries whose final detection the default pass accepted and got right and the option
@@ -16,7 +16,9 @@ point: its range from that scan, the length of that scan's ray there (the sector
 free range), the angle between the ray and the surface the point lies on (its own
 submap's points within 0.3 m, principal direction: 0 = the ray runs along the
 surface, grazing), and the point's distance to the other submap (a near miss below
-0.3 m).  Prints one line per pair and the pooled shares.
+0.3 m).  With ``--surface-cap C`` the conflicts are those of (1'') (the margin across
+each scan's surface, `ScanFreeSpace.surface_cap`).  Prints one line per pair and the
+pooled shares.
 """
 
 from __future__ import annotations
@@ -98,6 +100,10 @@ def main() -> None:
     ap.add_argument("--option", default="scans-0.88")
     ap.add_argument("--pairs")
     ap.add_argument("--csv")
+    ap.add_argument("--surface-cap", type=float, default=1.0,
+                    help="(1'') across each scan's surface with this cap instead of (1')")
+    ap.add_argument("--return-window", type=int, default=0,
+                    help="(4) beside each scan's returns in this many sectors")
     args = ap.parse_args()
     cfg = PipelineConfig()
     cfg.loops.check.free_space_origins = "scans"
@@ -130,6 +136,9 @@ def main() -> None:
         q_pts = voxel_downsample_fast(np.asarray(mapper.query_submaps[q], float), 0.1)
         c_pts = voxel_downsample(np.asarray(det._plain_points(m), float), s.submap_voxel)
         q_scans, c_scans = det.submap_free_space(q, last=q), det.submap_free_space(m)
+        q_scans, c_scans = (ScanFreeSpace(f.poses, f.ranges, args.surface_cap,
+                                          args.return_window)
+                            for f in (q_scans, c_scans))
         one = consistency(Submap.of(q_pts, bins), Submap.of(c_pts, bins), rel, tol, margin)
         qs, cs = Submap.of(q_pts, bins, scans=q_scans), Submap.of(c_pts, bins, scans=c_scans)
         per = consistency(qs, cs, rel, tol, margin)

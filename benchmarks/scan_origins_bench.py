@@ -4,7 +4,7 @@ about each scan's own origin (``loops.check.free_space_origins = scans``), one p
 Run from the repository root::
 
     python benchmarks/scan_origins_bench.py LOG [--relations FILE] [--bar B ...]
-        [--max-queries N] [--npz PREFIX] [--no-default] [--variant CAP:BAR ...]
+        [--max-queries N] [--npz PREFIX] [--no-default] [--variant CAP:WINDOW:BAR ...]
 
 The log is mapped once as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0 --stages fused`` maps it (``--relations FILE``: the relations-fitted
@@ -13,12 +13,12 @@ keyframe's scan free space (mapping runs no loop check).  Then every query is ru
 (`evaluation.loop_bench_queries.query_all`) first with the default
 ``free_space_origins = keyframe``, then with ``scans`` at each ``--bar`` (the check's
 ``min_consistency``; default: the config's), then with the margin across each scan's
-surface (``free_space_surface_cap``, `loopclosure.free_space` (1'')) at each
-``--variant CAP:BAR``.  Prints per pass R@100P / R@99P / AP of the
-final row, accepted / correct detections and the accepted ones more than 1 m or 5
-degrees from the reference (a wrong place, not a tolerance case), CPU ms per query
-(the whole query: cascade and checks) and the memory of the kept free space; the
-peak RSS at the end.
+surface (``free_space_surface_cap``, `loopclosure.free_space` (1'')) and beside its
+returns (``free_space_return_window``, (4)) at each ``--variant CAP:WINDOW:BAR``.
+Prints per pass R@100P / R@99P / AP of the final row, accepted / correct detections
+and the accepted ones more than 1 m or 5 degrees from the reference (a wrong place,
+not a tolerance case), CPU ms per query (the whole query: cascade and checks) and the
+memory of the kept free space; the peak RSS at the end.
 """
 
 from __future__ import annotations
@@ -98,9 +98,10 @@ def main() -> None:
     ap.add_argument("--bar", type=float, action="append")
     ap.add_argument("--max-queries", type=int)
     ap.add_argument("--npz", help="save each pass's final records to PREFIX-LABEL.npz")
-    ap.add_argument("--variant", action="append", metavar="CAP:BAR",
+    ap.add_argument("--variant", action="append", metavar="CAP:WINDOW:BAR",
                     help="also a pass with the margin across each scan's surface "
-                         "(``loops.check.free_space_surface_cap = CAP``) at bar BAR; repeatable")
+                         "(``loops.check.free_space_surface_cap = CAP``) and its returns "
+                         "(``free_space_return_window = WINDOW``) at bar BAR; repeatable")
     ap.add_argument("--no-default", action="store_true")
     ap.add_argument("--default-only", action="store_true",
                     help="the default alone, mapped without the option (its memory)")
@@ -137,12 +138,13 @@ def main() -> None:
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries, f"scans-{bar}", args.npz)
     for variant in [] if args.default_only else args.variant or []:
-        cap, bar = (float(v) for v in variant.split(":"))
+        cap, window, bar = (float(v) for v in variant.split(":"))
         check.free_space_origins, check.min_consistency = "scans", bar
-        check.free_space_surface_cap = cap
+        check.free_space_surface_cap, check.free_space_return_window = cap, int(window)
         det.release_caches()
-        run_pass(mapper, result, ref, args.max_queries, f"surface{cap:g}-{bar}", args.npz)
-    check.free_space_surface_cap = 1.0
+        run_pass(mapper, result, ref, args.max_queries, f"surface{cap:g}-w{int(window)}-{bar}",
+                 args.npz)
+    check.free_space_surface_cap, check.free_space_return_window = 1.0, 0
     print(f"  peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

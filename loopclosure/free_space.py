@@ -47,6 +47,20 @@ holds the surface), and (1') becomes
 
 the cap bounding the along-ray margin of a surface seen at grazing incidence.
 
+A point may also lie near a scan's returns without lying near the surface its ray
+hits: the ray passes by a wall end, a door frame or a corner that the neighbouring
+beams of the same scan saw.  The returns margin (`ScanFreeSpace` with
+``return_window > 0``) keeps a point out of scan k's free space when it lies within
+`margin`, in any direction, of a return of scan k in the `return_window` sectors
+either side of its own:
+
+    rho_k < r_k(b_k) - margin  and  min_{|j - b_k| <= w} |q_k - x_k(j)| >= margin   (4)
+
+with ``q_k = s_k^-1 p`` and ``x_k(j)`` the point at range ``r_k(j)`` on the bearing
+of sector j's centre (sectors that observed nothing hold none).  Only the scan's own
+returns count, not the other scans' of its submap: a point is excused by the rays
+that ended beside it, not by a surface some other scan saw.
+
 Consistency (`consistency`) of the query submap Q (query frame) and the candidate
 submap P (candidate frame) at the pose T of the query in the candidate's frame:
 a point of Q is a *hit* when ``T q`` is within `tolerance` [m] of a point of P, a
@@ -128,11 +142,14 @@ class ScanFreeSpace:
         bins: bearing sectors (`RangeImage`'s convention).
     """
 
-    __slots__ = ("_secant", "bins", "poses", "ranges", "surface_cap")
+    __slots__ = ("_secant", "bins", "poses", "ranges", "return_window", "surface_cap")
 
-    def __init__(self, poses: ArrayLike, ranges: ArrayLike, surface_cap: float = 1.0) -> None:
+    def __init__(self, poses: ArrayLike, ranges: ArrayLike, surface_cap: float = 1.0,
+                 return_window: int = 0) -> None:
         """`surface_cap`: 1, the margin along the ray (1'); above 1, across the scan's
-        surface (1''), the along-ray margin at most `surface_cap` times `margin`."""
+        surface (1''), the along-ray margin at most `surface_cap` times `margin`.
+        `return_window`: 0, off; else the sectors either side of a point's whose
+        returns keep it out of that scan's free space within `margin` (4)."""
         self.poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         self.ranges = np.atleast_2d(np.asarray(ranges, dtype=np.float32))
         if len(self.ranges) != len(self.poses):
@@ -141,6 +158,9 @@ class ScanFreeSpace:
             raise ValueError(f"surface_cap must be at least 1, got {surface_cap}")
         self.bins = self.ranges.shape[1]
         self.surface_cap = float(surface_cap)
+        self.return_window = int(return_window)
+        if self.return_window < 0:
+            raise ValueError(f"return_window must be at least 0, got {return_window}")
         self._secant: NDArray[np.float32] | None = None
 
     @classmethod
@@ -177,8 +197,28 @@ class ScanFreeSpace:
         free_range = np.take_along_axis(self.ranges, sector, axis=1)
         if self.surface_cap > 1.0:
             free_range = free_range - (margin * np.take_along_axis(self.secant, sector, axis=1))
-            return (np.hypot(u, v) < free_range).any(axis=0)
-        return (np.hypot(u, v) < free_range - margin).any(axis=0)
+            free = np.hypot(u, v) < free_range
+        else:
+            free = np.hypot(u, v) < free_range - margin
+        if self.return_window > 0:
+            self._beside_returns(free, u, v, sector, margin)
+        return free.any(axis=0)
+
+    def _beside_returns(self, free: NDArray[np.bool_], u: Array, v: Array,
+                        sector: NDArray[np.intp], margin: float) -> None:
+        """(4): clear ``free[k, n]`` where point n lies within `margin` [m] of a return
+        of scan k in the `return_window` sectors either side of its own (in place)."""
+        kk, nn = np.nonzero(free)
+        if len(kk) == 0:
+            return
+        offsets = np.arange(-self.return_window, self.return_window + 1)
+        near_sectors = (sector[kk, nn][:, None] + offsets) % self.bins  # (M, 2w + 1)
+        r = self.ranges[kk[:, None], near_sectors].astype(float)
+        bearing = -np.pi + (near_sectors + 0.5) * (2 * np.pi / self.bins)
+        dx = r * np.cos(bearing) - u[kk, nn][:, None]
+        dy = r * np.sin(bearing) - v[kk, nn][:, None]
+        beside = ((dx * dx + dy * dy < margin * margin) & (r > 0)).any(axis=1)
+        free[kk[beside], nn[beside]] = False
 
     @property
     def nbytes(self) -> int:

@@ -207,6 +207,10 @@ class GeometricCheckConfig:
             its ray (`loopclosure.free_space` (1''), (3)), the along-ray margin at most
             this many times ``search.free_margin`` (a wall seen at grazing incidence);
             1 (the default): along the ray (1').
+        free_space_return_window: with ``free_space_origins = "scans"``, above 0 a
+            point within ``search.free_margin`` of a return of the scan that saw
+            through it, in this many bearing sectors either side, is not in that
+            scan's free space (`loopclosure.free_space` (4)).  0 (the default): off.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -277,6 +281,7 @@ class GeometricCheckConfig:
     min_consistency: float = 0.92
     free_space_origins: str = "keyframe"
     free_space_surface_cap: float = 1.0
+    free_space_return_window: int = 0
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -299,6 +304,9 @@ class GeometricCheckConfig:
         if not self.free_space_surface_cap >= 1.0:
             raise UserError("loops.check.free_space_surface_cap must be at least 1, got "
                             f"{self.free_space_surface_cap!r}")
+        if not self.free_space_return_window >= 0:
+            raise UserError("loops.check.free_space_return_window must be at least 0, got "
+                            f"{self.free_space_return_window!r}")
 
 
 @dataclass(slots=True)

@@ -146,7 +146,9 @@ class KeyframeStore:
         bins = self.config.check.search.free_bins
         ranges = (np.stack([self._scan_ranges[k] for k in keys]) if len(keys)
                   else np.zeros((0, bins), np.float32))
-        return ScanFreeSpace(poses, ranges, self.config.check.free_space_surface_cap)
+        check = self.config.check
+        return ScanFreeSpace(poses, ranges, check.free_space_surface_cap,
+                             check.free_space_return_window)
 
     # -- keyframes -------------------------------------------------------------------
 
