@@ -104,3 +104,58 @@ def test_the_store_hands_its_cap_to_every_submaps_free_space() -> None:
     det.config.check.free_space_surface_cap = 3.0
     assert det.submap_free_space(2).surface_cap == 3.0
     assert det.submap_free_space(1, last=1).surface_cap == 3.0
+
+
+# -- beside the scan's own returns (4) ----------------------------------------------------
+
+
+def _wall_end() -> ScanFreeSpace:
+    """One scan at the origin, a beam every 0.5 deg: the wall x = 4 m up to its end at
+    (4, 2) (bearings 0 to 26.5 deg), then a far wall 10 m away (27 to 60 deg)."""
+    near = np.radians(np.arange(0.0, 26.6, 0.5))
+    far = np.radians(np.arange(27.0, 60.1, 0.5))
+    pts = np.r_[np.c_[np.full_like(near, 4.0), 4.0 * np.tan(near)],
+                10.0 * np.c_[np.cos(far), np.sin(far)]]
+    return ScanFreeSpace.of([np.zeros(3)], [pts])
+
+
+def test_a_point_beside_the_wall_end_the_ray_passed_is_not_free() -> None:
+    plain = _wall_end()
+    pts = np.array([[3.9, 2.15],   # 0.19 m past the wall end (4, 1.99), on a 10 m ray
+                    [3.0, 2.5],    # 1.1 m from it, on a 10 m ray
+                    [2.0, 0.5]])   # 2 m in front of the wall, head on
+    np.testing.assert_array_equal(plain.free(pts, 0.3), [True, True, True])
+    # Within 4 deg (8 sectors) the scan's own return at the wall end lies 0.15-0.19 m
+    # from the first point: not free; the second is 1.1 m from every return near it.
+    beside = ScanFreeSpace(plain.poses, plain.ranges, return_window=8)
+    np.testing.assert_array_equal(beside.free(pts, 0.3), [False, True, True])
+    # One sector either side (28.4-29.4 deg) holds only the far wall's returns.
+    narrow = ScanFreeSpace(plain.poses, plain.ranges, return_window=1)
+    np.testing.assert_array_equal(narrow.free(pts, 0.3), [True, True, True])
+    with pytest.raises(ValueError, match="return_window"):
+        ScanFreeSpace(plain.poses, plain.ranges, return_window=-1)
+    with pytest.raises(UserError, match="free_space_return_window"):
+        GeometricCheckConfig(free_space_return_window=-2)
+
+
+def test_only_the_returns_of_the_scan_that_saw_through_count() -> None:
+    # Scan a (origin) saw only a far wall 10 m away (27 to 60 deg); scan b at (8, 2.15)
+    # facing -x saw a return 4 m ahead, at (4, 2.15): 0.1 m from p = (3.9, 2.15), which
+    # lies behind that return along b's ray (not b's free space) and 4.5 m along a's.
+    far = np.radians(np.arange(27.0, 60.1, 0.5))
+    b_pose = np.array([8.0, 2.15, np.pi])
+    free = ScanFreeSpace.of([np.zeros(3), b_pose],
+                            [10.0 * np.c_[np.cos(far), np.sin(far)], [[4.0, 0.0]]])
+    beside = ScanFreeSpace(free.poses, free.ranges, return_window=8)
+    p = np.array([[3.9, 2.15]])
+    # b's return beside p does not excuse a's ray through it (the all-direction rule
+    # about the whole submap would).
+    assert free.free(p, 0.3).tolist() == [True]
+    assert beside.free(p, 0.3).tolist() == [True]
+
+
+def test_the_store_hands_its_window_to_every_submaps_free_space() -> None:
+    det, _ = _store()
+    assert det.submap_free_space(2).return_window == 0
+    det.config.check.free_space_return_window = 8
+    assert det.submap_free_space(2).return_window == 8
