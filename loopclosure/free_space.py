@@ -57,7 +57,8 @@ either side of its own:
     rho_k < r_k(b_k) - margin  and  min_{|j - b_k| <= w} |q_k - x_k(j)| >= margin   (4)
 
 with ``q_k = s_k^-1 p`` and ``x_k(j)`` the point at range ``r_k(j)`` on the bearing
-of sector j's centre (sectors that observed nothing hold none).  Only the scan's own
+of sector j's centre (sectors that observed nothing hold none); with a surface cap
+the first term is (1'')'s.  Only the scan's own
 returns count, not the other scans' of its submap: a point is excused by the rays
 that ended beside it, not by a surface some other scan saw.
 
