@@ -407,20 +407,8 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     sigmas = scale_levels(cfg)
     smooth, deriv = _smoothed_complex(curve, sigmas)
     idx, level, delta = _detect(curve, step, sigmas, smooth, deriv, cfg)
-    if len(idx) < cfg.min_features:
-        k = cfg.min_features + 1
-        idx = (np.arange(k) * cfg.n_samples) // k
-        level = np.full(k, len(sigmas) // 2)
-        responses = np.zeros(k)
-    else:
-        responses = delta[level, idx]
-    tangent = deriv[level, idx]
-    orient = np.arctan2(-tangent.real, tangent.imag)  # angle of (t_y, -t_x)
-    points = curve[idx]
-    scales = sigmas[level] * step
-    view = _viewpoint(polygon, cfg.viewpoint, unit)
-    occ, evidence = beta_grids(points, scales, orient, curve[:: cfg.beam_stride], view, cfg)
-    return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
+    return _features(polygon, cfg, unit, curve, step, sigmas, deriv, delta, idx, level,
+                     np.arange(cfg.n_samples), np.arange(0, cfg.n_samples, cfg.beam_stride))
 
 
 def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) -> FlirtFeatures:
@@ -444,10 +432,23 @@ def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) ->
         kept = np.ones(n, dtype=bool)
     level, idx = np.nonzero(peak)
     order = np.argsort(-mag[level, idx], kind="stable")[: cfg.max_features]
-    idx, level = idx[order], level[order]
+    pool = np.flatnonzero(kept) if kept.any() else np.arange(n)
+    beams = np.flatnonzero(kept)[:: cfg.beam_stride] if not kept.all() else \
+        np.arange(0, n, cfg.beam_stride)
+    return _features(polygon, cfg, unit, curve, step, sigmas, deriv, delta, idx[order],
+                     level[order], pool, beams)
+
+
+def _features(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float, curve: Array,
+              step: float, sigmas: Array, deriv: Array, delta: Array, idx: Array,
+              level: Array, pool: Array, beams: Array) -> FlirtFeatures:
+    """The interest points at samples `idx` of scale levels `level` (strongest first),
+    their orientations (the normal ``(t_y, -t_x)`` of the smoothed tangent) and
+    beta-grids cast from the samples `beams`.  Fewer than ``min_features`` points: the
+    fallback of ``min_features + 1`` samples spread evenly over `pool` at the middle
+    level, with zero response."""
     if len(idx) < cfg.min_features:
         k = cfg.min_features + 1
-        pool = np.flatnonzero(kept) if kept.any() else np.arange(n)
         idx = pool[(np.arange(k) * len(pool)) // k]
         level = np.full(k, len(sigmas) // 2)
         responses = np.zeros(k)
@@ -458,8 +459,6 @@ def _describe_sampled(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float) ->
     points = curve[idx]
     scales = sigmas[level] * step
     view = _viewpoint(polygon, cfg.viewpoint, unit)
-    beams = np.flatnonzero(kept)[:: cfg.beam_stride] if not kept.all() else \
-        np.arange(0, n, cfg.beam_stride)
     occ, evidence = beta_grids(points, scales, orient, curve[beams], view, cfg)
     return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
 
