@@ -23,6 +23,7 @@ from slam.refine_scans import RefineConfig
 from slam.sessions import SessionsConfig
 
 FINAL_STARTS = ("given", "incremental")
+ADMISSION_CHECKS = ("exact", "screen")  # `slam.admission.CONFIRM_MODES`
 """Values of `BackendConfig.final_start`."""
 
 
@@ -66,6 +67,11 @@ class BackendConfig:
             constraint (x [m], y [m], theta [deg]): scan-matching covariances ignore
             correlated errors, this keeps them honest.
         relinearize_threshold: iSAM2 relinearisation threshold.
+        admission_check: how the incremental final pass confirms an admitted loop's
+            actual cost: ``"exact"`` (a leave-one-out re-solve of each loop of a round
+            whose joint cost is above the threshold) or ``"screen"`` (first clear the
+            loops whose linearised leave-one-out cost is at most half the threshold,
+            `slam.innovation.removal_costs`; not exact).
     """
 
     kernel: str = "cauchy"
@@ -75,11 +81,15 @@ class BackendConfig:
     final_start: str = "incremental"
     odometry_floor: tuple[float, float, float] = (0.002, 0.002, 0.05)
     relinearize_threshold: float = 0.01
+    admission_check: str = "exact"
 
     def __post_init__(self) -> None:
         if self.final_start not in FINAL_STARTS:
             raise UserError(f"backend.final_start must be one of {', '.join(FINAL_STARTS)}, "
                             f"got {self.final_start!r}")
+        if self.admission_check not in ADMISSION_CHECKS:
+            raise UserError("backend.admission_check must be one of "
+                            f"{', '.join(ADMISSION_CHECKS)}, got {self.admission_check!r}")
 
 
 @dataclass(slots=True)

@@ -166,7 +166,7 @@ def optimize(
     defer: str = "off",
     undo: bool = True,
     screen: bool = False,
-    confirm: bool = True,
+    confirm: bool | str = True,
     stall: bool = True,
 ) -> OptimizationResult:
     """Batch-optimise `graph` from `initial`, or else from `initial_guess(graph, init)`.
@@ -216,7 +216,9 @@ def optimize(
     `confirm` (on by default): the admission passes turn back an innovation-gate
     admission whose actual cost of being kept is above ``c``
     (`slam.admission.AdmissionPass`): the linearised cost the gate judges by can fall
-    below ``c`` while the prefix re-solved without the loop says otherwise.
+    below ``c`` while the prefix re-solved without the loop says otherwise;
+    ``confirm="screen"`` first clears the loops whose linearised leave-one-out cost is
+    at most half of ``c`` (not exact, `slam.innovation.removal_costs`).
     `stall` (on by default): the fast path's first solve (stiffest rung) is given up when
     an LM step lowers the error by under a relative `slam.fast_path_screen.STALL_DECREASE`
     at low damping while most loops are above ``c`` (`slam.fast_path_screen.stalled_solve`);

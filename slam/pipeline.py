@@ -600,6 +600,7 @@ class Mapper:
                 graph, method="gnc", initial=poses,
                 gnc_probability=self.config.backend.gnc_probability,
                 gnc_start=self._final_start(graph),
+                confirm="screen" if self.config.backend.admission_check == "screen" else True,
             )
             poses = result.poses
             rejected = set(result.loop_outliers)

@@ -159,6 +159,14 @@ def test_gnc_survives_half_false_loops_on_a_small_graph() -> None:
     assert rows["none"].ate_vs_clean_m > rows["gnc"].ate_vs_clean_m
 
 
+def test_the_screened_admission_check_holds_where_the_exact_one_does() -> None:
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    rows = {r.kernel: r for r in run_robustness(graph, [0.5], ["gnc", "gnc-screen"], seed=1)}
+    assert rows["gnc-screen"].ate_vs_clean_m < 0.05
+    assert rows["gnc-screen"].false_factors_obeyed == rows["gnc"].false_factors_obeyed
+    assert rows["gnc-screen"].true_factors_rejected == rows["gnc"].true_factors_rejected
+
+
 def test_m3500_batch_solution() -> None:
     path = shared_file("g2o/input_M3500_g2o.g2o")
     graph = PoseGraph.from_g2o(read_g2o(path))

@@ -69,3 +69,12 @@ def test_an_unknown_final_start_is_refused_when_the_config_is_made() -> None:
 
     with pytest.raises(UserError, match=r"backend\.final_start must be one of given, incremental"):
         apply_overrides(PipelineConfig(), ["backend.final_start=fast"])
+
+
+def test_the_admission_check_mode_is_checked_and_reaches_the_config() -> None:
+    from slam.config import PipelineConfig
+
+    assert apply_overrides(PipelineConfig(), ["backend.admission_check=screen"]
+                           ).backend.admission_check == "screen"
+    with pytest.raises(UserError, match=r"backend\.admission_check must be one of exact, screen"):
+        apply_overrides(PipelineConfig(), ["backend.admission_check=fast"])
