@@ -39,6 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.exact_stage_speed import load_revision  # noqa: E402
+
 
 def collect(logs: list[Path], out: Path) -> None:
     import loopclosure.geometric_check as gc
@@ -225,24 +227,6 @@ def phases(path: Path) -> None:
                   f"ICP moved med {np.median(mv):.3f} max {mv.max():.3f} m")
     with open(path.with_suffix(".rows.pkl"), "wb") as fh:
         pickle.dump(rows, fh)
-
-
-def load_revision(rev: str, path: str, folder: Path):
-    """Revision `rev`'s file `path` as a module of its own (``<stem>_baseline``)."""
-    import importlib.util
-    import subprocess
-
-    text = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=ROOT, check=True,
-                          capture_output=True, text=True).stdout
-    name = Path(path).stem + "_baseline"
-    file = folder / f"{name}.py"
-    file.write_text(text)
-    spec = importlib.util.spec_from_file_location(name, file)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def _same(a, b) -> bool:

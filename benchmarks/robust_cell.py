@@ -10,7 +10,9 @@ M3500a).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import pickle
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,3 +86,24 @@ def cell_outcome(graph, reference, corrupted, is_false: np.ndarray, poses) -> Ce
            - tls_cost(corrupted, corrupted.gtsam_values(reference)))
     return CellOutcome(obeyed, false_obeyed, consistent, int((~obeyed & ~is_false).sum()),
                        gap, aligned_position_error(poses, reference, graph.dim))
+
+
+class CpuCapped(Exception):
+    """Raised inside `cpu_cap`'s block when its CPU budget is spent."""
+
+
+def _capped(*_) -> None:  # type: ignore[no-untyped-def]
+    raise CpuCapped()
+
+
+@contextlib.contextmanager
+def cpu_cap(seconds: float):
+    """Raise `CpuCapped` in the block once it has used `seconds` of process CPU time
+    (``ITIMER_PROF``; no cap when `seconds` <= 0); the timer is cleared on leaving."""
+    if seconds > 0:
+        signal.signal(signal.SIGPROF, _capped)
+        signal.setitimer(signal.ITIMER_PROF, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_PROF, 0)

@@ -22,7 +22,6 @@ the outlier-free graph), true loops rejected, TLS gap to the clean optimum).
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from collections import Counter
@@ -31,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
+from benchmarks.robust_cell import CpuCapped, cell_outcome, cell_parser, cpu_cap, read_cell
 from slam.admission import AdmissionPass
 from slam.optimize import optimize
 
@@ -97,14 +96,6 @@ def restore(originals: tuple) -> None:
      AdmissionPass._screened) = originals
 
 
-class _Capped(Exception):
-    pass
-
-
-def _stop(*_) -> None:  # type: ignore[no-untyped-def]
-    raise _Capped()
-
-
 def main() -> None:
     parser = cell_parser(__doc__.split("\n")[0])
     parser.add_argument("--cap", type=float, default=0.0)
@@ -116,19 +107,17 @@ def main() -> None:
             f"confirm {args.confirm}")
     count = ConfirmCount(verbose=args.rounds)
     install(count)
-    if args.cap > 0:
-        signal.signal(signal.SIGPROF, _stop)
-        signal.setitimer(signal.ITIMER_PROF, args.cap)
     began = time.process_time()
     try:
-        result = optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental",
-                          confirm=True if args.confirm == "exact" else args.confirm)
-        signal.setitimer(signal.ITIMER_PROF, 0)
+        with cpu_cap(args.cap):
+            result = optimize(corrupted, "none", "gnc", init="odometry",
+                              gnc_start="incremental",
+                              confirm=True if args.confirm == "exact" else args.confirm)
         out = cell_outcome(graph, reference, corrupted, is_false, result.poses)
         status = (f"finished in {time.process_time() - began:.1f} s CPU: ATE {out.ate:.3g} m, "
                   f"{len(out.false_obeyed)} F ({out.consistent}), {out.true_rejected} T, "
                   f"gap {out.gap:+.1f}")
-    except _Capped:
+    except CpuCapped:
         status = f"capped at {time.process_time() - began:.1f} s CPU"
     print(f"{name}: {status}; the check: {count.rounds} rounds, {count.minima} minima "
           f"({count.from_isam} from iSAM2 copies), {count.screens} screens, "

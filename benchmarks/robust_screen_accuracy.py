@@ -19,7 +19,6 @@ screen's misses), and the largest ratio ``cost / rho`` among loops costing above
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from pathlib import Path
@@ -28,18 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.robust_cell import cell_parser, read_cell
+from benchmarks.robust_cell import CpuCapped, cell_parser, cpu_cap, read_cell
 from slam.admission import SCREEN_FRACTION, AdmissionPass
 from slam.admission_undo import with_loops
 from slam.optimize import optimize
-
-
-class _Capped(Exception):
-    pass
-
-
-def _stop(*_) -> None:  # type: ignore[no-untyped-def]
-    raise _Capped()
 
 
 def main() -> None:
@@ -61,16 +52,13 @@ def main() -> None:
         return low
 
     AdmissionPass._minimum = paired
-    if args.cap > 0:
-        signal.signal(signal.SIGPROF, _stop)
-        signal.setitimer(signal.ITIMER_PROF, args.cap)
     began = time.process_time()
     try:
-        optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental")
+        with cpu_cap(args.cap):
+            optimize(corrupted, "none", "gnc", init="odometry", gnc_start="incremental")
         status = f"finished in {time.process_time() - began:.1f} s CPU"
-    except _Capped:
+    except CpuCapped:
         status = f"capped at {time.process_time() - began:.1f} s CPU"
-    signal.setitimer(signal.ITIMER_PROF, 0)
     AdmissionPass._minimum = minimum
     c = AdmissionPass(corrupted, corrupted.gtsam_values(corrupted.initial))._c
     rho, cost, false = (np.array(v) for v in zip(*pairs, strict=True)) if pairs else (
