@@ -330,11 +330,30 @@ def _local_maxima_numpy(a: Array) -> NDArray[np.bool_]:
     return a > best * (1.0 + _STRICT) + _STRICT * np.finfo(float).tiny
 
 
-def _viewpoint(polygon: Polygon, mode: str, unit: float) -> Array:
+def _resampled(polygon: Polygon, n: int, compiled: bool) -> tuple[Array, float]:
+    """``(n, 2)`` arc-length samples of the boundary (`Polygon.resample`, a new array)
+    and the perimeter (`Polygon.perimeter`) [length]; compiled
+    (`flirt_curve_kernel.resample_kernel`): the same bits in one pass."""
+    if not compiled:
+        return polygon.resample(n), polygon.perimeter
+    # numba loads on first use: importing the matchers stays light.
+    from loopclosure.matchers.flirt_curve_kernel import resample_kernel
+
+    curve, lengths = resample_kernel(polygon.vertices, n)
+    return curve, float(lengths.sum())
+
+
+def _viewpoint(polygon: Polygon, mode: str, unit: float, compiled: bool = False) -> Array:
+    """Where the beta-grids' beams start (module docstring, step 4) [length / unit];
+    compiled (`flirt_curve_kernel.origin_view_kernel`): the same test in one loop."""
     if mode == "origin":
         return np.zeros(2)
     if mode == "centroid":
         return polygon.centroid() / unit
+    if compiled:
+        from loopclosure.matchers.flirt_curve_kernel import origin_view_kernel
+
+        return np.zeros(2) if origin_view_kernel(polygon.vertices) else polygon.centroid() / unit
     v = polygon.vertices
     size = float(np.abs(v).max())
     on_vertex = bool(np.min(np.abs(v).max(axis=1)) <= 1e-9 * size)  # scans < 360 deg
@@ -402,8 +421,9 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     unit = float(np.sqrt(polygon.area)) if cfg.scale_invariant else 1.0
     if cfg.sample_step > 0 or cfg.max_range > 0 or cfg.max_jump > 0:
         return _describe_sampled(polygon, cfg, unit)
-    curve = polygon.resample(cfg.n_samples) / unit
-    step = polygon.perimeter / unit / cfg.n_samples
+    curve, perimeter = _resampled(polygon, cfg.n_samples, cfg.compiled)
+    curve /= unit
+    step = perimeter / unit / cfg.n_samples
     sigmas = scale_levels(cfg)
     smooth, deriv = _smoothed_complex(curve, sigmas)
     idx, level, delta = _detect(curve, step, sigmas, smooth, deriv, cfg)
@@ -458,7 +478,7 @@ def _features(polygon: Polygon, cfg: FlirtFeatureConfig, unit: float, curve: Arr
     orient = np.arctan2(-tangent.real, tangent.imag)  # angle of (t_y, -t_x)
     points = curve[idx]
     scales = sigmas[level] * step
-    view = _viewpoint(polygon, cfg.viewpoint, unit)
+    view = _viewpoint(polygon, cfg.viewpoint, unit, cfg.compiled)
     occ, evidence = beta_grids(points, scales, orient, curve[beams], view, cfg)
     return FlirtFeatures(points, scales, orient, responses, occ, evidence, float(step), unit)
 
