@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from loopclosure.grid_rerank import dilate_polar, dilated_similarity
 from loopclosure.headings import polar_occupancy
-from loopclosure.matchers.pair_histogram import PairHistogramConfig, surface_samples
+from loopclosure.matchers.pair_histogram import PairHistogramConfig, polygon_samples
 from loopclosure.place_config import PlaceDatabaseConfig
 from loopclosure.place_rows import FloatRows
 from loopclosure.polygon import Polygon
@@ -28,8 +28,9 @@ _GRID_SAMPLES = PairHistogramConfig()
 
 
 def polar_grid(polygon: Polygon, cfg: PlaceDatabaseConfig) -> NDArray[np.uint8]:
-    """Bit-packed polar occupancy grid of the polygon's surface samples (sensor frame)."""
-    pts, _, _ = surface_samples(
+    """Bit-packed polar occupancy grid of the polygon's surface samples (sensor frame;
+    `polygon_samples`: the pair histogram's samples when the lengths agree)."""
+    pts, _, _ = polygon_samples(
         polygon.vertices, step=_GRID_SAMPLES.step, max_edge=_GRID_SAMPLES.max_edge,
         max_range=min(_GRID_SAMPLES.max_range, cfg.grid_range),
     )

@@ -77,4 +77,32 @@ def local_maxima_kernel(a, scale, offset):
     return out
 
 
-__all__ = ["local_maxima_kernel", "responses_kernel"]
+@numba.njit(cache=True)
+def peak_candidates_kernel(delta, min_response, scale, offset):
+    """The detector's interest-point candidates of the ``(L, N)`` responses `delta`:
+    the cells whose ``|delta|`` passes the peak test of `local_maxima_kernel` on the
+    array ``|delta|`` and is at least `min_response`, in row-major order (that of
+    ``np.nonzero``): their levels, positions and ``|delta|``."""
+    mag = np.abs(delta)
+    peak = local_maxima_kernel(mag, scale, offset)
+    levels, n = mag.shape
+    count = 0
+    for lv in range(levels):
+        for i in range(n):
+            if peak[lv, i] and mag[lv, i] >= min_response:
+                count += 1
+    level = np.empty(count, dtype=np.intp)
+    idx = np.empty(count, dtype=np.intp)
+    value = np.empty(count)
+    k = 0
+    for lv in range(levels):
+        for i in range(n):
+            if peak[lv, i] and mag[lv, i] >= min_response:
+                level[k] = lv
+                idx[k] = i
+                value[k] = mag[lv, i]
+                k += 1
+    return level, idx, value
+
+
+__all__ = ["local_maxima_kernel", "peak_candidates_kernel", "responses_kernel"]

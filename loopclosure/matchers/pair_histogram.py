@@ -155,6 +155,34 @@ def surface_samples(
     return surface_samples_kernel(v, float(step), float(max_edge), float(max_range))
 
 
+_LAST_SAMPLES: list[tuple | None] = [None]  # (vertices, their bytes, lengths, samples)
+
+
+def polygon_samples(
+    vertices: Array,
+    *,
+    step: float,
+    max_edge: float,
+    max_range: float,
+) -> tuple[Array, Array, Array]:
+    """`surface_samples` of a polygon's ``(N, 2)`` float vertices [m], remembered for the
+    last array asked: the place database's pair histogram and polar grid sample the
+    same keyframe with the same lengths, one after the other.  The memo answers only
+    for the same array object with the same bytes and lengths (it holds the array,
+    so its identity cannot pass to another), so the samples are those `surface_samples`
+    gives; they are returned read-only (shared between callers)."""
+    lengths = (float(step), float(max_edge), float(max_range))
+    last = _LAST_SAMPLES[0]
+    if (last is not None and last[0] is vertices and last[2] == lengths
+            and last[1] == vertices.tobytes()):
+        return last[3]
+    out = surface_samples(vertices, step=step, max_edge=max_edge, max_range=max_range)
+    for a in out:
+        a.setflags(write=False)
+    _LAST_SAMPLES[0] = (vertices, vertices.tobytes(), lengths, out)
+    return out
+
+
 def surface_samples_numpy(
     vertices: Array,
     *,
@@ -243,7 +271,8 @@ class PairHistogramMatcher(Matcher):
             extent = float(np.hypot(*(v - c).T).max()) or 1.0
             v = (v - c) / extent
             step, max_edge, max_range, max_distance = 0.01, np.inf, np.inf, 2.0
-        pts, nrm, w = surface_samples(v, step=step, max_edge=max_edge, max_range=max_range)
+        sample = surface_samples if cfg.scale_invariant else polygon_samples
+        pts, nrm, w = sample(v, step=step, max_edge=max_edge, max_range=max_range)
         if len(pts) > cfg.max_samples:
             stride = -(-len(pts) // cfg.max_samples)
             pts, nrm, w = pts[::stride], nrm[::stride], w[::stride] * stride
@@ -276,5 +305,6 @@ __all__ = [
     "PairHistogramConfig",
     "PairHistogramMatcher",
     "pair_histogram",
+    "polygon_samples",
     "surface_samples",
 ]
