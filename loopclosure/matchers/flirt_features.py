@@ -261,6 +261,22 @@ def scale_levels(config: FlirtFeatureConfig) -> Array:
     return config.sigma_0 * 2.0 ** (np.arange(max(n, 3)) / config.levels_per_octave)
 
 
+_LEVELS: dict[tuple[int, float, int, float], Array] = {}
+
+
+def _levels(config: FlirtFeatureConfig) -> Array:
+    """`scale_levels` of the config, made once per (n_samples, sigma_0,
+    levels_per_octave, max_scale_fraction); the array is shared: read it only."""
+    key = (config.n_samples, config.sigma_0, config.levels_per_octave,
+           config.max_scale_fraction)
+    cached = _LEVELS.get(key)
+    if cached is None:
+        if len(_LEVELS) > 16:
+            _LEVELS.clear()
+        cached = _LEVELS[key] = scale_levels(config)
+    return cached
+
+
 def smoothed_curves(curve: Array, sigmas: Array) -> tuple[Array, Array]:
     """Gaussian-smoothed closed curve and its derivative at every scale.
 
@@ -437,7 +453,7 @@ def describe_polygon(polygon: Polygon, config: FlirtFeatureConfig) -> FlirtFeatu
     curve, perimeter = _resampled(polygon, cfg.n_samples, cfg.compiled)
     curve /= unit
     step = perimeter / unit / cfg.n_samples
-    sigmas = scale_levels(cfg)
+    sigmas = _levels(cfg)
     smooth, deriv = _smoothed_complex(curve, sigmas)
     idx, level, delta = _detect(curve, step, sigmas, smooth, deriv, cfg)
     return _features(polygon, cfg, unit, curve, step, sigmas, deriv, delta, idx, level,
@@ -544,17 +560,17 @@ def beta_grids(
     radius = cfg.support_factor * scales
     if cfg.compiled:
         # numba loads on first use: importing the matchers stays light.
-        from loopclosure.matchers.flirt_grid_kernel import beta_grid_counts
+        from loopclosure.matchers.flirt_grid_kernel import beta_grid_posterior
 
-        hits, misses = beta_grid_counts(
+        return beta_grid_posterior(
             np.ascontiguousarray(points, dtype=float).reshape(-1, 2),
             np.ascontiguousarray(radius, dtype=float),
             np.ascontiguousarray(orientations, dtype=float),
             np.ascontiguousarray(ends, dtype=float).reshape(-1, 2),
             np.ascontiguousarray(view, dtype=float).reshape(2),
             cfg.rings, cfg.sectors, cfg.chord_samples,
+            float(cfg.prior_hit), float(cfg.prior_miss),
         )
-        return _posterior(hits, misses, cfg)
     # Hits: end points inside each support disc.
     ex = ends[None, :, 0] - points[:, 0:1]  # (F, B)
     ey = ends[None, :, 1] - points[:, 1:2]
