@@ -5,7 +5,7 @@ import pytest
 
 from loopclosure.matchers import flirt_features as ff
 from loopclosure.matchers.flirt_curve_kernel import origin_view_kernel, resample_kernel
-from loopclosure.matchers.flirt_grid_kernel import beta_grid_counts, beta_grid_posterior
+from loopclosure.matchers.flirt_grid_kernel import beta_grid_counts, beta_posterior
 from loopclosure.matchers.flirt_peak_kernel import peak_candidates_kernel
 from loopclosure.matchers.pair_histogram import polygon_samples, surface_samples
 from loopclosure.polygon import Polygon
@@ -69,11 +69,12 @@ def test_peak_candidates_kernel_by_hand_and_against_numpy() -> None:
     assert value.tobytes() == mag[ref_level, ref_idx].tobytes()
 
 
-def test_beta_grid_posterior_is_the_posterior_of_the_counts() -> None:
+def test_beta_posterior_is_the_numpy_posterior_of_the_counts() -> None:
     cfg = ff.FlirtFeatureConfig()
     # No beam near the feature: every bin keeps the prior, occupancy 1/2, evidence 2.
-    occ, ev = beta_grid_posterior(np.array([[50.0, 0.0]]), np.array([1.0]), np.array([0.0]),
-                                  SQUARE, np.zeros(2), 4, 12, 8, 1.0, 1.0)
+    occ, ev = beta_posterior(*beta_grid_counts(np.array([[50.0, 0.0]]), np.array([1.0]),
+                                               np.array([0.0]), SQUARE, np.zeros(2), 4, 12, 8),
+                             1.0, 1.0)
     assert np.all(occ == 0.5) and np.all(ev == 2.0) and ev.dtype == np.float32
     rng = np.random.default_rng(6)
     p = _star(rng, 120)
@@ -81,10 +82,9 @@ def test_beta_grid_posterior_is_the_posterior_of_the_counts() -> None:
     points, radius = curve[::9].copy(), rng.uniform(0.5, 6.0, len(curve[::9]))
     orient = rng.uniform(-np.pi, np.pi, len(points))
     ends = np.ascontiguousarray(curve[::2])
-    occ, ev = beta_grid_posterior(points, radius, orient, ends, np.zeros(2), 4, 12, 8,
-                                  cfg.prior_hit, cfg.prior_miss)
-    ref_occ, ref_ev = ff._posterior(*beta_grid_counts(points, radius, orient, ends,
-                                                      np.zeros(2), 4, 12, 8), cfg)
+    counts = beta_grid_counts(points, radius, orient, ends, np.zeros(2), 4, 12, 8)
+    occ, ev = beta_posterior(*counts, cfg.prior_hit, cfg.prior_miss)
+    ref_occ, ref_ev = ff._posterior(*counts, cfg)
     assert occ.tobytes() == ref_occ.tobytes() and ev.tobytes() == ref_ev.tobytes()
 
 

@@ -560,17 +560,17 @@ def beta_grids(
     radius = cfg.support_factor * scales
     if cfg.compiled:
         # numba loads on first use: importing the matchers stays light.
-        from loopclosure.matchers.flirt_grid_kernel import beta_grid_posterior
+        from loopclosure.matchers.flirt_grid_kernel import beta_grid_counts, beta_posterior
 
-        return beta_grid_posterior(
+        hits, misses = beta_grid_counts(
             np.ascontiguousarray(points, dtype=float).reshape(-1, 2),
             np.ascontiguousarray(radius, dtype=float),
             np.ascontiguousarray(orientations, dtype=float),
             np.ascontiguousarray(ends, dtype=float).reshape(-1, 2),
             np.ascontiguousarray(view, dtype=float).reshape(2),
             cfg.rings, cfg.sectors, cfg.chord_samples,
-            float(cfg.prior_hit), float(cfg.prior_miss),
         )
+        return beta_posterior(hits, misses, float(cfg.prior_hit), float(cfg.prior_miss))
     # Hits: end points inside each support disc.
     ex = ends[None, :, 0] - points[:, 0:1]  # (F, B)
     ey = ends[None, :, 1] - points[:, 1:2]

@@ -137,14 +137,11 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
 
 
 @numba.njit(cache=True)
-def beta_grid_posterior(points, radius, orientations, ends, view, rings, sectors,
-                        chord_samples, prior_hit, prior_miss):
-    """`beta_grid_counts` turned into the Beta posterior of every bin, as
-    `flirt_features._posterior` does it: occupancy ``(hits + a0) / (hits + a0 + misses
+def beta_posterior(hits, misses, prior_hit, prior_miss):
+    """The Beta posterior of every bin of the counts of `beta_grid_counts`, as
+    `flirt_features._posterior` makes it: occupancy ``(hits + a0) / (hits + a0 + misses
     + b0)`` and evidence ``hits + a0 + misses + b0`` (float32), ``(F, rings * sectors)``,
     with the same operations in the same order (the same bits)."""
-    hits, misses = beta_grid_counts(points, radius, orientations, ends, view, rings,
-                                    sectors, chord_samples)
     occupancy = np.empty(hits.shape)
     evidence = np.empty(hits.shape, dtype=np.float32)
     for f in range(hits.shape[0]):
@@ -156,4 +153,4 @@ def beta_grid_posterior(points, radius, orientations, ends, view, rings, sectors
     return occupancy, evidence
 
 
-__all__ = ["beta_grid_counts", "beta_grid_posterior"]
+__all__ = ["beta_grid_counts", "beta_posterior"]
