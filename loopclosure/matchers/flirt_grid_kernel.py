@@ -84,6 +84,9 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
     dx = np.empty(n_beams)
     dy = np.empty(n_beams)
     aa = np.empty(n_beams)
+    fracs = np.empty(chord_samples)  # the chord samples' fractions, divided once
+    for s in range(chord_samples):
+        fracs[s] = (s + 0.5) / chord_samples
     half = np.arange(1, sectors // 2) * (2.0 * math.pi / sectors)
     border_c, border_s = np.cos(half), np.sin(half)
     for b in range(n_beams):
@@ -124,8 +127,7 @@ def beta_grid_counts(points, radius, orientations, ends, view, rings, sectors, c
                 continue
             prev = -2
             for s in range(chord_samples):
-                frac = (s + 0.5) / chord_samples
-                t = t0 + (t1 - t0) * frac
+                t = t0 + (t1 - t0) * fracs[s]
                 k = _bin(wx + t * dx[b], wy + t * dy[b], ring_scale, orient, rings, sectors,
                          rot_c, rot_s, border_c, border_s, zero)
                 if k == end_bin[b]:
