@@ -99,6 +99,26 @@ def trajectory_reference_fn(data: Any, trajectory: Any) -> Any:
                 out[i] = xyt[pos[s]]
         return out
 
+    moves: dict[int, tuple[Any, np.ndarray, np.ndarray]] = {}  # id(result) -> its moves
+
+    def sigmas(result: Any, pairs: Any) -> np.ndarray:
+        """The reference's relative-pose sigmas of keyframe pairs ``(match, query)``
+        from its disagreement with its own scans (`evaluation.loop_bench_scan_truth`)."""
+        from evaluation.loop_bench_scan_truth import disagreement_sigmas, scan_disagreement
+
+        if id(result) not in moves:
+            moves.clear()
+            n = len(result.keyframes)
+            moves[id(result)] = (result, reference(result), np.full((n, 2), np.nan))
+        _, poses, mv = moves[id(result)]
+        pr = np.asarray(pairs, np.intp).reshape(-1, 2)
+        points = [k.points for k in result.keyframes]
+        for key in np.unique(pr):
+            if np.isnan(mv[key]).all():
+                mv[key] = scan_disagreement(points, poses, int(key))
+        return disagreement_sigmas(mv, pr)
+
+    reference.sigmas = sigmas  # type: ignore[attr-defined]
     return reference
 
 

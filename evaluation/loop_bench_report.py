@@ -8,7 +8,8 @@
                        "ms_per_query", "top1_precision", "top1_recall"}},
      "final": {... the same ..., "accepted", "precision_at_min_score",
                "recall_at_min_score", "min_score",
-               with a relations reference also "unverifiable" and "verifiable":
+               with a relations or trajectory reference also "unverifiable" and
+               "verifiable":
                {"recall_at_p100", "recall_at_p99", "average_precision"}},
      "recall_at_k": {prefilter stage: {"1", "10", "50"}},
      "candidates": {"recall", "mean_count"}, "wall_s", "reference"}
@@ -27,7 +28,9 @@ verdict, the check's verdict and pose error, the rank of its first true place in
 the prefilter and its nearest true place's distance, heading difference and
 overlap: `evaluation.loop_bench_misses`; the check's figures of the final place and
 how many places it accepted; with a relations reference the reference's own sigmas
-of the detection's relative pose and whether it is unverifiable, see
+of the detection's relative pose, with a trajectory reference (a log's own poses, a
+TUM file) those its disagreement with its own scans implies
+(`evaluation.loop_bench_scan_truth`), and whether it is unverifiable, see
 `evaluation.loop_bench_truth`), each atomically (`data.atomic_write`).
 """
 
@@ -165,7 +168,8 @@ def summary_lines(bench: LoopBench) -> list[str]:
         v = ver["verifiable"]
         lines.append(
             f"{ver['unverifiable']} wrong detections lie within the reference's own "
-            f"uncertainty (tolerance + 3 sigma of its relative pose); without them: recall "
+            f"uncertainty (tolerance + 3 sigma of its relative pose; a trajectory "
+            f"reference: + its disagreement with its own scans); without them: recall "
             f"{v['recall_at_p100']:.3f} at 100% precision, {v['recall_at_p99']:.3f} at 99%")
     lines.append(f"mapping {bench.wall_s.get('mapping', 0):.0f} s, queries "
                  f"{bench.wall_s.get('queries', 0):.0f} s")

@@ -1,0 +1,68 @@
+"""A trajectory reference's disagreement with its own scans (`evaluation.loop_bench_scan_truth`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from data import se2
+from evaluation.loop_bench_scan_truth import disagreement_sigmas, scan_disagreement
+from evaluation.loop_bench_truth import within_reference_uncertainty
+
+
+def _room(rng: np.random.Generator) -> np.ndarray:
+    """Walls of a 10 x 6 m room and a 1 m square pillar, 200 points a wall at random
+    places along it (each scan samples its own), 2 mm of noise across."""
+    t = rng.uniform(0.0, 1.0, 200)
+    walls = []
+    for a, b in (((0, 0), (10, 0)), ((10, 0), (10, 6)), ((10, 6), (0, 6)), ((0, 6), (0, 0)),
+                 ((4, 2), (5, 2)), ((5, 2), (5, 3)), ((5, 3), (4, 3)), ((4, 3), (4, 2))):
+        a, b = np.array(a, float), np.array(b, float)
+        walls.append(a + t[:, None] * (b - a))
+    return np.vstack(walls) + rng.normal(0.0, 0.002, (len(walls) * len(t), 2))
+
+
+def _keyframes(n: int = 11):
+    """`n` true poses along the room and each one's scan (every wall point, its frame)."""
+    rng = np.random.default_rng(0)
+    poses = np.column_stack([np.linspace(1.5, 8.5, n), np.full(n, 1.0),
+                             np.linspace(0.0, 0.5, n)])
+    scans = [se2.transform_points(se2.inverse(p), _room(rng)) for p in poses]
+    return poses, scans
+
+
+def test_true_poses_leave_a_scan_where_it_is():
+    poses, scans = _keyframes()
+    metres, radians = scan_disagreement(scans, poses, 5)
+    assert metres < 5e-3
+    assert radians < np.radians(0.05)
+
+
+def test_a_reference_heading_two_degrees_off_is_measured():
+    poses, scans = _keyframes()
+    bent = poses.copy()
+    bent[5, 2] += np.radians(2.0)
+    metres, radians = scan_disagreement(scans, bent, 5)
+    assert abs(np.degrees(radians) - 2.0) < 0.05
+    # its neighbours' own placement is right: they hardly move
+    assert scan_disagreement(scans, bent, 2)[1] < np.radians(0.3)
+
+
+def test_no_pose_or_too_few_neighbours_is_unknown():
+    poses, scans = _keyframes(3)
+    missing = poses.copy()
+    missing[1] = np.nan
+    assert np.isnan(scan_disagreement(scans, missing, 1)).all()
+    missing[2] = np.nan
+    assert np.isnan(scan_disagreement(scans, missing, 0)).all()  # one neighbour left
+
+
+def test_sigmas_add_the_two_keyframes_in_quadrature_over_k():
+    moves = np.array([[0.3, 0.03], [0.4, 0.04], [np.nan, np.nan]])
+    sig = disagreement_sigmas(moves, [[0, 1], [1, 2]])
+    assert np.allclose(np.hypot(sig[0, 0], sig[0, 1]), 0.5 / 3)
+    assert np.isclose(sig[0, 2], 0.05 / 3)
+    assert np.isnan(sig[1]).all()
+    # at the benchmark's k = 3 the tolerance widens by the disagreement itself
+    wrong_by = np.array([[0.1, 2.0 + np.degrees(0.05) - 0.01], [0.1, 2.0 + np.degrees(0.05) + 0.01]])
+    out = within_reference_uncertainty(wrong_by, [1.0, 1.0], np.vstack([sig[0], sig[0]]))
+    assert out.tolist() == [True, False]
