@@ -5,10 +5,10 @@ uncertainty of its own, yet it is a scan matcher's estimate too: where it bends,
 relative pose it gives two keyframes can be off by a degree or more, and a fit that
 agrees with the scans is then judged wrong at the benchmark's 2-degree tolerance.
 The scans themselves say where: keyframe ``k``'s scan, placed by the reference among
-the scans of keyframes ``k - half .. k + half`` (itself left out), should sit where
-ICP leaves it.  `scan_disagreement` is how far ICP moves it (point to line,
-`loopclosure.registration.register`, from the reference's placement, a 1 m gate then
-a 0.3 m one): a translation
+the scans of the keyframes just before it (``k - half .. k - 1``), and among those just
+after it, should sit where ICP leaves it.  `scan_disagreement` is how far ICP moves
+it (point to line, `loopclosure.registration.register`, from the reference's
+placement, a 1 m gate then a 0.3 m one), the larger of the two sides: a translation
 [m] and a rotation [rad].  Poses that hold their scans together move them little.
 
 `disagreement_sigmas` turns the two keyframes' moves of each detection into the
@@ -46,34 +46,44 @@ def scan_disagreement(points: Sequence[ArrayLike], poses: ArrayLike, key: int,
                       half: int = 5) -> tuple[float, float]:
     """How far ICP moves keyframe `key`'s scan onto its neighbours' as `poses` place them.
 
+    Each side on its own: the keyframes ``key - half .. key - 1`` (those with a pose),
+    then ``key + 1 .. key + half``; the larger move of the two (by its rotation).  A
+    reference that kinks at `key` (its pose turned against the keyframes before it, and
+    those after it turned with it) moves the scan fully onto one side and not at all
+    onto the other: both sides at once would split the kink.
+
     Args:
         points: every keyframe's scan points, ``(M_i, 2)`` [m] in its sensor frame.
         poses: ``(n, 3)`` the reference's keyframe poses [m, m, rad] (NaN rows: none).
         key: the keyframe.
-        half: neighbours ``key - half .. key + half`` (those with a pose).
+        half: neighbours on each side.
 
     Returns:
-        ``(metres, radians)`` of the move (absolute), NaN when `key` has no pose,
-        fewer than two neighbours have one, or ICP fails.
+        ``(metres, radians)`` of the move (absolute), NaN when `key` has no pose or
+        neither side has two neighbours with one (or ICP fails on both).
     """
     p = np.asarray(poses, dtype=float).reshape(-1, 3)
     if not np.isfinite(p[key]).all():
         return float("nan"), float("nan")
-    ids = [j for j in range(max(0, key - half), min(len(p), key + half + 1))
-           if j != key and np.isfinite(p[j]).all()]
-    if len(ids) < 2:
-        return float("nan"), float("nan")
-    others = np.vstack([se2.transform_points(se2.between(p[key], p[j]),
-                                             np.asarray(points[j], float).reshape(-1, 2))
-                        for j in ids])
     scan = np.asarray(points[key], float).reshape(-1, 2)
-    target = RegistrationTarget(others, FINE_ICP)
-    r = register(scan, target, np.zeros(3), config=WIDE_ICP)
-    if r.ok:
-        r = register(scan, target, r.pose, config=FINE_ICP)
-    if not r.ok:
-        return float("nan"), float("nan")
-    return float(np.hypot(r.pose[0], r.pose[1])), abs(float(se2.wrap_angle(r.pose[2])))
+    best = (float("nan"), float("nan"))
+    for side in (range(max(0, key - half), key), range(key + 1, min(len(p), key + half + 1))):
+        ids = [j for j in side if np.isfinite(p[j]).all()]
+        if len(ids) < 2:
+            continue
+        others = np.vstack([se2.transform_points(se2.between(p[key], p[j]),
+                                                 np.asarray(points[j], float).reshape(-1, 2))
+                            for j in ids])
+        target = RegistrationTarget(others, FINE_ICP)
+        r = register(scan, target, np.zeros(3), config=WIDE_ICP)
+        if r.ok:
+            r = register(scan, target, r.pose, config=FINE_ICP)
+        if not r.ok:
+            continue
+        move = (float(np.hypot(r.pose[0], r.pose[1])), abs(float(se2.wrap_angle(r.pose[2]))))
+        if not move[1] <= best[1]:  # NaN best: any move
+            best = move
+    return best
 
 
 def disagreement_sigmas(moves: ArrayLike, pairs: ArrayLike, k: float = SIGMA_K) -> Array:

@@ -21,7 +21,7 @@ def _room(rng: np.random.Generator) -> np.ndarray:
     return np.vstack(walls) + rng.normal(0.0, 0.002, (len(walls) * len(t), 2))
 
 
-def _keyframes(n: int = 11):
+def _keyframes(n: int = 13):
     """`n` true poses along the room and each one's scan (every wall point, its frame)."""
     rng = np.random.default_rng(0)
     poses = np.column_stack([np.linspace(1.5, 8.5, n), np.full(n, 1.0),
@@ -40,20 +40,33 @@ def test_true_poses_leave_a_scan_where_it_is():
 def test_a_reference_heading_two_degrees_off_is_measured():
     poses, scans = _keyframes()
     bent = poses.copy()
-    bent[5, 2] += np.radians(2.0)
-    metres, radians = scan_disagreement(scans, bent, 5)
+    bent[6, 2] += np.radians(2.0)
+    _, radians = scan_disagreement(scans, bent, 6)
     assert abs(np.degrees(radians) - 2.0) < 0.05
-    # its neighbours' own placement is right: they hardly move
-    assert scan_disagreement(scans, bent, 2)[1] < np.radians(0.3)
+    # a keyframe whose two sides leave the bent one out does not move
+    assert scan_disagreement(scans, bent, 0)[1] < np.radians(0.05)
+
+
+def test_a_kink_shows_on_one_side():
+    """Every pose from keyframe 6 on turned by 2 degrees about keyframe 6: its scan sits
+    right among the keyframes after it, 2 degrees off those before it."""
+    poses, scans = _keyframes()
+    kinked = poses.copy()
+    turn = np.array([0.0, 0.0, np.radians(2.0)])
+    for j in range(6, len(poses)):
+        kinked[j] = se2.compose(poses[6], se2.compose(turn, se2.between(poses[6], poses[j])))
+    _, radians = scan_disagreement(scans, kinked, 6)
+    assert abs(np.degrees(radians) - 2.0) < 0.05
 
 
 def test_no_pose_or_too_few_neighbours_is_unknown():
-    poses, scans = _keyframes(3)
+    poses, scans = _keyframes(4)
     missing = poses.copy()
     missing[1] = np.nan
     assert np.isnan(scan_disagreement(scans, missing, 1)).all()
+    assert np.isfinite(scan_disagreement(scans, missing, 0)).all()  # 2 and 3 after it
     missing[2] = np.nan
-    assert np.isnan(scan_disagreement(scans, missing, 0)).all()  # one neighbour left
+    assert np.isnan(scan_disagreement(scans, missing, 0)).all()  # one neighbour a side
 
 
 def test_sigmas_add_the_two_keyframes_in_quadrature_over_k():
@@ -63,6 +76,7 @@ def test_sigmas_add_the_two_keyframes_in_quadrature_over_k():
     assert np.isclose(sig[0, 2], 0.05 / 3)
     assert np.isnan(sig[1]).all()
     # at the benchmark's k = 3 the tolerance widens by the disagreement itself
-    wrong_by = np.array([[0.1, 2.0 + np.degrees(0.05) - 0.01], [0.1, 2.0 + np.degrees(0.05) + 0.01]])
+    edge = 2.0 + np.degrees(0.05)
+    wrong_by = np.array([[0.1, edge - 0.01], [0.1, edge + 0.01]])
     out = within_reference_uncertainty(wrong_by, [1.0, 1.0], np.vstack([sig[0], sig[0]]))
     assert out.tolist() == [True, False]
