@@ -8,8 +8,11 @@ The scans themselves say where: keyframe ``k``'s scan, placed by the reference a
 the scans of the keyframes just before it (``k - half .. k - 1``), and among those just
 after it, should sit where ICP leaves it.  `scan_disagreement` is how far ICP moves
 it (point to line, `loopclosure.registration.register`, from the reference's
-placement, a 1 m gate then a 0.3 m one), the larger of the two sides: a translation
-[m] and a rotation [rad].  Poses that hold their scans together move them little.
+placement, a 1 m gate then a 0.3 m one), the larger of the two sides: a rotation
+[rad] and a translation [m], the latter across the fit's weak axis only (its least
+translational information: a scan in a corridor slides along it by whatever the
+search happens to settle on, which says nothing of the reference).  Poses that hold
+their scans together move them little.
 
 `disagreement_sigmas` turns the two keyframes' moves of each detection into the
 ``(x, y, theta)`` standard deviations that `evaluation.loop_bench_truth.
@@ -59,7 +62,8 @@ def scan_disagreement(points: Sequence[ArrayLike], poses: ArrayLike, key: int,
         half: neighbours on each side.
 
     Returns:
-        ``(metres, radians)`` of the move (absolute), NaN when `key` has no pose or
+        ``(metres, radians)`` of the move (absolute; the metres across ICP's weak axis,
+        `loopclosure.registration.IcpResult.degenerate_axis`), NaN when `key` has no pose or
         neither side has two neighbours with one (or ICP fails on both).
     """
     p = np.asarray(poses, dtype=float).reshape(-1, 3)
@@ -80,7 +84,9 @@ def scan_disagreement(points: Sequence[ArrayLike], poses: ArrayLike, key: int,
             r = register(scan, target, r.pose, config=FINE_ICP)
         if not r.ok:
             continue
-        move = (float(np.hypot(r.pose[0], r.pose[1])), abs(float(se2.wrap_angle(r.pose[2]))))
+        weak = np.asarray(r.degenerate_axis, float).reshape(2)
+        across = float(abs(r.pose[0] * weak[1] - r.pose[1] * weak[0]))  # off the weak axis
+        move = (across, abs(float(se2.wrap_angle(r.pose[2]))))
         if not move[1] <= best[1]:  # NaN best: any move
             best = move
     return best

@@ -80,3 +80,21 @@ def test_sigmas_add_the_two_keyframes_in_quadrature_over_k():
     wrong_by = np.array([[0.1, edge - 0.01], [0.1, edge + 0.01]])
     out = within_reference_uncertainty(wrong_by, [1.0, 1.0], np.vstack([sig[0], sig[0]]))
     assert out.tolist() == [True, False]
+
+
+def test_a_slide_along_a_corridor_is_not_counted():
+    """Two parallel walls 2 m apart, 30 m long: a reference that puts a keyframe 0.3 m
+    further along the corridor cannot be told by the scans; one 0.1 m across it can."""
+    rng = np.random.default_rng(1)
+    n = 9
+    poses = np.column_stack([np.linspace(10.0, 18.0, n), np.zeros(n), np.zeros(n)])
+    scans = []
+    for p in poses:
+        x = rng.uniform(0.0, 30.0, 600)
+        walls = np.column_stack([x, np.where(np.arange(600) % 2 == 0, -1.0, 1.0)])
+        scans.append(se2.transform_points(se2.inverse(p), walls + rng.normal(0, 0.002, (600, 2))))
+    along, across = poses.copy(), poses.copy()
+    along[4, 0] += 0.3
+    across[4, 1] += 0.1
+    assert scan_disagreement(scans, along, 4)[0] < 0.01
+    assert abs(scan_disagreement(scans, across, 4)[0] - 0.1) < 0.01
