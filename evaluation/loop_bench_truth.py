@@ -33,7 +33,9 @@ keyframe; ``max_distance`` = 2 m by default):
   above, which it does not change): a wrong detection after the check whose place
   distance and pose errors are all within the tolerance plus ``k`` standard
   deviations of the reference's own relative pose between the two keyframes (a
-  relations reference knows them: `evaluation.slam_reference.relative_sigmas`).
+  relations reference knows them: `evaluation.slam_reference.relative_sigmas`; a
+  trajectory reference's come from its disagreement with its own scans:
+  `evaluation.loop_bench_scan_truth`).
   The recall at 100% / 99% precision with those detections set aside (neither
   correct nor wrong) says how much of a cap the reference, not the detector, sets.
 """
