@@ -95,13 +95,21 @@ def cache_is_cold() -> bool:
     first run after an install, or sources changed since).  Read from numba's cache
     objects; a numba that keeps them elsewhere counts as warm (no child)."""
     from loopclosure import virtual_scan_kernel
-    from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, flirt_peak_kernel, pair_kernel
+    from loopclosure.matchers import (
+        flirt_curve_kernel,
+        flirt_grid_kernel,
+        flirt_kernel,
+        flirt_peak_kernel,
+        pair_kernel,
+    )
 
     kernels = (fast_icp._register_kernel, fast_icp._screen_kernel, fast_icp._voxel_kernel,
                fast_icp._beam_points_kernel, flirt_peak_kernel.responses_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
                flirt_kernel.euclidean_distances,
-               flirt_grid_kernel.beta_grid_counts, flirt_peak_kernel.local_maxima_kernel,
+               flirt_grid_kernel.beta_grid_counts, flirt_grid_kernel.beta_posterior,
+               flirt_peak_kernel.local_maxima_kernel, flirt_peak_kernel.peak_candidates_kernel,
+               flirt_curve_kernel.resample_kernel, flirt_curve_kernel.origin_view_kernel,
                pair_kernel._pair_kernel, pair_kernel.surface_samples_kernel,
                virtual_scan_kernel.candidates,
                virtual_scan_kernel.front_most)
