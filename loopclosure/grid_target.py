@@ -98,12 +98,11 @@ class GridTarget:
         self.config = cfg = config or (target.config if target is not None else IcpConfig())
         self.cell = float(cell)
         self._target = target
-        pts = np.ascontiguousarray(as_points(points, "target points"))
+        pts = _target_points(points)
         self.input_points = pts
         if len(pts) == 0:
             pts = np.zeros((1, 2))
-        self.origin, self.shape, self.start, order = _cells(pts, self.cell)
-        self.points = np.ascontiguousarray(pts[order], dtype=float)
+        self.origin, self.shape, self.start, order, self.points = _cells_sorted(pts, self.cell)
         n = len(self.points)
         self.params = np.array([
             min(cfg.normal_neighbors, n), cfg.normal_radius, self.anchor_radius,
@@ -331,15 +330,82 @@ def _resolve_until(goal, pts, ox, oy, cell, nx, ny, start, params, normals, anch
     return met
 
 
+def _target_points(points: ArrayLike) -> Array:
+    """``np.ascontiguousarray(as_points(points, "target points"))``: the same array and
+    the same error; a C-contiguous ``(M, 2)`` float64 array (every local map of the
+    front end) is checked by one compiled pass instead of numpy's conversions and
+    reduction."""
+    if (type(points) is np.ndarray and points.dtype == np.float64 and points.ndim == 2
+            and points.shape[1] == 2 and points.flags.c_contiguous):
+        if not _all_finite(points):
+            raise UserError("target points holds non-finite coordinates")
+        return points
+    return np.ascontiguousarray(as_points(points, "target points"))
+
+
+@numba.njit(cache=True)
+def _all_finite(pts):
+    for i in range(pts.shape[0]):
+        if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
+            return False
+    return True
+
+
 def _cells(pts: Array, cell: float) -> tuple[Array, tuple[int, int], Array, Array]:
-    """CSR cell layout of `pts` (`GridTarget`): origin, shape ``(nx, ny)``, start
-    offsets and the stable order that sorts the points by cell."""
-    lo = pts.min(axis=0) - cell
-    cells = np.floor((pts - lo) / cell).astype(np.int64)
-    nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
-    flat = cells[:, 0] * ny + cells[:, 1]
+    """CSR cell layout of `pts` (``(M, 2)`` finite [m], `GridTarget`): origin [m],
+    shape ``(nx, ny)``, start offsets and the stable order that sorts the points by
+    cell."""
+    origin, shape, start, order, _ = _cells_sorted(pts, cell)
+    return origin, shape, start, order
+
+
+def _cells_sorted(pts: Array, cell: float
+                  ) -> tuple[Array, tuple[int, int], Array, Array, Array]:
+    """`_cells` of `pts` (``(M, 2)`` finite, M >= 1) and the points sorted by cell
+    (``pts[order]``, C-contiguous), in one compiled call (`_cells_kernel`)."""
+    lox, loy, nx, ny, start, order, ordered = _cells_kernel(
+        np.ascontiguousarray(pts, dtype=float), float(cell))
+    return np.array([lox, loy]), (int(nx), int(ny)), start, order, ordered
+
+
+@numba.njit(cache=True)
+def _cells_kernel(pts, cell):
+    """The cell layout of `pts` (``(M, 2)`` finite [m], M >= 1): the lower-left corner
+    ``lo = min(pts) - cell`` (per axis), cells ``floor((p - lo) / cell)`` (one more
+    row and column than the largest index, as a margin), their CSR offsets, the
+    stable order that sorts the points by flat cell ``i * ny + j`` and the points in
+    that order.  The same operations as ``pts.min(axis=0) - cell``, ``np.floor((pts -
+    lo) / cell).astype(np.int64)`` and `_counting_sort`, so the same cells, without
+    numpy's calls on small arrays (a local map is rebuilt for most scans of logs with
+    a scan a metre)."""
+    n = pts.shape[0]
+    lox = pts[0, 0]
+    loy = pts[0, 1]
+    for i in range(1, n):
+        lox = min(lox, pts[i, 0])
+        loy = min(loy, pts[i, 1])
+    lox -= cell
+    loy -= cell
+    ci = np.empty(n, dtype=np.int64)
+    cj = np.empty(n, dtype=np.int64)
+    mi = 0
+    mj = 0
+    for i in range(n):
+        a = np.int64(np.floor((pts[i, 0] - lox) / cell))
+        b = np.int64(np.floor((pts[i, 1] - loy) / cell))
+        ci[i] = a
+        cj[i] = b
+        mi = max(mi, a)
+        mj = max(mj, b)
+    nx = mi + 2
+    ny = mj + 2
+    flat = ci * ny + cj
     start, order = _counting_sort(flat, nx * ny)
-    return lo.astype(float), (nx, ny), start, order
+    ordered = np.empty((n, 2))
+    for t in range(n):
+        ordered[t, 0] = pts[order[t], 0]
+        ordered[t, 1] = pts[order[t], 1]
+    return lox, loy, nx, ny, start, order, ordered
 
 
 @numba.njit(cache=True)
@@ -376,8 +442,7 @@ def estimate_normals_fast(points: ArrayLike, config: IcpConfig
     if n < config.min_normal_neighbors:
         return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.full(n, np.inf)
     cell = float(config.normal_radius)
-    origin, (nx, ny), start, order = _cells(pts, cell)
-    sorted_pts = np.ascontiguousarray(pts[order])
+    origin, (nx, ny), start, order, sorted_pts = _cells_sorted(pts, cell)
     k = min(config.normal_neighbors, n)
     normals_s, ratio_s = np.zeros((n, 2)), np.full(n, np.inf)
     count_s = np.zeros(n, dtype=np.int64)

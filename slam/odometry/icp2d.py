@@ -416,6 +416,9 @@ class Icp2dOdometry:
         self._recent_fitness: deque[float] = deque(maxlen=cfg.jump_history)
         self._keyframes: deque[Array] = deque(maxlen=cfg.map_keyframes)
         self._normals: deque[Array] = deque(maxlen=cfg.map_keyframes)
+        # ``np.vstack(self._keyframes)``, kept up to date as keyframes come and go
+        # (`_add_keyframe`): one copy a keyframe instead of stacking all of them.
+        self._stack: Array | None = None
         self._keyframe_pose: Array | None = None
         self._view: Array | None = None
         self._grid: GridTarget | None = None
@@ -712,6 +715,7 @@ class Icp2dOdometry:
         self._track.clear()
         self._keyframes.clear()
         self._normals.clear()
+        self._stack = None
         self._grid = None
         self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
         self._velocity = np.zeros(3)
@@ -738,12 +742,23 @@ class Icp2dOdometry:
         extra["keyframe"] = due
         if due:
             self._keyframe_pose = self._pose.copy()
-            self._keyframes.append(se2.transform_points(self._pose, points))
+            self._add_keyframe(se2.transform_points(self._pose, points))
             if cfg.cull_back_faces:
                 c, s = np.cos(self._pose[2]), np.sin(self._pose[2])
                 self._normals.append(scan_normals(points, cfg.facing_gap, cfg.facing_bend)
                                      @ np.array([[c, s], [-s, c]]))
             self._rebuild_map()
+
+    def _add_keyframe(self, points: Array) -> None:
+        """Append a keyframe's points ``(N, 2)`` [m] (odometry frame) to the map's
+        keyframes (the oldest leaves a full window) and to their stack, which then
+        holds the same rows as ``np.vstack`` of the window."""
+        frames = self._keyframes
+        drop = len(frames[0]) if len(frames) == frames.maxlen else 0
+        frames.append(points)
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        self._stack = (pts.copy() if self._stack is None
+                       else np.concatenate((self._stack[drop:], pts)))
 
     def _rebuild_map(self, view: Array | None = None) -> None:
         """Merge the keyframes into the local map; with `cull_back_faces`, the faces
@@ -753,13 +768,16 @@ class Icp2dOdometry:
         fast = _fast()
         voxel = fast.voxel_downsample_fast if cfg.compiled else voxel_downsample
         assert self._keyframe_pose is not None
-        frames = list(self._keyframes)
         self._view = (self._keyframe_pose[:2] if view is None
                       else np.asarray(view, dtype=float)[:2]).copy()
-        if cfg.cull_back_faces and len(self._normals) == len(frames):
+        if cfg.cull_back_faces and len(self._normals) == len(self._keyframes):
             frames = [p[facing(p, n, self._view)]
-                      for p, n in zip(frames, self._normals, strict=True)]
-        pts = voxel(np.vstack(frames), cfg.map_voxel)
+                      for p, n in zip(self._keyframes, self._normals, strict=True)]
+            stack = np.vstack(frames)
+        else:
+            assert self._stack is not None
+            stack = self._stack
+        pts = voxel(stack, cfg.map_voxel)
         if cfg.compiled:  # the same rows, compiled
             pts = fast.points_within(pts, self._keyframe_pose[:2], cfg.map_radius)
         else:
