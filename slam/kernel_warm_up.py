@@ -47,13 +47,14 @@ def warm_up() -> None:
 
 def cache_is_cold() -> bool:
     """True when either layer's numba cache lacks a kernel `warm_up` compiles."""
-    from loopclosure import fast_icp
+    from loopclosure import fast_icp, grid_target
     from slam import selected_inverse_kernel as kernels
 
     if loopclosure_warm_up.cache_is_cold():
         return True
     compiled = (kernels._reach_counts, kernels._solves, kernels.sparse_block_dots,
-                fast_icp._within_kernel, fast_icp._compact, fast_icp._all_finite)
+                fast_icp._within_kernel, fast_icp._compact, fast_icp._all_finite,
+                grid_target._cells_kernel, grid_target._all_finite)
     try:
         paths = [k._cache._cache_file._index_path for k in compiled]
     except AttributeError:

@@ -180,3 +180,21 @@ def test_bearings_kept_for_a_read_only_array_only() -> None:
     writable[0] = 0.5  # changed in place: the cosines follow
     cos3, _ = odo._bearings(writable)
     assert cos3[0] == np.cos(0.5)
+
+
+def test_the_keyframe_stack_is_the_vstack_of_the_window() -> None:
+    """`Icp2dOdometry._add_keyframe` keeps ``np.vstack`` of the last `map_keyframes`
+    keyframes: the oldest leaves a full window, the newest comes last."""
+    from slam.odometry.icp2d import Icp2dConfig
+
+    odo = Icp2dOdometry(Icp2dConfig(map_keyframes=3))
+    frames = [np.full((n, 2), float(k)) + np.arange(n)[:, None] for k, n in
+              enumerate([2, 0, 3, 1, 4])]
+    for k, f in enumerate(frames):
+        odo._add_keyframe(f)
+        window = frames[max(0, k - 2):k + 1]
+        assert odo._stack is not None and odo._stack.tobytes() == np.vstack(window).tobytes()
+    # hand-checked: frames 2, 3, 4 (3 + 1 + 4 rows), their first columns 2, 3, 4, 4, 3, ...
+    assert odo._stack[:, 0].tolist() == [2.0, 3.0, 4.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    odo.reset()
+    assert odo._stack is None and not odo._keyframes

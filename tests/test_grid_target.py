@@ -4,13 +4,16 @@ computes it, and the front end on lazy grids gives the same estimates."""
 import numpy as np
 import pytest
 
+from data.errors import UserError
 from data.sim import MotionConfig, simulate_run
 from loopclosure import fast_icp
 from loopclosure.grid_target import (
     KIND_UNKNOWN,
     GridTarget,
     _cells,
+    _cells_sorted,
     _counting_sort,
+    _target_points,
     estimate_normals_fast,
 )
 from loopclosure.registration import IcpConfig, estimate_normals
@@ -39,6 +42,44 @@ def test_counting_sort_is_the_stable_argsort_and_its_offsets():
     start, order = _counting_sort(flat, 50)
     assert np.array_equal(order, np.argsort(flat, kind="stable"))
     assert np.array_equal(start, np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=50))]))
+
+
+def test_the_compiled_cell_layout_hand_checked_and_as_numpy_computes_it():
+    # lo = min - cell = (-0.25, -0.25); cells (1, 1), (2, 1), (1, 3); shape (2 + 2, 3 + 2)
+    pts = np.array([[0.0, 0.0], [0.3, 0.1], [0.05, 0.6]])
+    origin, shape, start, order, ordered = _cells_sorted(pts, 0.25)
+    assert origin.tolist() == [-0.25, -0.25] and shape == (4, 5)
+    assert order.tolist() == [0, 2, 1]  # flat cells 6, 11, 8
+    assert np.array_equal(ordered, pts[[0, 2, 1]]) and ordered.flags.c_contiguous
+    assert start[:7].tolist() == [0] * 7 and start[7:9].tolist() == [1, 1]
+    assert start[9:12].tolist() == [2, 2, 2] and start[12:].tolist() == [3] * 9
+    rng = np.random.default_rng(2)
+    for cell in (0.05, 0.25, 0.5):
+        # on and off the cell borders, far from the origin
+        pts = np.vstack([np.round(rng.normal(0, 8, (300, 2)) / 0.05) * 0.05,
+                         rng.normal(0, 8, (300, 2))]) + np.array([500.0, -300.0])
+        lo = pts.min(axis=0) - cell
+        cells = np.floor((pts - lo) / cell).astype(np.int64)
+        nx, ny = int(cells[:, 0].max()) + 2, int(cells[:, 1].max()) + 2
+        flat = cells[:, 0] * ny + cells[:, 1]
+        origin, shape, start, order, ordered = _cells_sorted(pts, cell)
+        assert origin.tobytes() == lo.tobytes() and shape == (nx, ny)
+        assert np.array_equal(order, np.argsort(flat, kind="stable"))
+        assert np.array_equal(start, _counting_sort(flat, nx * ny)[0])
+        assert np.array_equal(ordered, pts[order])
+        assert all(np.array_equal(a, b) for a, b in
+                   zip(_cells(pts, cell), (origin, shape, start, order), strict=True))
+
+
+def test_target_points_checks_as_as_points_does():
+    pts = np.array([[0.0, 1.0], [2.0, 3.0]])
+    assert _target_points(pts) is pts  # no copy of a contiguous float64 array
+    assert _target_points([[0, 1], [2, 3]]).tolist() == pts.tolist()
+    assert _target_points(np.asfortranarray(pts)).flags.c_contiguous
+    with pytest.raises(UserError, match="target points holds non-finite coordinates"):
+        _target_points(np.array([[0.0, 1.0], [np.inf, 3.0]]))
+    with pytest.raises(UserError, match="target points must be an"):
+        _target_points(np.zeros((3, 3)))
 
 
 @pytest.mark.parametrize("anchor", ["point", "mean"])
