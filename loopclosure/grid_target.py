@@ -197,7 +197,13 @@ def _point_pca(p, pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, ba
     r2 = radius * radius
     # A cell farther than this from the point holds no neighbour (the slack covers
     # the rounding of the cell a point was put in); skipping it changes nothing.
-    far = radius + 1e-6 * (1.0 + radius)
+    slack = 1e-6 * (1.0 + radius)
+    far = radius + slack
+    # Once `k` neighbours are held, a cell whose gap exceeds the k-th distance by the
+    # same slack holds only points the test ``d2 < bd[k - 1]`` rejects (the k-th
+    # distance never grows): skipping it changes nothing either.  `beyond` is that
+    # gap squared (a relative 1e-9 above it), inf while fewer than `k` are held.
+    beyond = np.inf
     px, py = pts[p, 0], pts[p, 1]
     ci = int(np.floor((px - ox) / cell))
     cj = int(np.floor((py - oy) / cell))
@@ -206,7 +212,8 @@ def _point_pca(p, pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, ba
         gx = max(ox + i * cell - px, px - (ox + (i + 1) * cell), 0.0)
         for j in range(max(cj - rings, 0), min(cj + rings, ny - 1) + 1):
             gy = max(oy + j * cell - py, py - (oy + (j + 1) * cell), 0.0)
-            if gx * gx + gy * gy >= far * far:
+            gap2 = gx * gx + gy * gy
+            if gap2 >= far * far or gap2 >= beyond:
                 continue
             c = i * ny + j
             for q in range(start[c], start[c + 1]):
@@ -228,6 +235,9 @@ def _point_pca(p, pts, ox, oy, cell, nx, ny, start, k, radius, anchor_radius, ba
                     pos -= 1
                 bd[pos] = d2
                 bi[pos] = q
+                if m == k:
+                    reach = np.sqrt(bd[k - 1]) + slack
+                    beyond = reach * reach * (1.0 + 1e-9)
     if m == 0:
         return 0, 0.0, 0.0, np.inf, px, py
     mx = 0.0
