@@ -45,6 +45,18 @@ crawl on to its iteration cap, after which `solve` goes on with dogleg; a graph 
 loops all fall below ``c`` only after such a dip or by that dogleg would be given up.
 Measured per cell by `benchmarks/fast_path_stall.py` (the full solve's trajectory and
 where the rule fires).
+
+Where LM fails and `solve` goes on with dogleg (Intel, MIT: sparse Cholesky breaks down
+on their near-singular information), the dogleg's iterations are watched too, by another
+rule: dogleg's trust region keeps each step's relative decrease of the total error near
+a few percent whether the loops agree or not, so a small decrease tells nothing there.
+What does is the number of loops above ``c``: the solve is given up once that number has
+not fallen below its least so far for `STALL_WINDOW` dogleg iterations while more than
+half of the loops are above ``c``.  On a graph whose loops agree, the count falls as soon
+as the odometry chain's drift is taken up (every loop is above ``c`` at the chain), and
+it goes on falling every few iterations; with many false loops it stays near the number
+of loops from the first iteration to the last.  Again a measured rule, not a proof; it
+too returns `solve`'s result bit for bit whenever it does not give up.
 """
 
 from __future__ import annotations
@@ -60,6 +72,9 @@ STALL_DECREASE = 1e-3  # `stalled_solve`: relative decrease of one LM iteration 
 # above which a small decrease is the damping's, not a stall (LM crawling, as on
 # near-singular information: it may run to its cap, after which `solve` goes on with dogleg).
 STALL_LAMBDA = 1.0
+# `stalled_solve`'s dogleg rule: dogleg iterations without a new least number of loops
+# above ``c`` (with more than half above) after which the solve is given up (0: off).
+STALL_WINDOW = 10
 
 
 class _Stalled(Exception):
@@ -74,28 +89,61 @@ def is_stall(iteration: int, before: float, after: float, decrease: float) -> bo
     return iteration >= 1 and 0.0 < before - after < decrease * before
 
 
+class CountStall:
+    """The dogleg rule of `stalled_solve`, fed one iteration at a time: `seen(iteration,
+    above)` with the dogleg's iteration count (1 after its first iteration) and the
+    number of loops above ``c`` after it, of `loops` loops; True once that number has not
+    fallen below its least so far for `window` iterations while more than half of the
+    loops are above ``c``."""
+
+    def __init__(self, loops: int, window: int = STALL_WINDOW) -> None:
+        self.loops, self.window = loops, window
+        self.least: int | None = None  # the least number above ``c`` seen so far
+        self.since = 0  # the iteration that first reached it
+
+    def seen(self, iteration: int, above: int) -> bool:
+        if self.least is None or above < self.least:
+            self.least, self.since = above, iteration
+            return False
+        return iteration - self.since >= self.window and 2 * above > self.loops
+
+
 def stalled_solve(
     factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
     loop_index: list[int], c: float, decrease: float = STALL_DECREASE,
+    window: int | None = None,
 ) -> tuple[gtsam.Values, int, str] | None:
     """`slam.least_squares.solve(factors, values, max_iterations)`, or None when an LM
     step lowers the total error by less than `decrease` (relative) while more than
     half of the loop factors ``factors.at(k)``, k in `loop_index`, have an error above `c`
-    (gtsam units; module docstring).  Returns ``(solution, iterations, solver)`` as
-    `solve` does, bit for bit, whenever it does not give up."""
+    (gtsam units; module docstring), or when its dogleg iterations (where LM fails) go
+    `window` iterations without lowering the number of loops above `c` while more than
+    half are above (`CountStall`; None: `STALL_WINDOW`; 0: dogleg not watched).  Returns
+    ``(solution, iterations, solver)`` as `solve` does, bit for bit, whenever it does not
+    give up."""
+    def above(now: gtsam.Values) -> int:
+        return sum(factors.at(k).error(now) > c for k in loop_index)
+
     def watch(lm: gtsam.LevenbergMarquardtOptimizer, iteration: int, before: float,
               after: float) -> None:
         if not is_stall(iteration, before, after, decrease):
             return
         if lm.lambda_() > STALL_LAMBDA:
             return
-        now = lm.values()
-        above = sum(factors.at(k).error(now) > c for k in loop_index)
-        if 2 * above > len(loop_index):
+        if 2 * above(lm.values()) > len(loop_index):
+            raise _Stalled
+
+    window = STALL_WINDOW if window is None else window
+    counts = CountStall(len(loop_index), window) if window > 0 else None
+
+    def dogleg_watch(dogleg: gtsam.DoglegOptimizer, iteration: int, before: float,
+                     after: float) -> None:
+        if counts is not None and counts.seen(iteration, above(dogleg.values())):
             raise _Stalled
 
     try:
-        return solve(factors, values, max_iterations, watch=watch)
+        return solve(factors, values, max_iterations, watch=watch,
+                     dogleg_watch=dogleg_watch if counts is not None else None)
     except _Stalled:
         return None
 

@@ -64,14 +64,25 @@ def lm_params(
 
 
 def dogleg_qr(
-    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int
+    factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int,
+    watch: Callable[[gtsam.DoglegOptimizer, int, float, float], None] | None = None,
 ) -> gtsam.DoglegOptimizer:
-    """Powell's dogleg with multifrontal QR from `values` (relative tolerance 1e-6)."""
+    """Powell's dogleg with multifrontal QR from `values` (relative tolerance 1e-6).
+
+    `watch(optimizer, iteration, error_before, error_after)`: called after each
+    iteration with the running optimiser (gtsam's ``iterationHook``; it only reads, so
+    the iterations are the same with or without it); an exception it raises, other than
+    RuntimeError, ends the solve and propagates out of ``optimize``."""
     params = gtsam.DoglegParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-6)
     params.setLinearSolverType("MULTIFRONTAL_QR")
-    return gtsam.DoglegOptimizer(factors, values, params)
+    running: list[gtsam.DoglegOptimizer] = []
+    if watch is not None:
+        params.iterationHook = lambda i, before, after: watch(running[0], i, before, after)
+    optimizer = gtsam.DoglegOptimizer(factors, values, params)
+    running.append(optimizer)
+    return optimizer
 
 
 def stiff_keys(factors: gtsam.NonlinearFactorGraph) -> list[int]:
@@ -123,6 +134,7 @@ def solve(
     lm_budget: int | None = None,
     watch: Callable[[gtsam.LevenbergMarquardtOptimizer, int, float, float], None]
     | None = None,
+    dogleg_watch: Callable[[gtsam.DoglegOptimizer, int, float, float], None] | None = None,
 ) -> tuple[gtsam.Values, int, str]:
     """LM, then dogleg with QR if LM fails (module docstring).
 
@@ -131,6 +143,7 @@ def solve(
     or `DOGLEG_QR`).  `watch(lm, iteration, error_before, error_after)`: called after
     each LM iteration with the running optimiser (gtsam's ``iterationHook``); an
     exception it raises, other than RuntimeError, ends the solve and propagates.
+    `dogleg_watch`: the same after each dogleg iteration (`dogleg_qr`'s `watch`).
     """
     budget = max_iterations if lm_budget is None else min(lm_budget, max_iterations)
     params = lm_params(budget)
@@ -150,7 +163,7 @@ def solve(
             return result, iterations, LM
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         pass
-    dogleg = dogleg_qr(factors, best, max_iterations)
+    dogleg = dogleg_qr(factors, best, max_iterations, dogleg_watch)
     return dogleg.optimize(), iterations + dogleg.iterations(), DOGLEG_QR
 
 

@@ -221,7 +221,9 @@ def optimize(
     at most half of ``c`` (not exact, `slam.innovation.removal_costs`).
     `stall` (on by default): the fast path's first solve (stiffest rung) is given up when
     an LM step lowers the error by under a relative `slam.fast_path_screen.STALL_DECREASE`
-    at low damping while most loops are above ``c`` (`slam.fast_path_screen.stalled_solve`);
+    at low damping while most loops are above ``c``, or, where LM fails and dogleg goes on,
+    when `slam.fast_path_screen.STALL_WINDOW` dogleg iterations bring no new least number of
+    loops above ``c`` while most are above it (`slam.fast_path_screen.stalled_solve`);
     otherwise its result is `solve`'s bit for bit.  A measured rule, not a proof that the
     fast path would fail: on every graph and odometry scaling measured it gave up only
     solves whose result failed the fast path's check as well, and it saves most of that

@@ -125,3 +125,52 @@ def test_a_stall_is_a_small_step_taken() -> None:
     assert not is_stall(5, 1000.0, 998.0, 1e-3)  # 2e-3: still converging
     assert not is_stall(5, 1000.0, 1000.0, 1e-3)  # no decrease: no step
     assert not is_stall(0, 1000.0, 999.9, 1e-3)  # LM has not counted a step yet
+
+
+def test_the_count_stall_fires_after_a_window_without_a_new_least_count() -> None:
+    from slam.fast_path_screen import CountStall
+
+    rule = CountStall(loops=10, window=3)
+    # 9 above c at iterations 1-3 (least 9 since 1), 8 at 4 (new least), then flat
+    assert [rule.seen(i, a) for i, a in [(1, 9), (2, 9), (3, 9), (4, 8), (5, 8), (6, 9)]] \
+        == [False] * 6
+    assert rule.seen(7, 8)  # 3 iterations since the least (8 at 4), 8 of 10 above
+    flat = CountStall(loops=10, window=3)
+    assert not any(flat.seen(i, 5) for i in range(1, 6))  # half above c: never a stall
+    falling = CountStall(loops=10, window=1)
+    assert not any(falling.seen(i, 10 - i) for i in range(1, 5))  # a new least each time
+
+
+def _dogleg_after_one_lm(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """`stalled_solve`'s `solve` with an LM budget of one iteration, so that it goes on
+    with dogleg (as where sparse Cholesky breaks down)."""
+    import slam.fast_path_screen as screen
+
+    monkeypatch.setattr(screen, "solve", lambda *a, **k: solve(*a, lm_budget=1, **k))
+
+
+def test_the_dogleg_rule_is_solve_bit_for_bit_on_a_consistent_graph(monkeypatch) -> None:
+    _dogleg_after_one_lm(monkeypatch)
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    factors, loop_index = graph.factor_graph()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    new = stalled_solve(factors, values, 100, loop_index, tls_threshold(2), window=1)
+    old = solve(factors, values, 100, lm_budget=1)
+    assert old[2] == "dogleg-qr" and new is not None
+    assert new[1:] == old[1:] and new[0].equals(old[0], 0.0)
+
+
+def test_the_dogleg_rule_gives_up_when_most_loops_stay_above_c(monkeypatch) -> None:
+    _dogleg_after_one_lm(monkeypatch)
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    graph, _ = _with_false_loops(len(graph.loops) + 8)
+    factors, loop_index = graph.factor_graph()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    c = tls_threshold(2)
+    assert stalled_solve(factors, values, 100, loop_index, c, decrease=0.0, window=1) is None
+    old = solve(factors, values, 100, lm_budget=1)
+    assert old[2] == "dogleg-qr"
+    assert 2 * sum(factors.at(k).error(old[0]) > c for k in loop_index) > len(loop_index)
+    # without the dogleg rule (and no LM stall: decrease 0) the solve runs to the end
+    kept = stalled_solve(factors, values, 100, loop_index, c, decrease=0.0, window=0)
+    assert kept is not None and kept[0].equals(old[0], 0.0)
