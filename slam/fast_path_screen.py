@@ -121,8 +121,10 @@ def stalled_solve(
     half are above (`CountStall`; None: `STALL_WINDOW`; 0: dogleg not watched).  Returns
     ``(solution, iterations, solver)`` as `solve` does, bit for bit, whenever it does not
     give up."""
+    loops = [factors.at(k) for k in loop_index]
+
     def above(now: gtsam.Values) -> int:
-        return sum(factors.at(k).error(now) > c for k in loop_index)
+        return sum(f.error(now) > c for f in loops)
 
     def watch(lm: gtsam.LevenbergMarquardtOptimizer, iteration: int, before: float,
               after: float) -> None:
