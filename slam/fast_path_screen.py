@@ -53,7 +53,7 @@ a few percent whether the loops agree or not, so a small decrease tells nothing 
 What does is the number of loops above ``c``: the solve is given up once that number has
 not fallen below its least so far for `STALL_WINDOW` dogleg iterations while more than
 half of the loops are above ``c``.  On a graph whose loops agree, the count falls as soon
-as the odometry chain's drift is taken up (every loop is above ``c`` at the chain), and
+as the odometry chain's drift is taken up (nearly every loop is above ``c`` there), and
 it goes on falling every few iterations; with many false loops it stays near the number
 of loops from the first iteration to the last.  Again a measured rule, not a proof; it
 too returns `solve`'s result bit for bit whenever it does not give up.
