@@ -58,10 +58,12 @@ frame, the starting rotations of the geometric check, best first: the peaks of t
 correlation of the two places' polar occupancy grids (``grid_headings``), then those
 of their range functions (``n_headings``) (`loopclosure.place_headings`).
 
-Where the pieces live: result types `loopclosure.place_match`; the shortlist of
-step 1 `loopclosure.place_shortlist`; scales `loopclosure.place_scales`; polar grids
-and their similarity `loopclosure.place_grids`; offset viewpoints
-`loopclosure.place_views`; this module holds the storage and the query steps.
+Where the pieces live: result types `loopclosure.place_match`; the prefilter vectors
+and step 1's screening `loopclosure.place_prefilter`; the shortlist and the vote's
+candidate merge `loopclosure.place_shortlist`; steps 2-3 (verify, fuse)
+`loopclosure.place_fusion`; scales `loopclosure.place_scales`; polar grids and their
+similarity `loopclosure.place_grids`; offset viewpoints `loopclosure.place_views`;
+this module holds the storage and the query steps' order.
 
 Storage (`loopclosure.place_rows`) grows with amortised doubling (`VectorStore` for
 prefilter vectors, `FloatRows` for range functions, a list of every keyframe's
@@ -92,23 +94,16 @@ from data.errors import UserError
 from loopclosure.matchers import get_matcher
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.fft import FFTMatcher
-from loopclosure.matchers.vector_search import VectorStore, smallest_k
 from loopclosure.place_config import PlaceDatabaseConfig
-from loopclosure.place_fusion import StageFusion
+from loopclosure.place_fusion import StageFusion, stage_distances
 from loopclosure.place_grids import GRID, DilatedGrids, polar_grid
 from loopclosure.place_headings import HEADING, as_hypotheses, candidate_headings
 from loopclosure.place_match import CandidateSet, Descriptors, PlaceMatch
+from loopclosure.place_prefilter import PrefilterIndex
 from loopclosure.place_rows import FloatRows, KeyIndex
 from loopclosure.place_scales import stage_scales
-from loopclosure.place_shortlist import Shortlist, rank_interleave, rows_mask
-from loopclosure.place_views import (
-    VIEWPOINTS,
-    ViewpointRows,
-    prefilter_vector,
-    screen_sets,
-    viewpoint_sets,
-    with_viewpoints,
-)
+from loopclosure.place_shortlist import Shortlist, rows_mask, with_votes
+from loopclosure.place_views import VIEWPOINTS
 from loopclosure.place_vote import PairVoteConfig, PairVoteIndex, vote_keypoints
 from loopclosure.polygon import Polygon
 
@@ -158,9 +153,8 @@ class PlaceDatabase:
             fft = self.matchers.get("fft")
             self._heading_matcher = fft if isinstance(fft, FFTMatcher) else FFTMatcher()
         self._grid_on = cfg.grid_headings > 0 and not cfg.scale_invariant
-        self._weights = np.asarray(cfg.prefilter_weights or [1.0] * len(cfg.prefilter), float)
-        self._stores: dict[str, VectorStore] = {}
-        self._views = ViewpointRows(cfg.prefilter)  # offset viewpoints (`place_views`)
+        self._prefilter = PrefilterIndex(cfg)  # prefilter vectors (`place_prefilter`)
+        self._stores = self._prefilter.stores
         self._descriptors: list[Descriptors] = []  # per row: what `descriptors` returns
         self._ranges: FloatRows | None = None  # range functions of the heading hypotheses
         # Per row, its dilated polar grid (`place_grids`): made once, at insertion.
@@ -170,7 +164,6 @@ class PlaceDatabase:
         self._poses: list[Any] = []
         self._scales = np.ones(len(cfg.stages))
         self._scales_at = 0
-        self._scratch = np.empty(0, np.float32)
         self._last_stored: tuple | None = None  # `query_stored`'s previous answer
         if cfg.fixed_scales:
             self._scales = np.asarray(cfg.fixed_scales, float)
@@ -247,14 +240,8 @@ class PlaceDatabase:
                 missing.append(HEADING)
         if missing:
             raise UserError(f"descriptors of key {key!r} lack stage(s) {', '.join(missing)}")
-        for s in self.config.prefilter:
-            vec = np.asarray(prefilter_vector(descriptors[s]), dtype=float)
-            if s not in self._stores:
-                self._stores[s] = VectorStore(len(vec))
-            self._stores[s].append(vec)
+        self._prefilter.append(descriptors)
         kept = {s: descriptors[s] for s in self.config.stages}
-        self._views.append(descriptors.get(VIEWPOINTS) if self.config.stored_viewpoints
-                           else None)
         if descriptors.get(VIEWPOINTS) is not None:
             kept[VIEWPOINTS] = descriptors[VIEWPOINTS]
         if self._heading_matcher is not None:
@@ -345,52 +332,8 @@ class PlaceDatabase:
         """
         q = self._query_descriptors(query)
         self._refresh_scales()
-        return self._exact_prefilter(q, np.arange(len(self)) if rows is None else rows)
-
-    def _exact_prefilter(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
-                         ) -> tuple[Array, dict[str, Array]]:
-        """Exact p and raw stage distances of `rows`, each row's smallest over its own
-        description and its offset viewpoints, and over the query's own viewpoints
-        with ``query_viewpoints`` (`loopclosure.place_views`).  `scored`: the raw
-        distances the fused score sees, which are those of the two own descriptions
-        unless ``viewpoint_scores``."""
-        return self._exact_lists(q, rows, scored)[1:]
-
-    def _exact_lists(self, q: Descriptors, rows: NDArray[np.intp], scored: bool = False
-                     ) -> tuple[list[Array], Array, dict[str, Array]]:
-        """`_exact_prefilter` with, first, the lists of `prefilter_lists`."""
-        sets = self._query_vectors(q)
-        own_raw = {s: self._stores[s].exact_distances(v, rows) for s, v in sets[0].items()}
-        own = (self._combine(own_raw), own_raw)
-        lists = [own[0]]
-        best = own
-        stored = None
-        if len(self._views):
-            stored = self._views.exact(sets[0], rows, self._combine)
-            best = with_viewpoints(own, stored)
-        from_query = own
-        for vectors in sets[1:]:
-            raw = {s: self._stores[s].exact_distances(v, rows) for s, v in vectors.items()}
-            cur = (self._combine(raw), raw)
-            from_query = with_viewpoints(from_query, cur)
-            if len(self._views):
-                cur = with_viewpoints(cur, self._views.exact(vectors, rows, self._combine))
-            best = with_viewpoints(best, cur)
-        if self._interleaved(q):
-            if len(sets) > 1:
-                lists.append(from_query[0])
-            if stored is not None:
-                lists.append(np.minimum(own[0], stored[0]))
-        if scored and not self.config.viewpoint_scores:
-            return lists, best[0], own_raw
-        return lists, best[0], best[1]
-
-    def _interleaved(self, q: Descriptors) -> bool:
-        """Whether query `q` ranks by several lists (``viewpoint_order="interleave"``,
-        and viewpoints on either side)."""
-        return self.config.viewpoint_order == "interleave" and (
-            len(self._views) > 0
-            or (self.config.query_viewpoints and q.get(VIEWPOINTS) is not None))
+        return self._prefilter.exact(q, np.arange(len(self)) if rows is None else rows,
+                                     self._scales)
 
     def prefilter_lists(self, query: Polygon | Descriptors, rows: NDArray[np.intp] | None = None
                         ) -> list[Array]:
@@ -403,60 +346,8 @@ class PlaceDatabase:
         q = self._query_descriptors(query)
         self._refresh_scales()
         rows = np.arange(len(self)) if rows is None else rows
-        lists, p, _ = self._exact_lists(q, rows)
-        return lists if self._interleaved(q) else [p]
-
-    def _query_vectors(self, q: Descriptors) -> list[dict[str, Any]]:
-        """The query's prefilter vectors: its own, then (``query_viewpoints``) those of
-        each of its offset viewpoints."""
-        own = {s: prefilter_vector(q[s]) for s in self.config.prefilter}
-        if not self.config.query_viewpoints:
-            return [own]
-        return [own, *viewpoint_sets(q.get(VIEWPOINTS), self.config.prefilter)]
-
-    def _combine(self, raw: Mapping[str, ArrayLike]) -> Any:
-        """``sum_s w_s d_s / scale_s`` of per-stage distances (float32 in, float32 out)."""
-        combined = None
-        for i, s in enumerate(self.config.prefilter):
-            d = raw[s]
-            factor = self._weights[i] / self._scales[i]
-            term = d * np.asarray(factor, dtype=np.asarray(d).dtype)
-            combined = term if combined is None else np.add(combined, term, out=combined)
-        return combined
-
-    def _screen(self, q: Descriptors) -> NDArray[np.float32]:
-        """Float32 combined prefilter distance of every stored keyframe (the hot path).
-
-        Written into scratch buffers kept between queries (no fresh pages per query):
-        the result is only valid until the next query.
-        """
-        self._refresh_scales()
-        m = len(self)
-        n_stages = len(self.config.prefilter)
-        if len(self._scratch) < m * n_stages:
-            self._scratch = np.empty(2 * m * n_stages, np.float32)
-        factors = {s: self._weights[i] / self._scales[i]
-                   for i, s in enumerate(self.config.prefilter)}
-        sets = self._query_vectors(q)
-        combined = screen_sets(self._stores, sets, factors, self._scratch)
-        if len(self._views):
-            np.minimum(combined, self._views.screen(sets, factors, m), out=combined)
-        return combined
-
-    def _screen_lists(self, q: Descriptors) -> list[NDArray[np.float32]]:
-        """Float32 screens of the lists of `prefilter_lists` (fresh arrays)."""
-        self._refresh_scales()
-        m = len(self)
-        factors = {s: self._weights[i] / self._scales[i]
-                   for i, s in enumerate(self.config.prefilter)}
-        sets = self._query_vectors(q)
-        own = screen_sets(self._stores, sets[:1], factors)
-        lists = [own]
-        if len(sets) > 1:
-            lists.append(np.minimum(own, screen_sets(self._stores, sets[1:], factors)))
-        if len(self._views):
-            lists.append(np.minimum(own, self._views.screen(sets[:1], factors, m)))
-        return lists
+        lists, p, _ = self._prefilter.exact_lists(q, rows, self._scales)
+        return lists if self._prefilter.interleaved(q) else [p]
 
     def candidates(
         self,
@@ -488,7 +379,7 @@ class PlaceDatabase:
         raw = {s: d[keep] for s, d in short.raw.items()}
         if self._vote is not None and q.get(VOTE) is not None:
             pick, pre, raw = self._with_votes(q, mask, min(k, len(pick)), pick, pre, raw)
-        dist = self._stage_distances(q, pick, raw)
+        dist = stage_distances(self.config, self.matchers, self._descriptors, q, pick, raw)
         return CandidateSet(pick, pre, dist, self._fuse(dist, pre), short.prefilter_all)
 
     def vote_scores(self, query: Polygon | Descriptors,
@@ -504,85 +395,34 @@ class PlaceDatabase:
     def _with_votes(self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int,
                     pick: NDArray[np.intp], pre: Array, raw: dict[str, Array]
                     ) -> tuple[NDArray[np.intp], Array, dict[str, Array]]:
-        """The candidates with the vote's (module docstring): the first ``vote_split``
-        of the prefilter's K, the vote's best allowed rows not among the candidates
-        (decreasing score, ties by row) up to K, then the prefilter's next ones, and
-        the grids' extras (positions K and on) last."""
+        """The candidates with the vote's (module docstring; `place_shortlist.with_votes`):
+        the first ``vote_split`` of the prefilter's K, the vote's best allowed rows not
+        among the candidates (decreasing score, ties by row) up to K, then the
+        prefilter's next ones, and the grids' extras (positions K and on) last."""
         split = min(self.config.vote_split, k)
         if split >= k:
             return pick, pre, raw
         scores = self._vote.scores(*q[VOTE])
         if mask is not None:
             scores[~mask] = 0.0
-        scores[pick[:split]] = 0.0
-        scores[pick[k:]] = 0.0
-        voted = np.flatnonzero(scores > 0)
-        voted = voted[np.lexsort((voted, -scores[voted]))][: k - split]
-        rest = np.flatnonzero(~np.isin(pick[split:k], voted)) + split
-        take = np.concatenate([np.arange(split), rest[: k - split - len(voted)]]).astype(np.intp)
-        extra = np.arange(k, len(pick))
-        new_pre, new_raw = self._exact_prefilter(q, voted.astype(np.intp), scored=True)
-        rows = np.concatenate([pick[take], voted, pick[extra]]).astype(np.intp)
-        pre = np.concatenate([pre[take], new_pre, pre[extra]])
-        raw = {s: np.concatenate([d[take], new_raw[s], d[extra]]) for s, d in raw.items()}
+        take, voted = with_votes(pick, scores, split, k)
+        new_pre, new_raw = self._prefilter.exact(q, voted, self._scales, scored=True)
+        head, tail = take[:split], take[split:]
+        rows = np.concatenate([pick[head], voted, pick[tail]]).astype(np.intp)
+        pre = np.concatenate([pre[head], new_pre, pre[tail]])
+        raw = {s: np.concatenate([d[head], new_raw[s], d[tail]]) for s, d in raw.items()}
         return rows, pre, raw
 
     def _shortlist(
         self, q: Descriptors, mask: NDArray[np.bool_] | None, k: int, keep_prefilter: bool
     ) -> Shortlist:
-        """The rows a query chooses its candidates from: the K smallest p, or with
-        grids the ``grid_shortlist`` smallest and their grid similarities; exact p
-        and stage distances, in increasing p (ties by row)."""
-        m = len(self)
-        n = self._shortlist_size(q, k)
-        if self._interleaved(q):
-            return self._interleaved_shortlist(q, mask, n, keep_prefilter)
-        if mask is not None and mask.sum() * 4 < m:
-            rows = np.flatnonzero(mask)
-            part, _ = self.prefilter_distances(q, rows)
-            pick = rows[smallest_k(part, n)]
-            combined = np.full(m, np.inf)
-            combined[rows] = part
-        else:
-            screened = self._screen(q)
-            if mask is not None:
-                screened[~mask] = np.inf
-                n = min(n, int(mask.sum()))
-            pick = smallest_k(screened, n)
-            combined = screened.astype(np.float64) if keep_prefilter else None
-        pre, raw = self._exact_prefilter(q, pick, scored=True)
-        order = np.lexsort((pick, pre))
-        similarity = self._grid_similarity(q, pick[order]) if self._extra_on(q) else None
-        return Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
-                          similarity, combined)
-
-    def _interleaved_shortlist(self, q: Descriptors, mask: NDArray[np.bool_] | None, n: int,
-                               keep_prefilter: bool) -> Shortlist:
-        """`_shortlist` of a query ranking by several lists: the first `n` rows of the
-        lists' interleave (`rank_interleave`), taken from the union of each list's
-        `n` smallest (screened, then exact)."""
-        m = len(self)
-        if mask is not None and mask.sum() * 4 < m:
-            rows = np.flatnonzero(mask)
-            lists = []
-            for part in self._exact_lists(q, rows)[0]:
-                full = np.full(m, np.inf)
-                full[rows] = part
-                lists.append(full)
-        else:
-            lists = self._screen_lists(q)
-            if mask is not None:
-                for d in lists:
-                    d[~mask] = np.inf
-        n = min(n, m if mask is None else int(mask.sum()))
-        pick = np.unique(np.concatenate([smallest_k(d, n) for d in lists])).astype(np.intp)
-        exact, pre, raw = self._exact_lists(q, pick, scored=True)
-        order = rank_interleave(exact)[:n]
-        pick = pick[order]
-        similarity = self._grid_similarity(q, pick) if self._extra_on(q) else None
-        every = np.min(np.vstack(lists), axis=0).astype(np.float64) if keep_prefilter else None
-        return Shortlist(pick, pre[order], {s: d[order] for s, d in raw.items()}, similarity,
-                         every, ordered=True)
+        """The rows a query chooses its candidates from (`PrefilterIndex.shortlist`):
+        the K smallest p, or with grids the ``grid_shortlist`` smallest and their grid
+        similarities; exact p and stage distances, in increasing p (ties by row)."""
+        self._refresh_scales()
+        similarity = (lambda rows: self._grid_similarity(q, rows)) if self._extra_on(q) else None
+        return self._prefilter.shortlist(q, mask, self._shortlist_size(q, k), len(self),
+                                         self._scales, keep_prefilter, similarity)
 
     def _shortlist_size(self, q: Descriptors, k: int) -> int:
         """Rows a query with K candidates ranks exactly: K, or the grids' shortlist."""
@@ -661,7 +501,7 @@ class PlaceDatabase:
         k = self.config.top_k
         last = self._last_stored
         if (last is None or last[0] != key or last[1] != self._scales_at
-                or self._interleaved(q)
+                or self._prefilter.interleaved(q)
                 or not np.isin(last[2], rows, assume_unique=True).all()):
             short = self._shortlist(q, rows_mask(rows, len(self)), k, False)
             known: dict[int, PlaceMatch] = {}
@@ -679,7 +519,8 @@ class PlaceDatabase:
             by_row = np.argsort(short.rows)
             at = by_row[np.searchsorted(short.rows, todo, sorter=by_row)]
             raw = {s: d[at] for s, d in short.raw.items()}
-            dist = self._stage_distances(q, todo, raw)
+            dist = stage_distances(self.config, self.matchers, self._descriptors, q, todo,
+                                   raw)
             scores = self._fuse(dist, short.prefilter[at])
             for j, i in enumerate(todo.tolist()):
                 known[i] = self._match(i, float(short.prefilter[at[j]]), 0, dist[:, j],
@@ -709,21 +550,6 @@ class PlaceDatabase:
         angles, corr = candidate_headings(q, cand, self._descriptors, self._ranges,
                                           self.config, self._grid_on)
         return as_hypotheses(angles, corr)
-
-    def _stage_distances(
-        self, q: Descriptors, cand: NDArray[np.intp], raw: dict[str, Array]
-    ) -> Array:
-        """``(S, K)`` raw distances of every stage over the candidates."""
-        out = np.empty((len(self.config.stages), len(cand)))
-        for t, s in enumerate(self.config.prefilter):
-            out[t] = raw[s]
-        base = len(self.config.prefilter)
-        for t, v in enumerate(self.config.verifiers):
-            matcher = self.matchers[v]
-            stacked = matcher.stack([self._descriptors[i][v] for i in cand.tolist()])
-            d = np.asarray(matcher.distances(q[v], stacked), float)
-            out[base + t] = np.where(np.isfinite(d), np.maximum(d, 0.0), np.finfo(float).max)
-        return out
 
     def _fuse(self, dist: Array, pre: Array) -> Array:
         """``(K,)`` fused scores in [0, 1] of ``(S, K)`` stage distances (`place_fusion`)."""

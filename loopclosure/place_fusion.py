@@ -1,4 +1,11 @@
-"""The fused score of a place query's candidates (`loopclosure.place_database`, step 3).
+"""Verify and fuse a place query's candidates (`loopclosure.place_database`, steps 2-3).
+
+`stage_distances`: each verifier (any registered matcher) computes its `distances`
+over the K candidates only, their descriptors stacked on demand (the database never
+holds a stacked copy of an expensive descriptor); a non-finite or negative distance
+becomes the largest float, resp. 0.
+
+`StageFusion`: the fused score of the candidates.
 
 From the ``(S, K)`` raw distances of every stage (prefilter stages first, then the
 verifiers, `PlaceDatabaseConfig.stages` order) over K candidates and their combined
@@ -17,11 +24,15 @@ Scores are in [0, 1], higher = more likely the same place.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 
 from loopclosure.fusion import LogisticFusion, reciprocal_rank_fusion
+from loopclosure.matchers.base import Matcher
 from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_match import Descriptors
 
 Array = NDArray[np.float64]
 
@@ -57,4 +68,22 @@ class StageFusion:
         return np.exp(-pre)
 
 
-__all__ = ["StageFusion"]
+def stage_distances(config: PlaceDatabaseConfig, matchers: Mapping[str, Matcher],
+                    stored: Sequence[Descriptors], q: Descriptors, cand: NDArray[np.intp],
+                    raw: Mapping[str, Array]) -> Array:
+    """``(S, K)`` raw distances of every stage over the candidate rows `cand`: the
+    prefilter stages' from `raw` (computed by the screen), the verifiers' from the
+    query's descriptors `q` and the stored ones (`stored`, per row)."""
+    out = np.empty((len(config.stages), len(cand)))
+    for t, s in enumerate(config.prefilter):
+        out[t] = raw[s]
+    base = len(config.prefilter)
+    for t, v in enumerate(config.verifiers):
+        matcher = matchers[v]
+        stacked = matcher.stack([stored[i][v] for i in cand.tolist()])
+        d = np.asarray(matcher.distances(q[v], stacked), float)
+        out[base + t] = np.where(np.isfinite(d), np.maximum(d, 0.0), np.finfo(float).max)
+    return out
+
+
+__all__ = ["StageFusion", "stage_distances"]

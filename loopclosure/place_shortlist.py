@@ -55,6 +55,21 @@ def rank_interleave_with_distance(
     return np.lexsort((np.arange(d.shape[1]), distance, best)), distance
 
 
+def vote_picks(order: NDArray[np.intp], votes: Array, split: int, k: int
+               ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The two heads of `vote_fused_order`: the first `split` of `order`, and the
+    positions with the highest vote (> 0; ties by position) not among them, up to
+    `k` in all (``votes`` is over every position, `order` may hold fewer)."""
+    order = np.asarray(order, np.intp)
+    votes = np.asarray(votes, float)
+    head = order[: min(split, k)]
+    free = votes > 0
+    free[head] = False
+    voted = np.flatnonzero(free)
+    voted = voted[np.lexsort((voted, -votes[voted]))][: max(k - len(head), 0)]
+    return head, voted
+
+
 def vote_fused_order(order: NDArray[np.intp], votes: Array, split: int, k: int
                      ) -> NDArray[np.intp]:
     """Positions ordered as a query with the pair vote picks its K candidates
@@ -68,14 +83,28 @@ def vote_fused_order(order: NDArray[np.intp], votes: Array, split: int, k: int
         split: positions of `order` kept first; k: candidates in all.
     """
     order = np.asarray(order, np.intp)
-    votes = np.asarray(votes, float)
-    head = order[: min(split, k)]
-    free = votes > 0
-    free[head] = False
-    voted = np.flatnonzero(free)
-    voted = voted[np.lexsort((voted, -votes[voted]))][: max(k - len(head), 0)]
-    first = np.concatenate([head, voted]).astype(np.intp)
+    first = np.concatenate(vote_picks(order, votes, split, k)).astype(np.intp)
     return np.concatenate([first, order[~np.isin(order, first)]]).astype(np.intp)
+
+
+def with_votes(pick: NDArray[np.intp], votes: Array, split: int, k: int
+               ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The candidates of a query with the pair vote, as `vote_fused_order` orders
+    them: ``(take, voted)``, `take` the positions in `pick` (the prefilter's
+    candidates, its K first, then the grids' extras) kept, `voted` the vote's rows
+    joining them.  The candidates are then ``pick[take[:split']], voted,
+    pick[take[split':]]`` with split' = ``min(split, k)``: the first `split` of
+    `pick`, the vote's best rows not among them nor among the extras (`votes`:
+    ``(M,)`` over every stored row, 0 where not allowed), the prefilter's next ones
+    up to `k`, and the extras (positions `k` and on) last."""
+    votes = np.array(votes, float)
+    votes[pick[k:]] = 0.0
+    head, voted = vote_picks(pick[:k], votes, split, k)
+    split = len(head)
+    rest = np.flatnonzero(~np.isin(pick[split:k], voted)) + split
+    take = np.concatenate([np.arange(split), rest[: k - split - len(voted)],
+                           np.arange(k, len(pick))]).astype(np.intp)
+    return take, voted.astype(np.intp)
 
 
 def rows_mask(rows: NDArray[np.intp], m: int) -> NDArray[np.bool_]:
@@ -121,4 +150,5 @@ class Shortlist:
                           similarity, None)
 
 
-__all__ = ["Shortlist", "rank_interleave", "rows_mask", "vote_fused_order"]
+__all__ = ["Shortlist", "rank_interleave", "rows_mask", "vote_fused_order", "vote_picks",
+           "with_votes"]

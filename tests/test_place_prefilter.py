@@ -1,0 +1,88 @@
+"""The place database's prefilter index, the vote's candidate merge and the verify
+step, against hand-checked cases (loopclosure.place_prefilter, place_shortlist,
+place_fusion)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from loopclosure.matchers.base import Matcher
+from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_fusion import stage_distances
+from loopclosure.place_prefilter import PrefilterIndex
+from loopclosure.place_shortlist import vote_picks, with_votes
+
+
+def test_vote_picks_by_hand() -> None:
+    order = np.array([3, 1, 0, 2, 4])
+    votes = np.array([0.0, 5.0, 2.0, 9.0, 2.0])
+    head, voted = vote_picks(order, votes, 2, 4)
+    assert head.tolist() == [3, 1]
+    assert voted.tolist() == [2, 4]  # 3 and 1 are the head; 2 and 4 tie: by position
+    head, voted = vote_picks(order[:3], votes, 1, 3)  # order may hold fewer positions
+    assert head.tolist() == [3] and voted.tolist() == [1, 2]
+
+
+def test_with_votes_keeps_the_head_and_the_extras_by_hand() -> None:
+    # 8 stored rows; the prefilter's K = 4 are rows 5, 2, 6, 0, the grids' extra row 7.
+    pick = np.array([5, 2, 6, 0, 7])
+    votes = np.zeros(8)
+    votes[[7, 6, 3, 1]] = [9.0, 4.0, 3.0, 1.0]  # 7 is an extra: never voted in
+    take, voted = with_votes(pick, votes, 2, 4)
+    assert voted.tolist() == [6, 3]  # the best two not among the head 5, 2
+    # head 5, 2; voted 6, 3; no prefilter row left below K; the extra 7 last
+    rows = np.concatenate([pick[take[:2]], voted, pick[take[2:]]])
+    assert rows.tolist() == [5, 2, 6, 3, 7]
+    take, voted = with_votes(pick, np.zeros(8), 2, 4)  # no vote: the prefilter's order
+    assert voted.tolist() == [] and pick[take].tolist() == pick.tolist()
+
+
+def test_prefilter_index_p_is_the_weighted_normalised_sum_by_hand() -> None:
+    cfg = PlaceDatabaseConfig(prefilter=("fft", "ring"), prefilter_weights=(1.0, 2.0),
+                              verifiers=(), fusion="prefilter")
+    index = PrefilterIndex(cfg)
+    stored = [(np.array([0.0, 0.0]), np.array([1.0])),
+              (np.array([3.0, 4.0]), np.array([3.0])),
+              (np.array([1.0, 0.0]), np.array([0.0]))]
+    for fft, ring in stored:
+        index.append({"fft": fft, "ring": ring})
+    scales = np.array([5.0, 2.0])
+    q = {"fft": np.array([0.0, 0.0]), "ring": np.array([1.0])}
+    # p = 1 * |fft| / 5 + 2 * |ring| / 2: rows 0, 1, 2 -> 0, 1 + 2, 0.2 + 1
+    p, raw = index.exact(q, np.arange(3), scales)
+    np.testing.assert_allclose(p, [0.0, 3.0, 1.2])
+    np.testing.assert_allclose(raw["fft"], [0.0, 5.0, 1.0])
+    np.testing.assert_allclose(index.screen(q, 3, scales), [0.0, 3.0, 1.2], atol=1e-5)
+    short = index.shortlist(q, None, 2, 3, scales, False, None)
+    assert short.rows.tolist() == [0, 2]
+    # a mask holding row 1 only: the exact path over the allowed rows
+    short = index.shortlist(q, np.array([False, True, False]), 2, 3, scales, True, None)
+    assert short.rows.tolist() == [1]
+    assert np.isinf(short.prefilter_all[[0, 2]]).all()
+
+
+class _Absolute(Matcher):
+    """A verifier whose distance is |a - b| of scalar descriptors (NaN: not finite)."""
+
+    name = "absolute"
+
+    def describe(self, polygon):  # pragma: no cover - never described here
+        raise NotImplementedError
+
+    def distance(self, a, b) -> float:
+        return abs(a - b)
+
+    def stack(self, many):
+        return np.asarray(many, float)
+
+    def distances(self, query, many):
+        return np.abs(np.asarray(many, float) - query)
+
+
+def test_stage_distances_by_hand() -> None:
+    cfg = PlaceDatabaseConfig(prefilter=("pairs",), verifiers=("flirt",), fusion="rank")
+    stored = [{"flirt": 1.0}, {"flirt": 4.0}, {"flirt": np.nan}]
+    out = stage_distances(cfg, {"flirt": _Absolute()}, stored, {"flirt": 2.0},
+                          np.array([1, 0, 2]), {"pairs": np.array([0.5, 0.25, 0.125])})
+    np.testing.assert_array_equal(out[0], [0.5, 0.25, 0.125])
+    np.testing.assert_array_equal(out[1], [2.0, 1.0, np.finfo(float).max])
