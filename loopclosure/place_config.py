@@ -15,9 +15,16 @@ import numpy as np
 
 from data.errors import UserError
 from loopclosure.fusion import DEFAULT_RANK_CONSTANT, LogisticFusion
-from loopclosure.matchers import MATCHER_NAMES
+from loopclosure.matchers import MATCHER_NAMES, get_matcher
+from loopclosure.matchers.base import Matcher
 
-PREFILTER_STAGES = ("fft", "ring", "pairs")
+NEAR_FFT = "fft-near"
+"""Prefilter stage name of the near+far FFT descriptor: `loopclosure.matchers.fft`
+with ``near_radius`` and ``far_weight`` (`PlaceDatabaseConfig.fft_near_radius`,
+``fft_far_weight``, ``fft_near_harmonics``), a stage of its own so that the ``fft``
+stage and the heading hypotheses' range functions stay the whole polygon's."""
+
+PREFILTER_STAGES = ("fft", "ring", "pairs", NEAR_FFT)
 """Matchers whose descriptors are Euclidean vectors, usable as prefilter stages
 (``pairs``: `loopclosure.matchers.pair_histogram`, the default)."""
 
@@ -103,6 +110,12 @@ class PlaceDatabaseConfig:
             rank.
         grid_weight: w of the shortlist score p - w c.
         fft_harmonics: FFT amplitudes kept by the FFT stage (`FFTConfig.n_harmonics`).
+        fft_near_harmonics: FFT amplitudes of the near polygon (and as many of the
+            whole polygon's) kept by the ``fft-near`` stage.
+        fft_near_radius: R of the ``fft-near`` stage [m]: the polygon within R of the
+            sensor, far vertices pulled in along their rays (`FFTConfig.near_radius`).
+        fft_far_weight: weight of the whole polygon's amplitudes appended to the near
+            polygon's by the ``fft-near`` stage (`FFTConfig.far_weight`).
         ring_rings: circles of the ring stage (`RingConfig.n_rings`).
         scale_invariant: passed to every matcher (True for MPEG-7, never for places).
         fixed_scales: per stage (prefilter then verifiers), fixed scales instead of
@@ -165,6 +178,9 @@ class PlaceDatabaseConfig:
     grid_weight: float = 1.0
     fft_harmonics: int = 8
     ring_rings: int = 12
+    fft_near_harmonics: int = 16
+    fft_near_radius: float = 6.0
+    fft_far_weight: float = 0.05
     scale_invariant: bool = False
     fixed_scales: tuple[float, ...] = ()
     scale_pairs: int = 64
@@ -235,8 +251,13 @@ class PlaceDatabaseConfig:
             or any(not (np.isfinite(s) and s > 0) for s in self.fixed_scales)
         ):
             raise UserError("place database: fixed_scales needs one positive scale per stage")
-        if self.fft_harmonics < 1 or self.ring_rings < 1:
-            raise UserError("place database: fft_harmonics and ring_rings must be >= 1")
+        if self.fft_harmonics < 1 or self.ring_rings < 1 or self.fft_near_harmonics < 1:
+            raise UserError("place database: fft_harmonics, fft_near_harmonics and "
+                            "ring_rings must be >= 1")
+        if not (np.isfinite(self.fft_near_radius) and self.fft_near_radius > 0):
+            raise UserError("place database: fft_near_radius must be a positive length [m]")
+        if not (np.isfinite(self.fft_far_weight) and self.fft_far_weight >= 0):
+            raise UserError("place database: fft_far_weight must be finite and >= 0")
         if self.n_headings < 0 or self.scale_pairs < 1:
             raise UserError("place database: n_headings must be >= 0 and scale_pairs >= 1")
         if self.grid_headings < 0 or self.grid_rings < 1 or self.grid_sectors < 3:
@@ -267,13 +288,30 @@ class PlaceDatabaseConfig:
         return "rank" if self.scale_invariant else "logistic"
 
 
+def stage_matcher(stage: str, config: PlaceDatabaseConfig) -> Matcher:
+    """The matcher of one stage of `config` (any registered matcher by its name, with
+    the config's descriptor sizes; ``fft-near``: the FFT matcher of the polygon within
+    ``fft_near_radius`` [m] of the sensor, the whole polygon's amplitudes appended
+    with weight ``fft_far_weight``)."""
+    if stage == NEAR_FFT:
+        return get_matcher("fft", scale_invariant=config.scale_invariant,
+                           n_harmonics=config.fft_near_harmonics,
+                           near_radius=config.fft_near_radius,
+                           far_weight=config.fft_far_weight)
+    sizes = {"fft": {"n_harmonics": config.fft_harmonics},
+             "ring": {"n_rings": config.ring_rings}}
+    return get_matcher(stage, scale_invariant=config.scale_invariant, **sizes.get(stage, {}))
+
+
 __all__ = [
     "DEFAULT_LOGISTIC",
     "FUSION_MODES",
+    "NEAR_FFT",
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
     "VIEWPOINT_ORDERS",
     "VOTE_MODES",
     "WIDE_LOGISTIC",
     "PlaceDatabaseConfig",
+    "stage_matcher",
 ]

@@ -91,10 +91,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data.errors import UserError
-from loopclosure.matchers import get_matcher
 from loopclosure.matchers.base import Matcher
 from loopclosure.matchers.fft import FFTMatcher
-from loopclosure.place_config import PlaceDatabaseConfig
+from loopclosure.place_config import PlaceDatabaseConfig, stage_matcher
 from loopclosure.place_fusion import StageFusion, stage_distances
 from loopclosure.place_grids import GRID, DilatedGrids, polar_grid
 from loopclosure.place_headings import HEADING, as_hypotheses, candidate_headings
@@ -141,13 +140,8 @@ class PlaceDatabase:
             cfg = replace(cfg, **overrides)
         self.config = cfg
         given = dict(matchers or {})
-        sizes = {"fft": {"n_harmonics": cfg.fft_harmonics}, "ring": {"n_rings": cfg.ring_rings}}
         self.matchers: dict[str, Matcher] = {
-            s: given[s]
-            if s in given
-            else get_matcher(s, scale_invariant=cfg.scale_invariant, **sizes.get(s, {}))
-            for s in cfg.stages
-        }
+            s: given[s] if s in given else stage_matcher(s, cfg) for s in cfg.stages}
         self._heading_matcher: FFTMatcher | None = None
         if cfg.n_headings > 0:
             fft = self.matchers.get("fft")
