@@ -70,6 +70,23 @@ WIDE_LOGISTIC = LogisticFusion(
     intercept=-4.22,
 )
 
+# The logistic model of the surface-pair and near+far FFT prefilter with the FLIRT
+# verifier (``prefilter=("pairs", "fft-near")``): fitted as `DEFAULT_LOGISTIC`
+# (`benchmarks/view_calibration.py`: `fit_logistic`, ridge 1, the 10 prefilter
+# candidates of every query of the own view, same place = within 2 m) on freiburg-101,
+# seattle and orebro; Intel and the other corrected logs held out.  Among candidates
+# the combined prefilter already chose, the near+far FFT distance adds little beyond
+# the pair histogram's (its weight is small and of the other sign).
+NEAR_FFT_LOGISTIC = LogisticFusion(
+    names=("pairs", NEAR_FFT, "flirt"),
+    coefficients=(-3.00, 0.30, -2.47),
+    intercept=-3.27,
+)
+
+FITTED_LOGISTIC = (DEFAULT_LOGISTIC, NEAR_FFT_LOGISTIC)
+"""The fitted logistic models by stage set: a config whose ``logistic`` is left at
+`DEFAULT_LOGISTIC` uses the one of its stages (`PlaceDatabaseConfig.logistic`)."""
+
 # The logistic model of the paper's stages (FFT and ring prefilter, FLIRT and MRM
 # verifiers), fitted by `loopclosure.cascade.calibrate_logistic` on the simulated Box
 # set (seed 0, 231 scans, leave-one-out candidate pairs, K = 50); the default of the
@@ -95,7 +112,9 @@ class PlaceDatabaseConfig:
         top_k: K, candidates verified per query.
         fusion: "logistic", "rank", "verifier", "prefilter", or "auto" (logistic
             unless ``scale_invariant``, then rank: see `resolved_fusion`).
-        logistic: the logistic model (its names must be the stages, in any order).
+        logistic: the logistic model (its names must be the stages, in any order;
+            left at `DEFAULT_LOGISTIC` for stages of another model of
+            `FITTED_LOGISTIC`, that model).
         rank_constant: c of reciprocal rank fusion.
         n_headings: heading hypotheses per candidate from the range functions (0:
             none, FFT not computed unless it is a stage).
@@ -239,6 +258,11 @@ class PlaceDatabaseConfig:
             )
         if self.fusion == "verifier" and not self.verifiers:
             raise UserError("place database: fusion 'verifier' needs at least one verifier")
+        if self.logistic == DEFAULT_LOGISTIC and sorted(self.logistic.names) != sorted(stages):
+            # The default model of another stage set: the one fitted for these stages.
+            fitted = [m for m in FITTED_LOGISTIC if sorted(m.names) == sorted(stages)]
+            if fitted:
+                object.__setattr__(self, "logistic", fitted[0])
         if self.resolved_fusion == "logistic" and sorted(self.logistic.names) != sorted(stages):
             raise UserError(
                 "place database: the logistic model is fitted for stages "
@@ -305,8 +329,10 @@ def stage_matcher(stage: str, config: PlaceDatabaseConfig) -> Matcher:
 
 __all__ = [
     "DEFAULT_LOGISTIC",
+    "FITTED_LOGISTIC",
     "FUSION_MODES",
     "NEAR_FFT",
+    "NEAR_FFT_LOGISTIC",
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
     "VIEWPOINT_ORDERS",

@@ -86,3 +86,28 @@ def test_stage_distances_by_hand() -> None:
                           np.array([1, 0, 2]), {"pairs": np.array([0.5, 0.25, 0.125])})
     np.testing.assert_array_equal(out[0], [0.5, 0.25, 0.125])
     np.testing.assert_array_equal(out[1], [2.0, 1.0, np.finfo(float).max])
+
+
+def _box_polygons(n: int) -> list:
+    from data.sim import place_dataset
+    from loopclosure.polygon import polygon_from_scan
+
+    return [polygon_from_scan(scan) for _, scan in place_dataset("box", places=2,
+                                                                    scans_per_place=n)]
+
+
+def test_near_fft_stage_is_its_own_fft_and_leaves_the_heading_fft_alone() -> None:
+    from loopclosure.matchers.fft import FFTMatcher
+    from loopclosure.place_database import PlaceDatabase
+    from loopclosure.place_headings import HEADING
+
+    polygon = _box_polygons(1)[0]
+    db = PlaceDatabase(prefilter=("pairs", "fft-near"), fusion="rank", fft_near_radius=4.0,
+                       fft_far_weight=0.5, fft_near_harmonics=8)
+    desc = db.describe(polygon)
+    near = FFTMatcher(n_harmonics=8, near_radius=4.0, far_weight=0.5).describe(polygon)
+    np.testing.assert_array_equal(desc["fft-near"].amplitudes, near.amplitudes)
+    assert len(near.amplitudes) == 16  # 8 near-field amplitudes, then 8 of the whole
+    whole = FFTMatcher().describe(polygon)  # the heading range function: whole polygon
+    np.testing.assert_array_equal(desc[HEADING].range_function, whole.range_function)
+    assert not np.array_equal(near.range_function, whole.range_function)
