@@ -111,3 +111,14 @@ def test_near_fft_stage_is_its_own_fft_and_leaves_the_heading_fft_alone() -> Non
     whole = FFTMatcher().describe(polygon)  # the heading range function: whole polygon
     np.testing.assert_array_equal(desc[HEADING].range_function, whole.range_function)
     assert not np.array_equal(near.range_function, whole.range_function)
+
+
+def test_the_fitted_logistic_of_the_stage_set_is_picked_when_left_at_default() -> None:
+    from loopclosure.fusion import LogisticFusion
+    from loopclosure.place_config import DEFAULT_LOGISTIC, NEAR_FFT_LOGISTIC
+
+    assert PlaceDatabaseConfig().logistic is DEFAULT_LOGISTIC
+    near = PlaceDatabaseConfig(prefilter=("pairs", "fft-near"))
+    assert near.logistic is NEAR_FFT_LOGISTIC
+    mine = LogisticFusion(names=("flirt", "fft-near", "pairs"), coefficients=(-1.0, -1.0, -1.0))
+    assert PlaceDatabaseConfig(prefilter=("pairs", "fft-near"), logistic=mine).logistic is mine
