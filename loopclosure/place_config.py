@@ -104,7 +104,7 @@ class PlaceDatabaseConfig:
 
     Attributes:
         prefilter: Euclidean-vector stages screening every keyframe ("pairs",
-            "fft", "ring").
+            "fft", "ring", "fft-near": `NEAR_FFT`).
         prefilter_weights: weight of each prefilter stage in the normalised sum
             (empty: all 1).
         verifiers: matchers run on the K candidates (any registered name, e.g.

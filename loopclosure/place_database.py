@@ -6,7 +6,8 @@ and a query runs three steps:
 
 1. Prefilter (all stored keyframes, vectorised).  Each prefilter stage s is a
    fixed-length descriptor compared by the Euclidean distance (the surface-pair
-   histogram, the default; FFT amplitudes, ring-projection profiles:
+   histogram, the default; FFT amplitudes, of the whole polygon or of its near field
+   with the whole one's appended (``fft-near``), ring-projection profiles:
    `loopclosure.matchers.vector_search`).  The stages are combined by normalising
    each distance by a robust scale of the database and summing with weights w_s
    (default 1):
