@@ -71,16 +71,16 @@ WIDE_LOGISTIC = LogisticFusion(
 )
 
 # The logistic model of the surface-pair and near+far FFT prefilter with the FLIRT
-# verifier (``prefilter=("pairs", "fft-near")``): fitted as `DEFAULT_LOGISTIC`
-# (`benchmarks/view_calibration.py`: `fit_logistic`, ridge 1, the 10 prefilter
-# candidates of every query of the own view, same place = within 2 m) on freiburg-101,
-# seattle and orebro; Intel and the other corrected logs held out.  Among candidates
-# the combined prefilter already chose, the near+far FFT distance adds little beyond
-# the pair histogram's (its weight is small and of the other sign).
+# verifier (``prefilter=("pairs", "fft-near")``, ``prefilter_weights=(1, 0.1)``):
+# fitted as `DEFAULT_LOGISTIC` (`benchmarks/view_calibration.py`: `fit_logistic`,
+# ridge 1, the 10 prefilter candidates of every query of the own view, same place =
+# within 2 m) on freiburg-101, seattle and orebro; Intel and the other corrected logs
+# held out.  Among candidates the combined prefilter already chose, the near+far FFT
+# distance adds little beyond the pair histogram's (its weight is small).
 NEAR_FFT_LOGISTIC = LogisticFusion(
     names=("pairs", NEAR_FFT, "flirt"),
-    coefficients=(-3.00, 0.30, -2.47),
-    intercept=-3.27,
+    coefficients=(-2.09, -0.10, -2.27),
+    intercept=-3.04,
 )
 
 FITTED_LOGISTIC = (DEFAULT_LOGISTIC, NEAR_FFT_LOGISTIC)
