@@ -52,6 +52,7 @@ from loopclosure.grid_target import (
     KIND_UNKNOWN,
     GridTarget,
     _normals_kernel,  # noqa: F401  (the warm-up's list of kernels names it here)
+    checked_points,
     estimate_normals_fast,
     resolve_point,
 )
@@ -764,23 +765,8 @@ def _register_kernel(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals
 
 
 def _source_points(source: ArrayLike) -> Array:
-    """``np.ascontiguousarray(as_points(source, "source points"))``, the same array and
-    the same error; a C-contiguous ``(N, 2)`` float64 array (every scan of the front
-    end) is checked by one compiled pass instead of numpy's conversions and reduction."""
-    if (type(source) is np.ndarray and source.dtype == np.float64 and source.ndim == 2
-            and source.shape[1] == 2 and source.flags.c_contiguous):
-        if not _all_finite(source):
-            raise UserError("source points holds non-finite coordinates")
-        return source
-    return np.ascontiguousarray(as_points(source, "source points"))
-
-
-@numba.njit(cache=True)
-def _all_finite(pts):
-    for i in range(pts.shape[0]):
-        if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
-            return False
-    return True
+    """`grid_target.checked_points` of a registration's source points."""
+    return checked_points(source, "source points")
 
 
 #: The grid `_matchable` last found matchable (one entry: the front end registers

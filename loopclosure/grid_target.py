@@ -340,17 +340,22 @@ def _resolve_until(goal, pts, ox, oy, cell, nx, ny, start, params, normals, anch
     return met
 
 
-def _target_points(points: ArrayLike) -> Array:
-    """``np.ascontiguousarray(as_points(points, "target points"))``: the same array and
-    the same error; a C-contiguous ``(M, 2)`` float64 array (every local map of the
+def checked_points(points: ArrayLike, what: str) -> Array:
+    """``np.ascontiguousarray(as_points(points, what))``: the same array and the same
+    error; a C-contiguous ``(M, 2)`` float64 array (every scan and local map of the
     front end) is checked by one compiled pass instead of numpy's conversions and
     reduction."""
     if (type(points) is np.ndarray and points.dtype == np.float64 and points.ndim == 2
             and points.shape[1] == 2 and points.flags.c_contiguous):
         if not _all_finite(points):
-            raise UserError("target points holds non-finite coordinates")
+            raise UserError(f"{what} holds non-finite coordinates")
         return points
-    return np.ascontiguousarray(as_points(points, "target points"))
+    return np.ascontiguousarray(as_points(points, what))
+
+
+def _target_points(points: ArrayLike) -> Array:
+    """`checked_points` of a grid's target points."""
+    return checked_points(points, "target points")
 
 
 @numba.njit(cache=True)

@@ -53,7 +53,7 @@ def cache_is_cold() -> bool:
     if loopclosure_warm_up.cache_is_cold():
         return True
     compiled = (kernels._reach_counts, kernels._solves, kernels.sparse_block_dots,
-                fast_icp._within_kernel, fast_icp._compact, fast_icp._all_finite,
+                fast_icp._within_kernel, fast_icp._compact,
                 grid_target._cells_kernel, grid_target._all_finite)
     try:
         paths = [k._cache._cache_file._index_path for k in compiled]
