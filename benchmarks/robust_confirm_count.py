@@ -5,7 +5,7 @@ Run from the repository root::
 
     python benchmarks/robust_confirm_count.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--cache DIR] [--cap 600] [--rounds]
-        [--confirm exact|screen]
+        [--confirm exact|screen] [--skip on|off]
 
 Runs `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with the
 check counted: the rounds it judged (the innovation gate admitted loops), how many loops
@@ -14,7 +14,8 @@ from a copy of the iSAM2 prefix or by a batch solve of the whole accepted prefix
 loops it turned back, and its CPU seconds.  ``--cap``: stop after that many CPU seconds
 of the process (ITIMER_PROF) and print the counts so far; ``--rounds``: one line per
 round that admitted several loops; ``--confirm screen``: the check with the linearised
-leave-one-out screen (``optimize(confirm="screen")``), whose screenings are counted too.
+leave-one-out screen (``optimize(confirm="screen")``), whose screenings are counted too;
+``--skip off``: that screen without its ordered skip (`slam.admission.SCREEN_SKIP`).
 When the run finishes the cell's outcome follows
 (ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
 the outlier-free graph), true loops rejected, TLS gap to the clean optimum).
@@ -31,6 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.robust_cell import CpuCapped, cell_outcome, cell_parser, cpu_cap, read_cell
+from slam import admission
 from slam.admission import AdmissionPass
 from slam.optimize import optimize
 
@@ -101,10 +103,12 @@ def main() -> None:
     parser.add_argument("--cap", type=float, default=0.0)
     parser.add_argument("--rounds", action="store_true")
     parser.add_argument("--confirm", default="exact", choices=("exact", "screen"))
+    parser.add_argument("--skip", default="on", choices=("on", "off"))
     args = parser.parse_args()
+    admission.SCREEN_SKIP = args.skip == "on"
     graph, reference, corrupted, is_false = read_cell(args)
     name = (f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed} "
-            f"confirm {args.confirm}")
+            f"confirm {args.confirm}" + (f" skip {args.skip}" if args.confirm == "screen" else ""))
     count = ConfirmCount(verbose=args.rounds)
     install(count)
     began = time.process_time()

@@ -64,6 +64,11 @@ CONFIRM_MODES = ("exact", "screen")  # `AdmissionPass`'s confirm (True is "exact
 # The screen (`confirm="screen"`) clears an admitted loop without its leave-one-out solve
 # when its linearised leave-one-out cost is at most this fraction of ``c``.
 SCREEN_FRACTION = 0.5
+# The screen solves the loops it does not clear in decreasing ``rho`` and skips a loop
+# whose ``rho / SCREEN_FRACTION`` is below the largest actual cost above ``c`` already
+# solved in the same turn (it cannot be the costliest under the same margin); False: every
+# loop not cleared is solved, in admission order.
+SCREEN_SKIP = True
 
 
 @dataclass(slots=True)
@@ -134,6 +139,16 @@ def _check_spine(graph: PoseGraph) -> list[int]:
             f"{missing} poses have none"
         )
     return keys
+
+
+def _screen_order(rho: Array | None, count: int, ordered: bool) -> NDArray[np.int64]:
+    """The order in which `AdmissionPass._unconfirmed` judges the `count` loops of one
+    turn: decreasing linearised leave-one-out cost `rho` (gtsam error units; ``inf``
+    first, ties in admission order) when `ordered` and there is a screen, else
+    admission order."""
+    if rho is None or not ordered:
+        return np.arange(count, dtype=np.int64)
+    return np.argsort(-np.asarray(rho), kind="stable").astype(np.int64)
 
 
 def _extend(
@@ -557,9 +572,12 @@ class AdmissionPass:
         through a large rotation can cost more than ``rho_q``, and a loop cleared
         whose actual cost is above ``c`` stays admitted where the exact check would
         turn it back.  The margin absorbs an actual cost up to ``1 / SCREEN_FRACTION``
-        times ``rho_q``; nothing bounds the ratio beyond that.  When a loop is turned back
-        the prefix without it is the solution its re-solve already found (not solved
-        again), and the loops left are screened again at it.
+        times ``rho_q``; nothing bounds the ratio beyond that.  Under the same margin the
+        loops not cleared are solved in decreasing ``rho_q`` (`SCREEN_SKIP`), and once a
+        solve has found a loop costing ``C > c`` a loop with ``rho_q < SCREEN_FRACTION C``
+        cannot be the costliest: it keeps ``rho_q`` as its cost without its solve.  When
+        a loop is turned back the prefix without it is the solution its re-solve already
+        found (not solved again), and the loops left are screened again at it.
         """
         unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
         out: list[int] = []
@@ -572,10 +590,13 @@ class AdmissionPass:
             costs = [total - before]
             if len(left) > 1:
                 rho = self._screened(kept, current, pending[left]) if self.screen else None
-                costs, solutions = [], {}
-                for n, q in enumerate(left):
-                    if rho is not None and rho[n] <= SCREEN_FRACTION * self._c:
-                        costs.append(float(rho[n]))
+                costs, solutions = [-np.inf] * len(left), {}
+                found = -np.inf  # the largest actual cost above ``c`` solved this turn
+                for n in _screen_order(rho, len(left), SCREEN_SKIP):
+                    q = left[n]
+                    if rho is not None and (rho[n] <= SCREEN_FRACTION * self._c or (
+                            SCREEN_SKIP and rho[n] < SCREEN_FRACTION * found)):
+                        costs[n] = float(rho[n])
                         continue
                     others = accepted.copy()
                     others[q] = False
@@ -584,12 +605,14 @@ class AdmissionPass:
                         if self.screen:
                             error, solutions[q] = self._solved_without(
                                 without, current, start, pending[[*out, q]])
-                            costs.append(total - error)
+                            costs[n] = total - error
                         else:
-                            costs.append(total - self._minimum(without, current, start,
-                                                               pending[[*out, q]]))
+                            costs[n] = total - self._minimum(without, current, start,
+                                                             pending[[*out, q]])
                     except RuntimeError:  # a failed solve: the admission stands
-                        costs.append(-np.inf)
+                        continue
+                    if costs[n] > self._c:
+                        found = max(found, costs[n])
             worst = int(np.argmax(costs))
             if not costs[worst] > self._c:
                 break

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from data.errors import UserError
-from slam.admission import AdmissionPass
+from slam import admission
+from slam.admission import AdmissionPass, _screen_order
 from slam.admission_undo import with_loops
 from slam.optimize import initial_guess
 from slam.pose_graph import PoseGraph
@@ -132,3 +133,59 @@ def test_an_unknown_confirm_mode_is_refused() -> None:
     values = graph.gtsam_values(initial_guess(graph, "odometry"))
     with pytest.raises(UserError):
         AdmissionPass(graph, values, confirm="approximate")
+
+
+def test_the_screen_order_is_decreasing_rho_or_admission_order() -> None:
+    rho = np.array([1.0, np.inf, 3.0, 3.0])
+    np.testing.assert_array_equal(_screen_order(rho, 4, True), [1, 2, 3, 0])
+    np.testing.assert_array_equal(_screen_order(rho, 4, False), [0, 1, 2, 3])
+    np.testing.assert_array_equal(_screen_order(None, 3, True), [0, 1, 2])
+
+
+def _two_stretches() -> tuple[PoseGraph, int, int]:
+    """`_apart`'s line with the false loop (1, 3) saying 0 m (leave-one-out cost 88.9 by
+    the linear model: 2 m against 0.1 m sigmas over two steps) and a loop (4, 7) saying
+    3.5 m over three 1 m steps: 0.5 m against a variance of 3 * 0.01 + 0.0025, a cost of
+    0.5 * 0.25 / 0.0325 = 3.85, between c / 2 and c (c = 5.67 in 2D)."""
+    graph = PoseGraph(dim=2)
+    for k in range(8):
+        graph.add_pose(k, np.array([float(k), 0.0, 0.0]))
+    graph.fixed.add(0)
+    for k in range(1, 8):
+        graph.add_odometry(k - 1, k, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
+    info = np.diag([400.0, 400.0, 2500.0])
+    near = graph.add_loop(4, 7, np.array([3.5, 0.0, 0.0]), info)
+    false = graph.add_loop(1, 3, np.zeros(3), info)
+    return graph, near, false
+
+
+@pytest.mark.parametrize("skip", [True, False])
+def test_the_screen_skips_a_loop_that_cannot_be_the_costliest(
+    skip: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    graph, near, false = _two_stretches()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    run = AdmissionPass(graph, values, block=10, prefix_solver="batch", confirm="screen")
+    run.advance()
+    pending = np.array([near, false])  # the near loop admitted first
+    kept = with_loops(run._base, run.unit, pending)
+    current = run._solve(kept, run.current)
+    before = run._base.error(run._solve(run._base, run.current))
+    rho = run._screened(kept, current, pending)
+    np.testing.assert_allclose(rho, [0.5 * 0.25 / 0.0325, 0.5 * 4.0 / 0.0225], rtol=1e-6)
+    assert admission.SCREEN_FRACTION * run._c < rho[0] < run._c
+    solves: list[int] = []
+    solved_without = run._solved_without
+
+    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
+        solves.append(int(removed[-1]))
+        return solved_without(without, current, start, removed)
+
+    run._solved_without = counted  # type: ignore[method-assign]
+    monkeypatch.setattr(admission, "SCREEN_SKIP", skip)
+    back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
+                            current, before, run.current)
+    np.testing.assert_array_equal(back, [1])  # the false loop, either way
+    # skipping: the false loop first (largest rho), then the near loop's rho is below
+    # half its cost; without: both solved, in admission order
+    assert solves == ([false] if skip else [near, false])
