@@ -5,7 +5,7 @@ Run from the repository root::
 
     python benchmarks/robust_confirm_count.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--cache DIR] [--cap 600] [--rounds]
-        [--confirm exact|screen] [--skip on|off] [--warm on|off]
+        [--confirm exact|screen] [--skip on|off]
 
 Runs `slam.optimize.optimize` (``gnc``, incremental, from the odometry chain) with the
 check counted: the rounds it judged (the innovation gate admitted loops), how many loops
@@ -15,9 +15,7 @@ loops it turned back, and its CPU seconds.  ``--cap``: stop after that many CPU 
 of the process (ITIMER_PROF) and print the counts so far; ``--rounds``: one line per
 round that admitted several loops; ``--confirm screen``: the check with the linearised
 leave-one-out screen (``optimize(confirm="screen")``), whose screenings are counted too;
-``--skip off``: that screen without its ordered skip (`slam.admission.SCREEN_SKIP`);
-``--warm on``: its leave-one-out batch solves may start from the Gauss-Newton prediction
-(`slam.admission.SCREEN_WARM`).
+``--skip off``: that screen without its ordered skip (`slam.admission.SCREEN_SKIP`).
 When the run finishes the cell's outcome follows
 (ATE against the outlier-free optimum [m], false loops obeyed (of them, consistent with
 the outlier-free graph), true loops rejected, TLS gap to the clean optimum).
@@ -73,10 +71,10 @@ def counted(count: ConfirmCount):  # type: ignore[no-untyped-def]
                   f"{count.minima - minima} minima, {spent:.2f} s CPU", flush=True)
         return out
 
-    def _minimum(self, without, current, start, removed, guess=None):  # type: ignore[no-untyped-def]
+    def _minimum(self, without, current, start, removed):  # type: ignore[no-untyped-def]
         count.minima += 1
         count.from_isam += self._isam is not None
-        return minimum(self, without, current, start, removed, guess)
+        return minimum(self, without, current, start, removed)
 
     def _screened(self, kept, current, loops):  # type: ignore[no-untyped-def]
         count.screens += 1
@@ -106,14 +104,11 @@ def main() -> None:
     parser.add_argument("--rounds", action="store_true")
     parser.add_argument("--confirm", default="exact", choices=("exact", "screen"))
     parser.add_argument("--skip", default="on", choices=("on", "off"))
-    parser.add_argument("--warm", default="off", choices=("on", "off"))
     args = parser.parse_args()
-    admission.SCREEN_SKIP, admission.SCREEN_WARM = args.skip == "on", args.warm == "on"
+    admission.SCREEN_SKIP = args.skip == "on"
     graph, reference, corrupted, is_false = read_cell(args)
     name = (f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed} "
-            f"confirm {args.confirm}")
-    if args.confirm == "screen":
-        name += f" skip {args.skip} warm {args.warm}"
+            f"confirm {args.confirm}" + (f" skip {args.skip}" if args.confirm == "screen" else ""))
     count = ConfirmCount(verbose=args.rounds)
     install(count)
     began = time.process_time()

@@ -46,9 +46,9 @@ def main() -> None:
         low = minimum(self, without, current, start, removed)
         q = int(removed[-1])
         kept = with_loops(without, self.unit, np.array([q]))
-        screen = self._screened(kept, current, np.array([q]))
-        if screen is not None:
-            pairs.append((float(screen[0][0]), float(kept.error(current) - low), bool(is_false[q])))
+        rho = self._screened(kept, current, np.array([q]))
+        if rho is not None:
+            pairs.append((float(rho[0]), float(kept.error(current) - low), bool(is_false[q])))
         return low
 
     AdmissionPass._minimum = paired

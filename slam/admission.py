@@ -69,10 +69,6 @@ SCREEN_FRACTION = 0.5
 # solved in the same turn (it cannot be the costliest under the same margin); False: every
 # loop not cleared is solved, in admission order.
 SCREEN_SKIP = True
-# The screen's leave-one-out batch solves may start from the Gauss-Newton prediction of
-# their solution (`slam.innovation.InnovationTest.removal_step`) when the graph's error is
-# lower there than at the other starts; False: from the solution with or before the round.
-SCREEN_WARM = False
 
 
 @dataclass(slots=True)
@@ -593,8 +589,7 @@ class AdmissionPass:
                 break
             costs = [total - before]
             if len(left) > 1:
-                screen = self._screened(kept, current, pending[left]) if self.screen else None
-                rho = None if screen is None else screen[0]
+                rho = self._screened(kept, current, pending[left]) if self.screen else None
                 costs, solutions = [-np.inf] * len(left), {}
                 found = -np.inf  # the largest actual cost above ``c`` solved this turn
                 for n in _screen_order(rho, len(left), SCREEN_SKIP):
@@ -608,10 +603,8 @@ class AdmissionPass:
                     without = _with(fixed, unit, pending[others])
                     try:
                         if self.screen:
-                            guess = (self._predicted(screen, n, q)
-                                     if SCREEN_WARM and screen is not None else None)
                             error, solutions[q] = self._solved_without(
-                                without, current, start, pending[[*out, q]], guess)
+                                without, current, start, pending[[*out, q]])
                             costs[n] = total - error
                         else:
                             costs[n] = total - self._minimum(without, current, start,
@@ -635,28 +628,16 @@ class AdmissionPass:
     def _screened(
         self, kept: gtsam.NonlinearFactorGraph, current: gtsam.Values,
         loops: NDArray[np.int64],
-    ) -> tuple[Array, InnovationTest, Array] | None:
+    ) -> Array | None:
         """Linearised leave-one-out cost (`slam.innovation.removal_costs`, gtsam error
         units) of each of `loops` (indices into `graph.loops`, all in `kept`) at
-        `current`, the solution of `kept`, with the test (its factorisation) and each
-        loop's ``M`` (m, d, d); None when its information is singular."""
+        `current`, the solution of `kept`; None when its information is singular."""
         try:
             test = InnovationTest(kept, current, list(current.keys()), self._d)
             b, gram = test.blocks([self.unit[k] for k in loops])
         except RuntimeError:
             return None
-        return removal_costs(b, gram), test, gram
-
-    def _predicted(
-        self, screen: tuple[Array, InnovationTest, Array], n: int, loop: int
-    ) -> gtsam.Values | None:
-        """The Gauss-Newton prediction of the solution without `loop` (index into
-        `graph.loops`, the `n`-th loop `screen` judged), or None when ``I - M`` is not
-        positive definite there (``rho`` is ``inf``)."""
-        rho, test, gram = screen
-        if not np.isfinite(rho[n]):
-            return None
-        return test.removal_step(self.unit[loop], gram[n])
+        return removal_costs(b, gram)
 
     def _minimum(
         self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
@@ -673,10 +654,9 @@ class AdmissionPass:
 
     def _solved_without(
         self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
-        start: gtsam.Values, removed: NDArray[np.int64], guess: gtsam.Values | None = None,
+        start: gtsam.Values, removed: NDArray[np.int64],
     ) -> tuple[float, gtsam.Values]:
-        """`_minimum` and the solution it is the error at; `guess`, when given, is one
-        more start for the batch solve (the lowest of the three is used)."""
+        """`_minimum` and the solution it is the error at."""
         if self._isam is not None:
             trial = self._isam.copy()
             trial.remove(int(k) for k in removed)
@@ -687,8 +667,6 @@ class AdmissionPass:
             if estimate is not None and trial.converged:
                 return float(without.error(estimate)), estimate
         x0 = start if without.error(start) < without.error(current) else current
-        if guess is not None and without.error(guess) < without.error(x0):
-            x0 = guess
         solved = self._solve(without, x0)
         return float(without.error(solved)), solved
 

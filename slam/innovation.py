@@ -184,30 +184,6 @@ class InnovationTest:
             gram[q] = bi[q] @ y[ci[q] : ci[q] + d] + bj[q] @ y[cj[q] : cj[q] + d]
         return b, gram
 
-    def removal_step(self, factor: gtsam.NonlinearFactor, gram: Array) -> gtsam.Values:
-        """The solution of the graph without `factor` (one of the graph's binary factors;
-        ``gram`` its ``M = B H^-1 B^T``, (d, d)) predicted by one Gauss-Newton step from
-        the graph's optimum ``x*``: with ``q``'s whitened Jacobian ``B`` and gtsam's
-        right-hand side ``b`` (the negated whitened residual), the normal equations
-        without it, ``(H - B^T B) dx = -B^T b``, give by Woodbury::
-
-            dx = -H^-1 B^T (I - M)^-1 b
-
-        (the step whose model drop is `removal_costs`' ``rho``), retracted onto ``x*``
-        (tangent coordinates, gtsam order).  Raises `numpy.linalg.LinAlgError` when
-        ``I - M`` is singular."""
-        d = self.dof
-        b, bi, bj, ci, cj = self._linearised([factor])
-        w = np.linalg.solve(np.eye(d) - gram, b[0])
-        rhs = np.zeros(self.n)
-        rhs[ci[0] : ci[0] + d] += bi[0].T @ w
-        rhs[cj[0] : cj[0] + d] += bj[0].T @ w
-        dx = -self._lu.solve(rhs)
-        step = gtsam.VectorValues()
-        for key, column in self._column.items():
-            step.insert(key, dx[column : column + d])
-        return self._values.retract(step)
-
     def _gram(
         self, bi: Array, bj: Array, ci: NDArray[np.int64], cj: NDArray[np.int64]
     ) -> Array:

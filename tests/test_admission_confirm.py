@@ -97,14 +97,14 @@ def test_the_screen_turns_back_the_false_loop_with_one_solve() -> None:
     kept = with_loops(run._base, run.unit, pending)
     current = run._solve(kept, run.current)
     before = run._base.error(run._solve(run._base, run.current))
-    rho = run._screened(kept, current, pending)[0]
+    rho = run._screened(kept, current, pending)
     assert rho[0] < 1e-6 * run._c < run._c < rho[1]
     solves: list[int] = []
     solved_without = run._solved_without
 
-    def counted(without, current, start, removed, guess=None):  # type: ignore[no-untyped-def]
+    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
         solves.append(int(removed[-1]))
-        return solved_without(without, current, start, removed, guess)
+        return solved_without(without, current, start, removed)
 
     run._solved_without = counted  # type: ignore[method-assign]
     back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
@@ -171,15 +171,15 @@ def test_the_screen_skips_a_loop_that_cannot_be_the_costliest(
     kept = with_loops(run._base, run.unit, pending)
     current = run._solve(kept, run.current)
     before = run._base.error(run._solve(run._base, run.current))
-    rho = run._screened(kept, current, pending)[0]
+    rho = run._screened(kept, current, pending)
     np.testing.assert_allclose(rho, [0.5 * 0.25 / 0.0325, 0.5 * 4.0 / 0.0225], rtol=1e-6)
     assert admission.SCREEN_FRACTION * run._c < rho[0] < run._c
     solves: list[int] = []
     solved_without = run._solved_without
 
-    def counted(without, current, start, removed, guess=None):  # type: ignore[no-untyped-def]
+    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
         solves.append(int(removed[-1]))
-        return solved_without(without, current, start, removed, guess)
+        return solved_without(without, current, start, removed)
 
     run._solved_without = counted  # type: ignore[method-assign]
     monkeypatch.setattr(admission, "SCREEN_SKIP", skip)
@@ -189,25 +189,3 @@ def test_the_screen_skips_a_loop_that_cannot_be_the_costliest(
     # skipping: the false loop first (largest rho), then the near loop's rho is below
     # half its cost; without: both solved, in admission order
     assert solves == ([false] if skip else [near, false])
-
-
-def test_the_removal_step_predicts_the_solution_without_the_loop() -> None:
-    graph, near, false = _two_stretches()
-    values = graph.gtsam_values(initial_guess(graph, "odometry"))
-    run = AdmissionPass(graph, values, block=10, prefix_solver="batch", confirm="screen")
-    run.advance()
-    pending = np.array([near, false])
-    kept = with_loops(run._base, run.unit, pending)
-    current = run._solve(kept, run.current)
-    rho, test, gram = run._screened(kept, current, pending)
-    without = with_loops(run._base, run.unit, pending[:1])
-    guess = run._predicted((rho, test, gram), 1, false)
-    # along x with no rotation the problem is linear: the step lands on the minimum,
-    # where the false loop's ends are 2 m apart again (odometry) and the error drop is rho
-    solved = run._solve(without, current)
-    assert abs(without.error(guess) - without.error(solved)) < 1e-9
-    np.testing.assert_allclose(guess.atPose2(3).x() - guess.atPose2(1).x(), 2.0, atol=1e-6)
-    np.testing.assert_allclose(kept.error(current) - without.error(guess), rho[1], rtol=1e-9)
-    # the step starts where the guess is: the batch solve from it is the same minimum
-    error, _ = run._solved_without(without, current, run.current, pending[[1]], guess)
-    np.testing.assert_allclose(error, without.error(solved), atol=1e-9)
