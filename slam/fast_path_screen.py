@@ -67,7 +67,7 @@ import numpy as np
 from slam.least_squares import dogleg_qr, lm_params, solve
 
 SCREEN_ITERATIONS = 5  # solver iterations of the screen at most
-STALL_DECREASE = 1e-3  # `stalled_solve`: relative decrease of one LM iteration that is a stall
+STALL_DECREASE = 1e-2  # `stalled_solve`: relative decrease of one LM iteration that is a stall
 # `stalled_solve`: LM's damping (gtsam's lambda, added to the normal equations' diagonal)
 # above which a small decrease is the damping's, not a stall (LM crawling, as on
 # near-singular information: it may run to its cap, after which `solve` goes on with dogleg).

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from data import se2
-from slam.fast_path_screen import is_stall, majority_fails, stalled_solve
+from slam.fast_path_screen import STALL_DECREASE, is_stall, majority_fails, stalled_solve
 from slam.innovation import tls_threshold
 from slam.least_squares import solve
 from slam.optimize import initial_guess, optimize
@@ -104,7 +104,7 @@ def test_stalled_solve_is_solve_bit_for_bit_when_it_does_not_give_up() -> None:
     # decrease 1.0: every iteration that lowers the error is a stall, so only the
     # majority rule keeps the consistent graph's solve going; it must then be `solve`'s.
     graph, _ = _square_graph(noise=0.02, laps=3)
-    for decrease in (1e-3, 1.0):
+    for decrease in (1e-3, STALL_DECREASE, 1.0):
         new, old = _stalled(graph, decrease)
         assert new is not None
         assert new[1:] == old[1:]
@@ -125,6 +125,13 @@ def test_a_stall_is_a_small_step_taken() -> None:
     assert not is_stall(5, 1000.0, 998.0, 1e-3)  # 2e-3: still converging
     assert not is_stall(5, 1000.0, 1000.0, 1e-3)  # no decrease: no step
     assert not is_stall(0, 1000.0, 999.9, 1e-3)  # LM has not counted a step yet
+
+
+def test_the_default_stall_is_a_step_that_lowers_the_error_by_under_one_percent() -> None:
+    # Gauss-Newton's linear convergence on a graph of many false loops: steps of a few
+    # tenths of a percent of the error at negligible damping are a stall by default.
+    assert is_stall(13, 1000.0, 993.0, STALL_DECREASE)  # 7e-3 of the error
+    assert not is_stall(12, 1000.0, 989.0, STALL_DECREASE)  # 1.1e-2: still converging
 
 
 def test_the_count_stall_fires_after_a_window_without_a_new_least_count() -> None:
