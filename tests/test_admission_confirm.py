@@ -22,10 +22,9 @@ def _pass(graph: PoseGraph, confirm: bool) -> AdmissionPass:
     return run
 
 
-def _square() -> tuple[PoseGraph, int, int]:
-    """Eight poses 1 m apart on a line, odometry exact at 0.1 m / 0.1 rad; a true loop
-    (0, 7) saying 7 m and a false one (1, 6) saying 0 m: 5 m against 0.1 m sigmas over
-    five steps, its actual cost is about 0.5 * 25 / (5 * 0.01 + 0.0025 ...) >> c."""
+def _line() -> tuple[PoseGraph, np.ndarray]:
+    """Eight poses 1 m apart on a line, pose 0 fixed, odometry exact at 0.1 m / 0.1 rad
+    sigmas; and the loops' information (0.05 m, 0.02 rad sigmas)."""
     graph = PoseGraph(dim=2)
     for k in range(8):
         graph.add_pose(k, np.array([float(k), 0.0, 0.0]))
@@ -33,6 +32,14 @@ def _square() -> tuple[PoseGraph, int, int]:
     for k in range(1, 8):
         graph.add_odometry(k - 1, k, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
     info = np.diag([400.0, 400.0, 2500.0])
+    return graph, info
+
+
+def _square() -> tuple[PoseGraph, int, int]:
+    """Eight poses 1 m apart on a line, odometry exact at 0.1 m / 0.1 rad; a true loop
+    (0, 7) saying 7 m and a false one (1, 6) saying 0 m: 5 m against 0.1 m sigmas over
+    five steps, its actual cost is about 0.5 * 25 / (5 * 0.01 + 0.0025 ...) >> c."""
+    graph, info = _line()
     true = graph.add_loop(0, 7, np.array([7.0, 0.0, 0.0]), info)
     false = graph.add_loop(1, 6, np.zeros(3), info)
     return graph, true, false
@@ -76,13 +83,7 @@ def _apart() -> tuple[PoseGraph, int, int]:
     over two steps: far above c) and a true loop (4, 7) saying 3 m on another stretch:
     at their joint solution the true loop's residual, and its leave-one-out cost, are
     about zero."""
-    graph = PoseGraph(dim=2)
-    for k in range(8):
-        graph.add_pose(k, np.array([float(k), 0.0, 0.0]))
-    graph.fixed.add(0)
-    for k in range(1, 8):
-        graph.add_odometry(k - 1, k, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
-    info = np.diag([400.0, 400.0, 2500.0])
+    graph, info = _line()
     false = graph.add_loop(1, 3, np.zeros(3), info)
     true = graph.add_loop(4, 7, np.array([3.0, 0.0, 0.0]), info)
     return graph, true, false
@@ -147,13 +148,7 @@ def _two_stretches() -> tuple[PoseGraph, int, int]:
     the linear model: 2 m against 0.1 m sigmas over two steps) and a loop (4, 7) saying
     3.5 m over three 1 m steps: 0.5 m against a variance of 3 * 0.01 + 0.0025, a cost of
     0.5 * 0.25 / 0.0325 = 3.85, between c / 2 and c (c = 5.67 in 2D)."""
-    graph = PoseGraph(dim=2)
-    for k in range(8):
-        graph.add_pose(k, np.array([float(k), 0.0, 0.0]))
-    graph.fixed.add(0)
-    for k in range(1, 8):
-        graph.add_odometry(k - 1, k, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
-    info = np.diag([400.0, 400.0, 2500.0])
+    graph, info = _line()
     near = graph.add_loop(4, 7, np.array([3.5, 0.0, 0.0]), info)
     false = graph.add_loop(1, 3, np.zeros(3), info)
     return graph, near, false
