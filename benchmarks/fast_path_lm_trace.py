@@ -30,14 +30,9 @@ import gtsam
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.robust_cell import CpuCapped, cell_parser, cpu_cap, read_cell
-from slam.consistency import ODOMETRY_LADDER
+from benchmarks.robust_cell import CpuCapped, cell_parser, cpu_cap, fast_path_problem, read_cell
 from slam.fast_path_screen import STALL_DECREASE, STALL_LAMBDA, is_stall
-from slam.innovation import tls_threshold
 from slam.least_squares import lm_params
-from slam.optimize import initial_guess
-from slam.pose_graph import RobustKernel
-from slam.variance_components import with_information_scaled
 
 
 def main() -> None:
@@ -47,10 +42,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=100)
     args = parser.parse_args()
     _, _, corrupted, is_false = read_cell(args)
-    c = tls_threshold(corrupted.dim)
-    rung, loop_index = with_information_scaled(corrupted, max(ODOMETRY_LADDER)).factor_graph(
-        RobustKernel("none"))
-    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    c, rung, loop_index, values = fast_path_problem(corrupted)
     loops = [rung.at(k) for k in loop_index]
     print(f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% s{args.seed}: "
           f"{len(values.keys())} poses, {len(loop_index)} loops ({int(is_false.sum())} false), "

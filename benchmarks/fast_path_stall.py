@@ -33,14 +33,9 @@ import gtsam
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.robust_cell import read_cell
-from slam.consistency import ODOMETRY_LADDER
+from benchmarks.robust_cell import fast_path_problem, read_cell
 from slam.fast_path_screen import STALL_DECREASE, STALL_LAMBDA, stalled_solve
-from slam.innovation import tls_threshold
 from slam.least_squares import lm_params, solve
-from slam.optimize import initial_guess
-from slam.pose_graph import RobustKernel
-from slam.variance_components import with_information_scaled
 
 
 def recorded_solve(factors, values, max_iterations, loop_index, c):  # type: ignore[no-untyped-def]
@@ -87,10 +82,7 @@ def main() -> None:
                                 policy=policy, ratio=float(ratio), seed=int(seed),
                                 cache=args.cache)
         _, _, corrupted, _ = read_cell(ns)
-        c = tls_threshold(corrupted.dim)
-        rung, loop_index = with_information_scaled(corrupted, max(ODOMETRY_LADDER)).factor_graph(
-            RobustKernel("none"))
-        values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+        c, rung, loop_index, values = fast_path_problem(corrupted)
         t0 = time.process_time()
         (result, iterations, used), rows = recorded_solve(rung, values, 100, loop_index, c)
         old_cpu = time.process_time() - t0

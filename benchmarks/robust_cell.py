@@ -23,9 +23,11 @@ from evaluation.robustness import (
     consistent_with_clean,
     corrupted_graph,
 )
-from slam.consistency import tls_cost
-from slam.optimize import default_outlier_residual
-from slam.pose_graph import whitened_residual
+from slam.consistency import ODOMETRY_LADDER, tls_cost
+from slam.innovation import tls_threshold
+from slam.optimize import default_outlier_residual, initial_guess
+from slam.pose_graph import RobustKernel, whitened_residual
+from slam.variance_components import with_information_scaled
 
 
 def cell_parser(description: str, seed: int = 0, cache: bool = True) -> argparse.ArgumentParser:
@@ -71,6 +73,16 @@ class CellOutcome:
     true_rejected: int
     gap: float
     ate: float
+
+
+def fast_path_problem(corrupted):  # type: ignore[no-untyped-def]
+    """What the fast path's first solve is given: ``(c, factors, loop_index, values)``,
+    the TLS threshold, the stiffest odometry rung's factor graph without a kernel, the
+    indices of its loop factors, and the odometry initial guess."""
+    c = tls_threshold(corrupted.dim)
+    factors, loop_index = with_information_scaled(corrupted, max(ODOMETRY_LADDER)).factor_graph(
+        RobustKernel("none"))
+    return c, factors, loop_index, corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
 
 
 def cell_outcome(graph, reference, corrupted, is_false: np.ndarray, poses) -> CellOutcome:
