@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from data.types import Scan
-from loopclosure import correlative, fast_icp
+from loopclosure import correlative, fast_icp, fast_points, grid_overlap, icp_kernel
 from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher
 from loopclosure.polygon import polygon_from_scan
@@ -103,8 +103,9 @@ def cache_is_cold() -> bool:
         pair_kernel,
     )
 
-    kernels = (fast_icp._register_kernel, fast_icp._screen_kernel, fast_icp._voxel_kernel,
-               fast_icp._beam_points_kernel, flirt_peak_kernel.responses_kernel,
+    kernels = (icp_kernel._register_kernel, grid_overlap._screen_kernel,
+               fast_points._voxel_kernel, fast_points._beam_points_kernel,
+               flirt_peak_kernel.responses_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
                flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts, flirt_grid_kernel.beta_posterior,

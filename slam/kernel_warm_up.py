@@ -2,7 +2,7 @@
 
 `loopclosure.warm_up` covers the front end, the place descriptors and the geometric
 checks; this module adds the front end's local-map crop
-(`loopclosure.fast_icp.points_within`) and the back end's selected-inverse kernels of
+(`loopclosure.fast_points.points_within`) and the back end's selected-inverse kernels of
 the final pass's re-check (`slam.selected_inverse_kernel`).  `warm_up` makes both
 layers' first calls (here on a 4-pose chain's information matrix, factorised as the
 re-check factorises it by
@@ -33,13 +33,13 @@ def _chain_jacobian(poses: int = 4, dof: int = 3) -> sp.csr_matrix:
 def warm_up() -> None:
     """`loopclosure.warm_up.warm_up`, the front end's local-map crop, then one
     selected-inverse request of 3x3 blocks."""
-    from loopclosure import fast_icp
+    from loopclosure import fast_points
     from slam.least_squares import factor_information
     from slam.selected_inverse import SelectedInverse
 
     loopclosure_warm_up.warm_up()
     # `slam.odometry.icp2d` crops its map with these (one row kept, one compacted away)
-    fast_icp.points_within(np.array([[0.0, 0.0], [3.0, 4.0]]), np.zeros(2), 1.0)
+    fast_points.points_within(np.array([[0.0, 0.0], [3.0, 4.0]]), np.zeros(2), 1.0)
     lu = factor_information(_chain_jacobian())
     SelectedInverse(lu, symmetric=True).blocks(np.array([0, 3]), np.array([9, 6]), 3)
     SelectedInverse(lu, symmetric=False).blocks(np.array([0]), np.array([9]), 3)
@@ -47,13 +47,13 @@ def warm_up() -> None:
 
 def cache_is_cold() -> bool:
     """True when either layer's numba cache lacks a kernel `warm_up` compiles."""
-    from loopclosure import fast_icp, grid_target
+    from loopclosure import fast_points, grid_target
     from slam import selected_inverse_kernel as kernels
 
     if loopclosure_warm_up.cache_is_cold():
         return True
     compiled = (kernels._reach_counts, kernels._solves, kernels.sparse_block_dots,
-                fast_icp._within_kernel, fast_icp._compact,
+                fast_points._within_kernel, fast_points._compact,
                 grid_target._cells_kernel, grid_target._all_finite)
     try:
         paths = [k._cache._cache_file._index_path for k in compiled]

@@ -57,7 +57,7 @@ def test_grid_nearest_neighbour_is_exact() -> None:
     rng = np.random.default_rng(1)
     pts = rng.uniform(-5, 5, (400, 2))
     grid = GridTarget(pts, cell=0.3)
-    from loopclosure.fast_icp import _nearest
+    from loopclosure.grid_nearest import _nearest
 
     tree = cKDTree(grid.points)
     for gate in (0.05, 0.3, 1.0, 2.5):
@@ -262,7 +262,7 @@ def test_mean_anchor_puts_the_line_through_the_neighbourhood_mean() -> None:
 
 
 def test_solve3_matches_numpy_and_survives_a_singular_matrix() -> None:
-    from loopclosure.fast_icp import _solve3
+    from loopclosure.icp_kernel import _solve3
 
     rng = np.random.default_rng(6)
     a = rng.normal(size=(3, 3))
@@ -422,7 +422,7 @@ def test_a_gated_check_screens_and_registers_without_the_candidates_kd_tree() ->
 def test_upper_median_by_selection_is_the_sorted_one() -> None:
     """`_upper_median_abs` is ``sorted(|v[:n]|)[n // 2]`` for every n (ties, signs, a
     tail beyond n that must not count)."""
-    from loopclosure.fast_icp import _upper_median_abs
+    from loopclosure.icp_kernel import _upper_median_abs
 
     rng = np.random.default_rng(5)
     for n in range(1, 60):
@@ -436,7 +436,7 @@ def test_upper_median_by_selection_is_the_sorted_one() -> None:
 def test_inv3_is_numpys_inverse_to_the_bit() -> None:
     """`_inv3` (LAPACK gesv on the identity, as `np.linalg.inv`) on symmetric positive
     definite 3x3 matrices of widely different scales, and on a non-symmetric one."""
-    from loopclosure.fast_icp import _inv3
+    from loopclosure.icp_kernel import _inv3
 
     rng = np.random.default_rng(3)
     for _ in range(200):

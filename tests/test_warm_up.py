@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from loopclosure import correlative, fast_icp
+from loopclosure import correlative, fast_points, grid_overlap, grid_target, icp_kernel
 from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, pair_kernel
 from loopclosure.warm_up import cache_is_cold, room_scan, warm_up, warm_up_isolated
 
@@ -24,8 +24,9 @@ def test_room_scan_hits_the_nearest_wall_or_the_pillar():
 
 def test_warm_up_compiles_every_kernel_the_mapper_calls():
     warm_up()
-    kernels = [fast_icp._voxel_kernel, fast_icp._normals_kernel, fast_icp._register_kernel,
-               fast_icp._screen_kernel, fast_icp._bound_kernel,
+    kernels = [fast_points._voxel_kernel, grid_target._normals_kernel,
+               icp_kernel._register_kernel, grid_overlap._screen_kernel,
+               grid_overlap._bound_kernel,
                correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries,
                flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts]
