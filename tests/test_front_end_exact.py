@@ -15,15 +15,13 @@ from data.errors import UserError
 from data.types import Scan
 from loopclosure.fast_icp import (
     GridTarget,
-    _match,
     _matchable,
-    _nearest,
-    _nearest_bound,
     _source_points,
     points_within,
     register_fast,
     within_radius,
 )
+from loopclosure.grid_nearest import _match, _nearest, _nearest_bound
 from loopclosure.registration import IcpConfig
 from slam.odometry import MotionNoise, scan_odometry
 from slam.odometry.icp2d import Icp2dOdometry, _between
