@@ -53,13 +53,13 @@ from loopclosure.grid_target import (
     estimate_normals_fast,
 )
 from loopclosure.icp_kernel import _register_kernel
-from loopclosure.registration import (
+from loopclosure.icp_types import (
     KERNEL_CONSTANTS,
     IcpConfig,
     IcpResult,
-    RegistrationTarget,
     _failed,  # the failed result of either ICP: the initial pose, no information
 )
+from loopclosure.registration_target import RegistrationTarget
 
 Array = NDArray[np.float64]
 

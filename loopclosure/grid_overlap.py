@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from loopclosure.grid_nearest import _nearest
 from loopclosure.grid_target import KIND_NONE, GridTarget, resolve_point
-from loopclosure.registration import as_points
+from loopclosure.icp_types import as_points
 
 Array = NDArray[np.float64]
 

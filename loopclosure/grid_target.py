@@ -24,7 +24,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from data.errors import UserError
-from loopclosure.registration import LINE_ANCHORS, IcpConfig, RegistrationTarget, as_points
+from loopclosure.icp_types import LINE_ANCHORS, IcpConfig, as_points
+from loopclosure.registration_target import RegistrationTarget
 
 Array = NDArray[np.float64]
 

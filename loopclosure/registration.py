@@ -13,20 +13,10 @@ rad], the pose of S in T: ``target ~ data.se2.transform_points(pose, source)``.
 
 Target (`RegistrationTarget`)
 -----------------------------
-Built once, used for many sources: a `scipy.spatial.cKDTree` over all target points
-and a unit normal per point from local PCA.  For each point, its `normal_neighbors`
-nearest neighbours within `normal_radius` (itself included) give the covariance
-``C`` (2x2); with ``a = C_xx, b = C_xy, c = C_yy`` its eigenvalues are
-``lambda = (a + c) / 2 -+ sqrt(((a - c) / 2)^2 + b^2)`` and the principal axis has
-angle ``phi = atan2(2 b, a - c) / 2``; the normal is ``(-sin phi, cos phi)``.  A point
-is usable when it has at least `min_normal_neighbors` neighbours and is line-like,
-``lambda_min <= max_normal_ratio * lambda_max``.  Corners, clutter and isolated
-points stay in the tree but a source point whose nearest neighbour is one of them
-gets no correspondence (so a point near a corner is never pulled onto the other
-wall), unless `point_to_point_clutter` is set and the nearest neighbour is
-clutter (enough neighbours, not line-like): then the correspondence is a
-point-to-point one (below).  Isolated points never match.  All vectorised over
-points; no loop.
+Built once, used for many sources (`loopclosure.registration_target`): a
+`scipy.spatial.cKDTree` over all target points and a unit normal per point from
+local PCA; only line-like points (and, with `point_to_point_clutter`, clutter:
+enough neighbours, not line-like) get correspondences.
 
 ICP (`register`)
 ----------------
@@ -92,161 +82,31 @@ were found; otherwise they are searched again at the final pose):
   ``degenerate_axis`` is the unit vector (target frame) of that direction.
 """
 
+
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import cKDTree
 
 from data import se2
 from data.errors import UserError
+from loopclosure.icp_types import (
+    FAILED_VARIANCE,
+    KERNEL_CONSTANTS,
+    LINE_ANCHORS,
+    IcpConfig,
+    IcpResult,
+    _failed,
+    as_points,
+    body_covariance,
+)
+from loopclosure.registration_target import NormalsFn, RegistrationTarget, estimate_normals
 
 Array = NDArray[np.float64]
 
-#: Robust kernels and their 95%-efficiency tuning constants (in units of the scale s).
-KERNEL_CONSTANTS: dict[str, float] = {
-    "cauchy": 2.3849,
-    "huber": 1.345,
-    "tukey": 4.6851,
-    "none": 0.0,
-}
-
-#: Variance [m^2, rad^2] put on the diagonal of the covariance of a failed registration.
-FAILED_VARIANCE = 1.0e6
-
 _MAD = 1.4826  # median absolute deviation -> standard deviation (Gaussian)
-
-
-#: Where the line of a line-like target point passes (`loopclosure.fast_icp.GridTarget`):
-#: through the point itself (a voxel centroid), or through the mean of the
-#: neighbours that gave its normal.
-LINE_ANCHORS: tuple[str, ...] = ("point", "mean")
-
-
-@dataclass(frozen=True, slots=True)
-class IcpConfig:
-    """Parameters of the target normals and of ICP (see module docstring).
-
-    Attributes:
-        max_iterations: Gauss-Newton iterations at most.
-        max_correspondence_distance: initial distance gate [m].
-        min_correspondence_distance: the gate never shrinks below this [m].
-        gate_sigmas: gate = this times the robust scale of point-to-point distances.
-        kernel: ``"cauchy"``, ``"huber"``, ``"tukey"`` or ``"none"``.
-        min_residual_scale: floor of the residual scale s and of sigma [m]
-            (sensor noise plus map blur).
-        translation_tolerance: convergence on the translation update [m].
-        rotation_tolerance: convergence on the rotation update [rad].
-        min_correspondences: fewer correspondences than this is a failure.
-        normal_neighbors: neighbours (itself included) of the PCA normal.
-        normal_radius: neighbours farther than this do not count [m].
-        min_normal_neighbors: fewer neighbours than this: no normal, point dropped.
-        max_normal_ratio: ``lambda_min / lambda_max`` above this: not line-like, dropped.
-        fitness_tolerance: residual scale of `fitness` and of the inlier test [m].
-        point_to_point_clutter: match source points whose nearest target point is
-            clutter (enough neighbours, not line-like) point to point instead of
-            dropping them (outdoor scans).
-        clutter_weight: weight of those point-to-point rows relative to point-to-line
-            ones (multiplies the robust kernel's weight).
-    """
-
-    max_iterations: int = 30
-    max_correspondence_distance: float = 1.0
-    min_correspondence_distance: float = 0.1
-    gate_sigmas: float = 4.0
-    kernel: str = "cauchy"
-    min_residual_scale: float = 0.01
-    translation_tolerance: float = 1e-4
-    rotation_tolerance: float = 1e-4
-    min_correspondences: int = 10
-    normal_neighbors: int = 8
-    normal_radius: float = 0.5
-    min_normal_neighbors: int = 4
-    max_normal_ratio: float = 0.1
-    fitness_tolerance: float = 0.05
-    point_to_point_clutter: bool = False
-    clutter_weight: float = 1.0
-
-    def __post_init__(self) -> None:
-        if self.kernel not in KERNEL_CONSTANTS:
-            raise UserError(
-                f"unknown ICP kernel {self.kernel!r}: choose one of {', '.join(KERNEL_CONSTANTS)}"
-            )
-        positive = (
-            "max_correspondence_distance",
-            "min_correspondence_distance",
-            "gate_sigmas",
-            "clutter_weight",
-            "min_residual_scale",
-            "normal_radius",
-            "fitness_tolerance",
-        )
-        for name in positive:
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise UserError(f"ICP {name} must be a positive number, got {value}")
-        if self.max_iterations < 1 or self.min_correspondences < 3:
-            raise UserError(
-                "ICP needs max_iterations >= 1 and min_correspondences >= 3, got "
-                f"{self.max_iterations} and {self.min_correspondences}"
-            )
-        if self.normal_neighbors < 3 or not 2 <= self.min_normal_neighbors <= self.normal_neighbors:
-            raise UserError(
-                "ICP normals need normal_neighbors >= 3 and 2 <= min_normal_neighbors <= "
-                f"normal_neighbors, got {self.normal_neighbors} and {self.min_normal_neighbors}"
-            )
-
-
-@dataclass(slots=True)
-class IcpResult:
-    """Outcome of one ICP run (see module docstring for every figure).
-
-    Attributes:
-        pose: ``(3,)`` pose of the source frame in the target frame (x, y, theta).
-        covariance: ``3x3`` covariance of `pose` (x, y, theta), additive in the target
-            frame; ``FAILED_VARIANCE * I`` when `ok` is False.
-        hessian: ``3x3`` data information ``sum w J^T J`` (without the 1/sigma^2).
-        sigma: residual standard deviation used for the covariance [m].
-        inlier_ratio: inliers / source points.
-        rms: RMS residual of the inliers [m] (0 without inliers).
-        fitness: overlap score in [0, 1] (ranking of hypotheses).
-        degeneracy: normalised smallest translational eigenvalue in [0, 0.5].
-        degenerate_axis: ``(2,)`` unit direction of that eigenvalue (target frame).
-        iterations: Gauss-Newton iterations run.
-        converged: the update fell below the tolerances before `max_iterations`.
-        correspondences: matched source points at the final pose.
-        ok: enough correspondences for a solution (False: `pose` is the initial guess).
-        initial: ``(3,)`` the initial guess it started from.
-    """
-
-    pose: Array
-    covariance: Array
-    hessian: Array
-    sigma: float
-    inlier_ratio: float
-    rms: float
-    fitness: float
-    degeneracy: float
-    degenerate_axis: Array
-    iterations: int
-    converged: bool
-    correspondences: int
-    ok: bool
-    initial: Array = field(default_factory=lambda: np.zeros(3))
-
-
-def as_points(points: ArrayLike, what: str) -> Array:
-    """`points` as a float ``(N, 2)`` array of finite coordinates [m]; `what` names them
-    in the `UserError` otherwise."""
-    pts = np.asarray(points, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] != 2:
-        raise UserError(f"{what} must be an (N, 2) array of points, got shape {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise UserError(f"{what} holds non-finite coordinates")
-    return pts
 
 
 def voxel_downsample(points: ArrayLike, voxel: float) -> Array:
@@ -267,117 +127,6 @@ def voxel_downsample(points: ArrayLike, voxel: float) -> Array:
     centroids = sums / counts[:, None]
     return centroids[np.argsort(first, kind="stable")]
 
-
-def estimate_normals(
-    points: Array, tree: cKDTree, config: IcpConfig
-) -> tuple[Array, NDArray[np.bool_], Array]:
-    """Unit normals ``(N, 2)``, a line-like mask ``(N,)`` and ``lambda_min / lambda_max``.
-
-    Local PCA over each point's neighbours (module docstring), vectorised over points.
-    The ratio is ``inf`` where a point has fewer than `min_normal_neighbors`
-    neighbours (isolated: neither line nor clutter).
-    """
-    n = len(points)
-    k = min(config.normal_neighbors, n)
-    if n < config.min_normal_neighbors:
-        return np.zeros((n, 2)), np.zeros(n, dtype=bool), np.full(n, np.inf)
-    dist, idx = tree.query(points, k=k, distance_upper_bound=config.normal_radius)
-    dist = dist.reshape(n, k)
-    idx = idx.reshape(n, k)
-    found = np.isfinite(dist)
-    padded = np.vstack([points, np.zeros((1, 2))])
-    neigh = padded[np.where(found, idx, n)]  # (n, k, 2); missing -> zero, weight 0
-    w = found.astype(float)
-    count = w.sum(axis=1)
-    mean = (neigh * w[..., None]).sum(axis=1) / count[:, None]
-    centred = (neigh - mean[:, None, :]) * w[..., None]
-    a = (centred[..., 0] ** 2).sum(axis=1) / count
-    b = (centred[..., 0] * centred[..., 1]).sum(axis=1) / count
-    c = (centred[..., 1] ** 2).sum(axis=1) / count
-    half_diff = 0.5 * (a - c)
-    root = np.sqrt(half_diff**2 + b**2)
-    lam_max = 0.5 * (a + c) + root
-    lam_min = 0.5 * (a + c) - root
-    phi = 0.5 * np.arctan2(2.0 * b, a - c)
-    normals = np.column_stack([-np.sin(phi), np.cos(phi)])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.where(lam_max > 0, np.maximum(lam_min, 0.0) / lam_max, 1.0)
-    enough = count >= config.min_normal_neighbors
-    ratio = np.where(enough, ratio, np.inf)
-    line_like = enough & (ratio <= config.max_normal_ratio)
-    return normals, line_like, ratio
-
-
-#: Normal estimator of a `RegistrationTarget`: ``(points (M, 2) [m], config) ->
-#: (normals (M, 2), line-like mask (M,), lambda_min / lambda_max (M,), inf where a
-#: point has too few neighbours)``, the contract of `estimate_normals` (e.g.
-#: `loopclosure.fast_icp.estimate_normals_fast`, the same equations compiled).
-NormalsFn = Callable[[Array, IcpConfig], tuple[Array, NDArray[np.bool_], Array]]
-
-_UNBUILT = object()  # `RegistrationTarget.tree` not made yet
-
-
-class RegistrationTarget:
-    """A target point set prepared once: KD-tree, normals and which points are line-like.
-
-    Attributes:
-        points: ``(M, 2)`` the points in the target frame [m].
-        normals: ``(M, 2)`` their unit normals (meaningless where not `usable`).
-        usable: ``(M,)`` line-like points with a normal (matched point to line).
-        clutter: ``(M,)`` points with enough neighbours that are not line-like
-            (matched point to point with `IcpConfig.point_to_point_clutter`).
-        config: the `IcpConfig` the normals were made with (and the default for
-            `register`).
-        derived: other products of the points, made and cached by their users (e.g.
-            the geometric check's likelihood grid), by a key of their parameters.
-
-    `normals`, a `NormalsFn`, replaces `estimate_normals` (which queries the
-    KD-tree); the tree is then made on first use of `tree` (a target screened out
-    before any KD-tree query never makes it).
-    """
-
-    __slots__ = ("_tree", "clutter", "config", "derived", "normals", "points", "usable")
-
-    def __init__(self, points: ArrayLike, config: IcpConfig | None = None, *,
-                 normals: NormalsFn | None = None) -> None:
-        self.config = config or IcpConfig()
-        pts = as_points(points, "target points")
-        self.points = pts
-        self.derived: dict = {}
-        self._tree: object = None
-        if len(pts) >= self.config.min_normal_neighbors:
-            if normals is None:
-                self._tree = cKDTree(pts)
-                self.normals, self.usable, ratio = estimate_normals(pts, self._tree, self.config)
-            else:
-                self._tree = _UNBUILT
-                self.normals, self.usable, ratio = normals(pts, self.config)
-            self.clutter = np.isfinite(ratio) & ~self.usable
-        else:
-            self.normals, self.usable = np.zeros((len(pts), 2)), np.zeros(len(pts), dtype=bool)
-            self.clutter = np.zeros(len(pts), dtype=bool)
-        if not self.matchable.any():
-            self._tree = None
-
-    @property
-    def tree(self) -> cKDTree | None:
-        """KD-tree over all `points`; None when no point is `matchable` (nothing for
-        ICP to match)."""
-        if self._tree is _UNBUILT:
-            self._tree = cKDTree(self.points)
-        return self._tree  # type: ignore[return-value]
-
-    @property
-    def matchable(self) -> NDArray[np.bool_]:
-        """``(M,)`` the points ICP matches: line-like ones, plus clutter with
-        `IcpConfig.point_to_point_clutter`."""
-        if self.config.point_to_point_clutter:
-            return self.usable | self.clutter
-        return self.usable
-
-    def __len__(self) -> int:
-        """Number of target points ICP can match (`matchable`)."""
-        return int(self.matchable.sum())
 
 
 def _weights(r: Array, scale: float, kernel: str) -> Array:
@@ -464,16 +213,6 @@ _DAMP = 1e-12 * np.eye(3)
 
 def _solve(h: Array, g: Array) -> Array:
     return np.linalg.solve(h + _DAMP * max(float(np.trace(h)), 1e-12), g)
-
-
-def _failed(initial: Array, iterations: int, count: int, prior_cov: Array | None) -> IcpResult:
-    cov = FAILED_VARIANCE * np.eye(3) if prior_cov is None else prior_cov.copy()
-    return IcpResult(
-        pose=initial.copy(), covariance=cov, hessian=np.zeros((3, 3)), sigma=0.0,
-        inlier_ratio=0.0, rms=0.0, fitness=0.0, degeneracy=0.0,
-        degenerate_axis=np.array([1.0, 0.0]), iterations=iterations, converged=False,
-        correspondences=count, ok=False, initial=initial.copy(),
-    )
 
 
 def _median_abs(values: Array) -> float:
@@ -615,14 +354,6 @@ def _evaluate(
     )
 
 
-def body_covariance(pose: ArrayLike, covariance: ArrayLike) -> Array:
-    """`IcpResult.covariance` (additive in the target frame) as a right perturbation.
-
-    ``pose_true = pose ⊕ eps`` with ``eps`` in the source (body) frame, the convention of
-    gtsam's ``BetweenFactorPose2``: ``B^T C B`` with ``B = blockdiag(R(theta), 1)``.
-    """
-    th = float(np.asarray(pose, dtype=float).reshape(3)[2])
-    c, s = np.cos(th), np.sin(th)
-    b = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    out = b.T @ np.asarray(covariance, dtype=float).reshape(3, 3) @ b
-    return 0.5 * (out + out.T)
+__all__ = ["FAILED_VARIANCE", "KERNEL_CONSTANTS", "LINE_ANCHORS", "IcpConfig", "IcpResult",
+           "NormalsFn", "RegistrationTarget", "as_points", "body_covariance", "estimate_normals",
+           "register", "voxel_downsample"]
