@@ -8,16 +8,19 @@ Run from the repository root (the working tree's code on ``PYTHONPATH``)::
 
 The default ``icp2d`` front end processes the first N scans of the log (working tree
 code) and its `register_fast` calls (points, local map grid, initial pose, prior)
-are recorded.  Revision REV's ``loopclosure/fast_icp.py`` (``git show``) is loaded
-beside the working tree's, on the working tree's other modules (so only changes to
-that file are compared), and both replay every call: the script prints whether every
-`IcpResult` field is bit-identical, with the prior and without it, and the CPU
-microseconds per call of either (R alternate passes, best of each).
+are recorded.  Revision REV's compiled ICP (``git show``: the modules of `CHAIN` it
+has, ``loopclosure/fast_icp.py`` and the kernel modules it imports, each importing
+REV's others) is loaded beside the working tree's, on the working tree's other
+modules (so only changes to those files are compared), and both replay every call:
+the script prints whether every `IcpResult` field is bit-identical, with the prior and
+without it, and the CPU microseconds per call of either (R alternate passes, best of
+each).
 """
 
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import tempfile
 import time
@@ -28,6 +31,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.exact_stage_speed import ROOT, load_revision
+
+#: The compiled ICP's modules, each importing only earlier ones of the chain (and
+#: modules outside it): a revision's are loaded in this order.
+CHAIN = ("loopclosure/grid_nearest.py", "loopclosure/icp_kernel.py", "loopclosure/fast_icp.py")
 
 FIELDS = ("pose", "covariance", "hessian", "sigma", "inlier_ratio", "rms", "fitness",
           "degeneracy", "degenerate_axis", "iterations", "converged", "correspondences",
@@ -61,6 +68,32 @@ def record(log: Path, limit: int) -> list:
     return calls
 
 
+def load_chain(rev: str, folder: Path):
+    """Revision `rev`'s `fast_icp`, on `rev`'s modules of `CHAIN` (those it has, e.g.
+    none before the kernels left ``fast_icp.py``): while each is loaded, the earlier
+    ones stand in for the working tree's under their own names."""
+    saved: dict = {}
+    module = None
+    try:
+        for path in CHAIN:
+            there = subprocess.run(["git", "cat-file", "-e", f"{rev}:{path}"], cwd=ROOT,
+                                   capture_output=True).returncode == 0
+            if not there:
+                continue
+            module = load_revision(rev, path, folder)
+            name = path.removesuffix(".py").replace("/", ".")
+            saved.setdefault(name, sys.modules.get(name))
+            sys.modules[name] = module
+    finally:
+        for name, original in saved.items():
+            if original is None:
+                sys.modules.pop(name, None)
+            else:
+                sys.modules[name] = original
+    assert module is not None, f"{rev} has no loopclosure/fast_icp.py"
+    return module
+
+
 def same(a, b) -> bool:
     return all(np.asarray(getattr(a, f)).tobytes() == np.asarray(getattr(b, f)).tobytes()
                for f in FIELDS)
@@ -77,7 +110,7 @@ def main() -> None:
     import loopclosure.fast_icp as now
 
     with tempfile.TemporaryDirectory() as tmp:
-        old = load_revision(args.baseline, "loopclosure/fast_icp.py", Path(tmp))
+        old = load_chain(args.baseline, Path(tmp))
         calls = record(args.data / args.log, args.limit)
         differ = 0
         for source, grid, initial, kwargs in calls:
