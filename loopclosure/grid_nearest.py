@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from loopclosure.grid_target import resolve_point
+from loopclosure.kernel_cache import drop_stale
 
 
 @numba.njit(cache=True)
@@ -250,3 +251,6 @@ def _match(src, x, gate, ox, oy, cell, nx, ny, start, pts, kind, sel, jdx, dist,
     last[3] = 1.0
     return lines + 2 * clut, lines, lines + clut
 
+
+# numba's cache does not see edits of the callees' files (`loopclosure.kernel_cache`).
+drop_stale(__name__, ("loopclosure.grid_target",))

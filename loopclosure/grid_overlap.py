@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 from loopclosure.grid_nearest import _nearest
 from loopclosure.grid_target import KIND_NONE, GridTarget, resolve_point
 from loopclosure.icp_types import as_points
+from loopclosure.kernel_cache import drop_stale
 
 Array = NDArray[np.float64]
 
@@ -106,6 +107,10 @@ def overlap_screen(source: ArrayLike, grid: GridTarget, guesses: ArrayLike, gate
                    float(grid.origin[1]), grid.cell, nx, ny, grid.start, grid.points,
                    grid.kind, grid.params, grid.normals, grid.anchors, scores, bounds)
     return scores, bounds
+
+
+# numba's cache does not see edits of the callees' files (`loopclosure.kernel_cache`).
+drop_stale(__name__, ("loopclosure.grid_nearest", "loopclosure.grid_target"))
 
 
 __all__ = ["overlap_bound", "overlap_screen"]

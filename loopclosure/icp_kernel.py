@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from loopclosure.grid_nearest import _match, _wrap
+from loopclosure.kernel_cache import drop_stale
 
 _MAD = 1.4826
 
@@ -298,3 +299,6 @@ def _register_kernel(src, x0, ox, oy, cell, nx, ny, start, pts, anchors, normals
     return (0, -1, iterations, converged, points, x, cov, h_data, sigma2, inliers, rms,
             fitness, degeneracy, axis)
 
+
+# numba's cache does not see edits of the callees' files (`loopclosure.kernel_cache`).
+drop_stale(__name__, ("loopclosure.grid_nearest", "loopclosure.grid_target"))
