@@ -14,7 +14,8 @@ REV's others) is loaded beside the working tree's, on the working tree's other
 modules (so only changes to those files are compared), and both replay every call:
 the script prints whether every `IcpResult` field is bit-identical, with the prior and
 without it, and the CPU microseconds per call of either (R alternate passes, best of
-each).
+each); then the same for `overlap_screen` of each call's points on its grid from
+`SCREEN_OFFSETS` around its initial pose (gate 1 m, reach 0.55 m).
 """
 
 from __future__ import annotations
@@ -34,7 +35,13 @@ from benchmarks.exact_stage_speed import ROOT, load_revision
 
 #: The compiled ICP's modules, each importing only earlier ones of the chain (and
 #: modules outside it): a revision's are loaded in this order.
-CHAIN = ("loopclosure/grid_nearest.py", "loopclosure/icp_kernel.py", "loopclosure/fast_icp.py")
+CHAIN = ("loopclosure/grid_nearest.py", "loopclosure/icp_kernel.py",
+         "loopclosure/grid_overlap.py", "loopclosure/fast_icp.py")
+
+#: Offsets [m, m, rad] from each call's initial pose of the guesses `overlap_screen`
+#: scores on its grid (the geometric check's screens, on the front end's maps).
+SCREEN_OFFSETS = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.0, -0.3, 0.0],
+                           [0.0, 0.0, 0.1], [-0.5, 0.4, -0.2], [1.0, 1.0, 0.5]])
 
 FIELDS = ("pose", "covariance", "hessian", "sigma", "inlier_ratio", "rms", "fitness",
           "degeneracy", "degenerate_axis", "iterations", "converged", "correspondences",
@@ -125,9 +132,27 @@ def main() -> None:
                 for source, grid, initial, kwargs in calls:
                     module.register_fast(source, grid, initial, **kwargs)
                 best[label] = min(best[label], time.process_time() - t0)
+        screens = [(source, grid, np.asarray(initial, dtype=float) + SCREEN_OFFSETS)
+                   for source, grid, initial, _ in calls]
+        screens_differ = 0
+        for source, grid, guesses in screens:
+            a = old.overlap_screen(source, grid, guesses, 1.0, 0.55)
+            b = now.overlap_screen(source, grid, guesses, 1.0, 0.55)
+            screens_differ += not all(x.tobytes() == y.tobytes()
+                                      for x, y in zip(a, b, strict=True))
+        screen_best = {"baseline": np.inf, "now": np.inf}
+        for _ in range(args.repeat):
+            for label, module in (("baseline", old), ("now", now)):
+                t0 = time.process_time()
+                for source, grid, guesses in screens:
+                    module.overlap_screen(source, grid, guesses, 1.0, 0.55)
+                screen_best[label] = min(screen_best[label], time.process_time() - t0)
     n = max(len(calls), 1)
     old_us, new_us = 1e6 * best["baseline"] / n, 1e6 * best["now"] / n
     print(f"{args.log}: {len(calls)} calls, {differ} of {2 * len(calls)} results differ; "
+          f"{old_us:.1f} -> {new_us:.1f} us per call ({old_us / new_us:.2f}x)")
+    old_us, new_us = 1e6 * screen_best["baseline"] / n, 1e6 * screen_best["now"] / n
+    print(f"overlap_screen: {len(screens)} calls, {screens_differ} differ; "
           f"{old_us:.1f} -> {new_us:.1f} us per call ({old_us / new_us:.2f}x)")
 
 

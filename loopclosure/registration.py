@@ -3,7 +3,10 @@
 Used by the odometry front end (scan to local map, `slam.odometry.icp2d`) and by the
 loop-closure geometric check (keyframe submap to keyframe submap); both start ICP
 from several guesses with `loopclosure.multi_start`, whose headings come from
-`loopclosure.headings`.
+`loopclosure.headings`.  This module is the numpy reference ICP and the front door of
+its types: `IcpConfig` and `IcpResult` live in `loopclosure.icp_types`, the prepared
+target in `loopclosure.registration_target`, both re-exported here; the compiled ICP
+(`loopclosure.fast_icp`) computes the same figures.
 
 Frames and units
 ----------------
