@@ -44,7 +44,10 @@ def drop_stale(module: str, callees: Sequence[str]) -> list[str]:
             continue  # not a kernel, or one imported from elsewhere
         paths = _cached_files(kernel)
         if paths and any(os.path.exists(p) and os.stat(p).st_mtime < newest for p in paths):
-            kernel._cache.flush()  # type: ignore[attr-defined]
+            try:
+                kernel._cache.flush()  # type: ignore[attr-defined]
+            except OSError:
+                continue  # a read-only cache (an installed copy, whose sources stay put)
             dropped.append(name)
     return dropped
 
