@@ -12,7 +12,11 @@ and sends its totals back before it exits.  Prints, for the mapper (main) proces
 the worker side by side, each stage's CPU seconds and calls, each process's whole
 CPU time, and the mapper's waits for the worker: the wall and CPU seconds it spent
 in the worker's generator (blocked on its inbox) and how many keyframes' place
-queries the worker made (it makes them only while it is ahead).
+queries the worker made (it makes them only while it is ahead).  From the per-scan
+CPU costs of both processes it also simulates the loop's wall time on two idle cores
+(`simulate`) with the place queries where the pipeline puts them, always in the
+worker, and always in the mapper; with ``WORKER_SPLIT_SAVE=FILE`` in the environment
+the per-scan costs are written to FILE (JSON) for other policies.
 
 On an idle 2-core machine the run's wall time is about the mapper's CPU time plus
 its wait for the worker: the worker's CPU time matters only where the mapper waits.
@@ -100,16 +104,21 @@ def _install_step_timers() -> None:
 
 
 def simulate(worker: list[float], mapper: list[float], query: dict[int, float],
-             policy: str) -> tuple[float, float, int]:
+             policy: str, threshold: int | None = None, batch: int | None = None
+             ) -> tuple[float, float, int]:
     """The loop's wall time [s] on two idle cores, from the per-scan CPU costs [s]:
     the worker sends batches of `BATCH` scans, the mapper takes scan i once its batch
     has arrived (the worker's limit of `AHEAD` unread batches is left out: the mapper
     is then the slower one anyway).  A keyframe's place query runs in the worker
     under `policy` ``ahead`` (the pipeline's rule: the worker has sent at least a
     batch more than the mapper has taken), ``worker`` (always) or ``mapper`` (never),
-    else in the mapper.  Returns (wall, the mapper's waits, queries in the worker)."""
-    from slam.front_end_worker import BATCH
+    else in the mapper; `threshold` (scans; default the pipeline's `LEAD`, or one
+    batch in code without it) is the rule's lead, `batch` (default `BATCH`) the scans
+    per message.  Returns (wall, the mapper's waits, queries in the worker)."""
+    import slam.front_end_worker as few
 
+    size = few.BATCH if batch is None else batch
+    lead = getattr(few, "LEAD", few.BATCH) if threshold is None else threshold
     n = len(worker)
     arrive: list[float] = []  # when each batch reaches the mapper
     done: list[float] = []  # when the mapper finished each scan
@@ -117,20 +126,20 @@ def simulate(worker: list[float], mapper: list[float], query: dict[int, float],
     w_clock = m_clock = wait = 0.0
     i_w = i_m = 0
     while i_m < n:
-        mapper_blocked = i_m // BATCH >= len(arrive)
+        mapper_blocked = i_m // size >= len(arrive)
         if i_w < n and (w_clock <= m_clock or mapper_blocked):
             consumed = i_m if m_clock <= w_clock else i_m - (done[-1] > w_clock if done else 0)
             q = query.get(i_w, 0.0)
             if q and (policy == "worker"
-                      or (policy == "ahead" and len(arrive) * BATCH - consumed >= BATCH)):
+                      or (policy == "ahead" and len(arrive) * size - consumed >= lead)):
                 in_worker.add(i_w)
                 w_clock += q
             w_clock += worker[i_w]
             i_w += 1
-            if i_w % BATCH == 0 or i_w == n:
+            if i_w % size == 0 or i_w == n:
                 arrive.append(w_clock)
             continue
-        begin = max(m_clock, arrive[i_m // BATCH])
+        begin = max(m_clock, arrive[i_m // size])
         wait += begin - m_clock
         m_clock = begin + mapper[i_m] + (0.0 if i_m in in_worker else query.get(i_m, 0.0))
         done.append(m_clock)
@@ -201,6 +210,10 @@ def main() -> None:
             wall_s, wait_s, n_w = simulate(steps, MAPPER, queries, policy)
             print(f"simulated loop on 2 idle cores, queries {policy}: wall {wall_s:.1f} s, "
                   f"mapper waits {wait_s:.1f} s, queries in the worker {n_w}")
+        save = os.environ.get("WORKER_SPLIT_SAVE")
+        if save:  # the per-scan costs, for other policies offline
+            Path(save).write_text(json.dumps({"worker": steps, "mapper": MAPPER,
+                                              "queries": {str(k): v for k, v in queries.items()}}))
     rows: defaultdict[str, list[float]] = defaultdict(lambda: [0.0, 0, 0.0, 0])
     for label, t in split.TOTAL.items():
         rows[label][0:2] = [t, split.CALLS[label]]

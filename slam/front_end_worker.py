@@ -38,7 +38,7 @@ from typing import Any
 
 from slam.memory import peak_rss_mb
 
-__all__ = ["AHEAD", "BATCH", "map_in_worker", "worker_available"]
+__all__ = ["AHEAD", "BATCH", "LEAD", "map_in_worker", "worker_available"]
 
 BATCH = 16
 """Scans per message: one pipe round trip per batch, not per scan."""
@@ -46,6 +46,13 @@ BATCH = 16
 AHEAD = 64
 """Batches the worker may run ahead of the mapper (1,024 scans: a few tens of MB of
 scans, estimates and place descriptions waiting)."""
+
+LEAD = 2 * BATCH
+"""Results waiting unread (scans) from which the worker counts as ahead of the mapper
+and takes on the mapper's movable work (`map_in_worker`'s ``ahead``).  One batch
+gave the work to the worker while the mapper was about to catch up with it (the
+results in flight are a batch or so); two keep it with the mapper there, and the
+two processes wait less for each other (`benchmarks/worker_split.py`)."""
 
 _DONE = "done"
 _ERROR = "error"
@@ -95,7 +102,7 @@ def map_in_worker(
     """``(scan, step(scan, ahead))`` of every scan, computed in a forked worker (module
     docstring).  ``ahead`` is how many results the worker has sent that the caller
     has not yet taken: at least `BATCH` when the caller is the slower of the two, so
-    `step` may then take on work the caller would otherwise do.  Closing the
+    `step` may then take on work the caller would otherwise do (from `LEAD`).  Closing the
     generator early (an interrupted run) stops the worker.  At the end `stats` gets
     ``peak_rss_mb``, the worker's peak resident memory [MB] (with the pages it shares
     with this process since the fork)."""

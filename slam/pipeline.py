@@ -57,7 +57,7 @@ from loopclosure.loop_detector import LoopClosureDetector
 from loopclosure.place_match import PlaceMatch
 from slam.config import PipelineConfig
 from slam.consistency import has_odometry_spine
-from slam.front_end_worker import BATCH, map_in_worker, worker_available
+from slam.front_end_worker import LEAD, map_in_worker, worker_available
 from slam.kernel_warm_up import warm_up_isolated
 from slam.keyframes import GrowingRows, Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
@@ -231,7 +231,8 @@ class Mapper:
             warm_up_isolated()  # load the kernels here: the forked worker inherits them
             steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
-            steps = ((scan, (*self._odometry_step(scan), None, None, 0.0)) for scan in scans)
+            steps = ((scan, (*self._odometry_step(scan), None, None, 0.0, None))
+                     for scan in scans)
         try:
             for n, (scan, step) in enumerate(steps, 1):
                 self._after_odometry(scan, *step, from_worker=worker)
@@ -266,36 +267,43 @@ class Mapper:
         return estimate, time.perf_counter() - start
 
     def _worker_step(self, scan: Scan, ahead: int) -> tuple[
-        OdometryEstimate, float, KeyframePlace | None, list[PlaceMatch] | None, float
+        OdometryEstimate, float, KeyframePlace | None, list[PlaceMatch] | None, float,
+        tuple[int, Array] | None,
     ]:
         """In the front end's worker (`slam.front_end_worker`), a fork of this mapper:
         the odometry of `scan` and, when it makes a keyframe, that keyframe's place
         description, with the seconds taken.  Keyframes and places depend only on the
         odometry, so the worker's copies of the keyframe selector and the detector stay
-        in step with the mapper's.  While the worker is `ahead` of the mapper by a
-        batch of results it also asks the place database (the same matches, which the
-        mapper otherwise asks for itself): the work goes to whichever process waits."""
+        in step with the mapper's.  While the worker is `ahead` of the mapper by
+        `LEAD` results it also asks the place database (the same matches, which the
+        mapper otherwise asks for itself): the work goes to whichever process waits.
+        The keyframe's submap, when its description made it (a sensor narrower than a
+        full circle), goes along with its version: the mapper's `detect` of the
+        keyframe asks for that very submap (no newer keyframe exists there yet)."""
         estimate, seconds = self._odometry_step(scan)
         keyframe = self.keyframes.push(scan, estimate)
         if keyframe is None:
-            return estimate, seconds, None, None, 0.0
+            return estimate, seconds, None, None, 0.0, None
         start = time.perf_counter()
         key, session = self._base + keyframe.id, int(self._saved is not None)
         place = self.detector.describe_keyframe(key, keyframe.stamp, keyframe.scan,
                                                 session=session)
         self.detector.add_keyframe(key, keyframe.stamp, keyframe.scan, session=session,
                                    place=place)
-        matches = self.detector.appearance_matches(key) if ahead >= BATCH else None
-        return estimate, seconds, place, matches, time.perf_counter() - start
+        matches = self.detector.appearance_matches(key) if ahead >= LEAD else None
+        return (estimate, seconds, place, matches, time.perf_counter() - start,
+                self._submaps.get(key))
 
     def _after_odometry(
         self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float,
         place: KeyframePlace | None = None, matches: list[PlaceMatch] | None = None,
-        place_seconds: float = 0.0, *, from_worker: bool = False,
+        place_seconds: float = 0.0, submap: tuple[int, Array] | None = None, *,
+        from_worker: bool = False,
     ) -> None:
         """Keyframing and (for keyframes) loop closure of a scan the front end placed;
-        `place` and `matches` are the keyframe's place description and the place
-        database's matches of it when the worker made them (`from_worker`)."""
+        `place`, `matches` and `submap` are the keyframe's place description, the place
+        database's matches of it and its submap ``(version, points)`` when the worker
+        made them (`from_worker`)."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
         if from_worker:  # of loop_detection, the seconds the worker spent [s]
@@ -313,6 +321,8 @@ class Mapper:
         if from_worker and (keyframe is None) != (place is None):
             raise RuntimeError("the front end worker's keyframes differ from the mapper's")
         if keyframe is not None:
+            if submap is not None:
+                self._adopt_submap(self._base + keyframe.id, *submap)
             self._add_keyframe(keyframe, estimate, place, matches)
 
     @property
@@ -520,8 +530,22 @@ class Mapper:
         if cached is not None and cached[0] == hi:
             return cached[1]
         pts = self._local_points(key, max(lo, key - n), hi)
-        self._submaps[key] = (hi, pts)
-        if hi < key + n:
+        self._cache_submap(key, hi, pts)
+        return pts
+
+    def _adopt_submap(self, key: int, version: int, points: Array) -> None:
+        """`submap(key)` as the front end's worker built it (version, points in
+        `key`'s sensor frame [m]), cached here when it is the version this process
+        would build now (the worker's keyframes are the mapper's)."""
+        if version == self.submap_version(key) and key not in self._submaps:
+            self._cache_submap(key, version, points)
+
+    def _cache_submap(self, key: int, version: int, points: Array) -> None:
+        """`points` as `submap(key)` of `version`, and the incomplete submaps far
+        behind `key` dropped."""
+        n = self.config.submap_neighbours()
+        self._submaps[key] = (version, points)
+        if version < key + n:
             self._incomplete.add(key)
         else:
             self._incomplete.discard(key)
@@ -532,7 +556,6 @@ class Mapper:
         for old in [k for k in self._incomplete if k < stale]:
             del self._submaps[old]
             self._incomplete.discard(old)
-        return pts
 
     def submap_origins(self, key: int) -> tuple[Array, Array]:
         """The keys `submap(key)` merges and their front-end sensor poses in `key`'s

@@ -92,3 +92,41 @@ def test_mapping_scan_by_scan_needs_no_worker() -> None:
     whole = Mapper(PipelineConfig(odometry="icp2d")).run(run.scans)
     np.testing.assert_array_equal(result.scan_poses, whole.scan_poses)
     assert result.worker_peak_rss_mb == 0.0
+
+
+def test_a_keyframes_submap_from_the_worker_is_the_one_the_mapper_builds() -> None:
+    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
+                       motion=MotionConfig(laps=0.3))
+    worker, mapper = (Mapper(PipelineConfig(odometry="icp2d")) for _ in range(2))
+    sent = []
+    for scan in run.scans:  # the worker's steps, here, then the mapper's
+        step = worker._worker_step(scan, ahead=0)
+        assert step[3] is None  # not ahead: the place query stays with the mapper
+        if step[5] is not None:
+            sent.append(step[5])
+        mapper._after_odometry(scan, *step, from_worker=True)
+    n = len(worker.keyframes.keyframes)
+    assert n > 3 and len(sent) == n  # a 180-degree sensor: every keyframe's submap made
+    for key, (version, points) in enumerate(sent):
+        assert version == key  # the newest keyframe when it was described
+        # what the mapper would build for `key` with only keys <= version
+        first = max(0, key - mapper.config.submap_neighbours())
+        np.testing.assert_array_equal(points, mapper._local_points(key, first, version))
+    newest = n - 1
+    assert mapper.submap(newest) is sent[newest][1]  # adopted, not rebuilt
+
+
+def test_an_outdated_submap_from_the_worker_is_not_adopted() -> None:
+    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
+                       motion=MotionConfig(laps=0.3))
+    mapper = Mapper(PipelineConfig(odometry="icp2d"))
+    for scan in run.scans:
+        mapper.process(scan)
+    assert len(mapper.keyframes.keyframes) > 12
+    stale = np.zeros((1, 2))
+    mapper._submaps.clear()
+    mapper._adopt_submap(0, 0, stale)  # version 0, but keyframe 0's submap is at 10 now
+    assert 0 not in mapper._submaps
+    assert mapper.submap_version(0) == 10
+    mapper._adopt_submap(0, 10, stale)
+    assert mapper.submap(0) is stale
