@@ -24,8 +24,9 @@ scan, `cloud_vector`; with ``combo_weight=W`` concatenated to the default's, wei
 a ring of R, `union_vector`; ``union_count`` viewpoints), ``vp_radius=R`` (offset
 viewpoints of `loopclosure.viewpoints`, ``union_count`` of them, on the stored side,
 ``vp_mode=0``, the query's, 1, or both, 2; ``vp_margin`` multiplies their
-distances).  Printed per variant: recall@1/10/50, recall@10 per bin of distance,
-heading difference and overlap, the recall of each view's K best together (2K
+distances; ``vp_min_area=A`` leaves out a viewpoint whose polygon's area is below A
+times the keyframe's own polygon's).  Printed per variant: recall@1/10/50, recall@10
+per bin of distance, heading difference and overlap, the recall of each view's K best together (2K
 places, as the loop detector verifies), and of other orders of the two views
 (`combined_orders`); for the default, the misses (no true place among the first 10)
 split by where the true place ranks in each view alone.  ``--misses CSV`` writes one row per miss of
@@ -263,18 +264,29 @@ def combined_orders(d_own: np.ndarray, d_wide: np.ndarray) -> dict[str, np.ndarr
 
 
 def viewpoint_stack(data: dict, config: PipelineConfig, matcher: PairHistogramMatcher,
-                    radius: float, count: int) -> tuple[np.ndarray, np.ndarray]:
+                    radius: float, count: int, min_area: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """``(V, D)`` pair-histogram vectors of every keyframe's free offset viewpoints
-    (`loopclosure.viewpoints`, one ring) and the row of `data["keys"]` of each."""
+    (`loopclosure.viewpoints`, one ring) and the row of `data["keys"]` of each; a
+    viewpoint whose polygon's area is below `min_area` times the keyframe's own
+    polygon's is left out."""
     from loopclosure.viewpoints import ViewpointConfig, viewpoint_scans
 
     vp = ViewpointConfig(radii=(radius,), count=count)
     vecs, owner = [], []
     for row, k in enumerate(data["keys"].tolist()):
+        own_area = 0.0
+        if min_area > 0:
+            try:
+                own_area = polygon_from_scan(data["own"][k], config.loops.polygon).area
+            except DegeneratePolygonError:
+                continue
         for sc in viewpoint_scans(data["submaps"][k], data["own"][k], vp):
             try:
                 poly = polygon_from_scan(sc, config.loops.polygon)
             except DegeneratePolygonError:
+                continue
+            if poly.area < min_area * own_area:
                 continue
             vecs.append(np.asarray(matcher.describe(poly), float))
             owner.append(row)
@@ -426,7 +438,7 @@ def main() -> None:
         kv = dict(item.split("=") for item in rest.split(",") if item)
         variants[name] = {k: float(x) if k in ("cloud_radius", "union_radius", "union_count",
                                            "combo_weight", "vp_radius", "vp_mode",
-                                           "vp_margin") else
+                                           "vp_margin", "vp_min_area") else
                           type(getattr(PairHistogramConfig(), k))(float(x) if "." in x
                                                                   else int(x))
                           for k, x in kv.items()}
@@ -446,11 +458,12 @@ def main() -> None:
             vp = over.pop("vp_radius", None)
             vp_mode = {0: "stored", 1: "query", 2: "both"}[int(over.pop("vp_mode", 0))]
             margin = float(over.pop("vp_margin", 1.0))
+            min_area = float(over.pop("vp_min_area", 0.0))
             matcher = PairHistogramMatcher(replace(PairHistogramConfig(), **over))
             t = time.perf_counter()
             views = None
             if vp is not None:
-                views = viewpoint_stack(data, config, matcher, vp, count)
+                views = viewpoint_stack(data, config, matcher, vp, count, min_area)
             if union is not None:
                 own = describe_unions(data["own"], data["submaps"], union, count,
                                       matcher.config, config.loops.polygon)

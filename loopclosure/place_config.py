@@ -24,7 +24,17 @@ with ``near_radius`` and ``far_weight`` (`PlaceDatabaseConfig.fft_near_radius`,
 ``fft_far_weight``, ``fft_near_harmonics``), a stage of its own so that the ``fft``
 stage and the heading hypotheses' range functions stay the whole polygon's."""
 
-PREFILTER_STAGES = ("fft", "ring", "pairs", NEAR_FFT)
+NEAR_PAIRS = "pairs-near"
+"""Prefilter stage name of the near-field surface-pair histogram: the pair histogram
+(`loopclosure.matchers.pair_histogram`) of the polygon's surfaces within
+`PlaceDatabaseConfig.pairs_near_radius` of the sensor (farther vertices are open
+space, `PairHistogramConfig.max_range`), a stage of its own beside ``pairs`` (the
+whole view's).  Added to ``pairs`` with a small weight it lets the surfaces near the
+robot outvote the far ones, which differ most between two passes (another heading,
+the range cap, a half-circle laser) and which put far-away places ahead of a true
+one."""
+
+PREFILTER_STAGES = ("fft", "ring", "pairs", NEAR_FFT, NEAR_PAIRS)
 """Matchers whose descriptors are Euclidean vectors, usable as prefilter stages
 (``pairs``: `loopclosure.matchers.pair_histogram`, the default)."""
 
@@ -83,7 +93,17 @@ NEAR_FFT_LOGISTIC = LogisticFusion(
     intercept=-3.04,
 )
 
-FITTED_LOGISTIC = (DEFAULT_LOGISTIC, NEAR_FFT_LOGISTIC)
+# The logistic model of the whole and near-field surface-pair prefilter with the FLIRT
+# verifier (``prefilter=("pairs", "pairs-near")``): `DEFAULT_LOGISTIC` with weight 0 on
+# the near-field histogram, not refitted: the fused score of a candidate is the
+# default's, and the near field only changes which keyframes become candidates.
+NEAR_PAIRS_LOGISTIC = LogisticFusion(
+    names=("pairs", NEAR_PAIRS, "flirt"),
+    coefficients=(DEFAULT_LOGISTIC.coefficients[0], 0.0, DEFAULT_LOGISTIC.coefficients[1]),
+    intercept=DEFAULT_LOGISTIC.intercept,
+)
+
+FITTED_LOGISTIC = (DEFAULT_LOGISTIC, NEAR_FFT_LOGISTIC, NEAR_PAIRS_LOGISTIC)
 """The fitted logistic models by stage set: a config whose ``logistic`` is left at
 `DEFAULT_LOGISTIC` uses the one of its stages (`PlaceDatabaseConfig.logistic`)."""
 
@@ -104,7 +124,7 @@ class PlaceDatabaseConfig:
 
     Attributes:
         prefilter: Euclidean-vector stages screening every keyframe ("pairs",
-            "fft", "ring", "fft-near": `NEAR_FFT`).
+            "fft", "ring", "fft-near": `NEAR_FFT`, "pairs-near": `NEAR_PAIRS`).
         prefilter_weights: weight of each prefilter stage in the normalised sum
             (empty: all 1).
         verifiers: matchers run on the K candidates (any registered name, e.g.
@@ -135,6 +155,8 @@ class PlaceDatabaseConfig:
             sensor, far vertices pulled in along their rays (`FFTConfig.near_radius`).
         fft_far_weight: weight of the whole polygon's amplitudes appended to the near
             polygon's by the ``fft-near`` stage (`FFTConfig.far_weight`).
+        pairs_near_radius: R of the ``pairs-near`` stage [m]: surfaces within R of
+            the sensor (`PairHistogramConfig.max_range`).
         ring_rings: circles of the ring stage (`RingConfig.n_rings`).
         scale_invariant: passed to every matcher (True for MPEG-7, never for places).
         fixed_scales: per stage (prefilter then verifiers), fixed scales instead of
@@ -200,6 +222,7 @@ class PlaceDatabaseConfig:
     fft_near_harmonics: int = 16
     fft_near_radius: float = 6.0
     fft_far_weight: float = 0.05
+    pairs_near_radius: float = 6.0
     scale_invariant: bool = False
     fixed_scales: tuple[float, ...] = ()
     scale_pairs: int = 64
@@ -280,6 +303,8 @@ class PlaceDatabaseConfig:
                             "ring_rings must be >= 1")
         if not (np.isfinite(self.fft_near_radius) and self.fft_near_radius > 0):
             raise UserError("place database: fft_near_radius must be a positive length [m]")
+        if not (np.isfinite(self.pairs_near_radius) and self.pairs_near_radius > 0):
+            raise UserError("place database: pairs_near_radius must be a positive length [m]")
         if not (np.isfinite(self.fft_far_weight) and self.fft_far_weight >= 0):
             raise UserError("place database: fft_far_weight must be finite and >= 0")
         if self.n_headings < 0 or self.scale_pairs < 1:
@@ -316,7 +341,11 @@ def stage_matcher(stage: str, config: PlaceDatabaseConfig) -> Matcher:
     """The matcher of one stage of `config` (any registered matcher by its name, with
     the config's descriptor sizes; ``fft-near``: the FFT matcher of the polygon within
     ``fft_near_radius`` [m] of the sensor, the whole polygon's amplitudes appended
-    with weight ``fft_far_weight``)."""
+    with weight ``fft_far_weight``; ``pairs-near``: the pair histogram of the surfaces
+    within ``pairs_near_radius`` [m])."""
+    if stage == NEAR_PAIRS:
+        return get_matcher("pairs", scale_invariant=config.scale_invariant,
+                           max_range=config.pairs_near_radius)
     if stage == NEAR_FFT:
         return get_matcher("fft", scale_invariant=config.scale_invariant,
                            n_harmonics=config.fft_near_harmonics,
@@ -333,6 +362,8 @@ __all__ = [
     "FUSION_MODES",
     "NEAR_FFT",
     "NEAR_FFT_LOGISTIC",
+    "NEAR_PAIRS",
+    "NEAR_PAIRS_LOGISTIC",
     "PAPER_LOGISTIC",
     "PREFILTER_STAGES",
     "VIEWPOINT_ORDERS",

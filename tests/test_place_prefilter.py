@@ -122,3 +122,43 @@ def test_the_fitted_logistic_of_the_stage_set_is_picked_when_left_at_default() -
     assert near.logistic is NEAR_FFT_LOGISTIC
     mine = LogisticFusion(names=("flirt", "fft-near", "pairs"), coefficients=(-1.0, -1.0, -1.0))
     assert PlaceDatabaseConfig(prefilter=("pairs", "fft-near"), logistic=mine).logistic is mine
+
+
+def test_near_pairs_stage_is_the_pair_histogram_of_the_near_surfaces() -> None:
+    from itertools import pairwise
+
+    import pytest
+
+    from data.errors import UserError
+    from loopclosure.matchers.pair_histogram import PairHistogramMatcher
+    from loopclosure.place_config import NEAR_PAIRS_LOGISTIC
+    from loopclosure.place_database import PlaceDatabase
+    from loopclosure.polygon import Polygon
+
+    def walls(corners: list[list[float]]) -> Polygon:
+        """A polygon with a vertex every 0.1 m along its walls (as a scan's)."""
+        c = np.array(corners + corners[:1], float)
+        pts = [a + (b - a) * t for a, b in pairwise(c)
+               for t in np.arange(0.0, 1.0, 0.1 / np.linalg.norm(b - a))]
+        return Polygon(np.array(pts))
+
+    # A 4 m square room around the sensor: every vertex within 2.9 m of it, so the
+    # near field (R = 6 m) is the whole view and both histograms are equal.
+    room = walls([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]])
+    db = PlaceDatabase(prefilter=("pairs", "pairs-near"), prefilter_weights=(1.0, 0.25))
+    assert db.config.logistic is NEAR_PAIRS_LOGISTIC
+    assert dict(zip(NEAR_PAIRS_LOGISTIC.names, NEAR_PAIRS_LOGISTIC.coefficients,
+                    strict=True))["pairs-near"] == 0.0  # the default's score, unchanged
+    desc = db.describe(room)
+    assert np.asarray(desc["pairs"]).sum() > 0
+    np.testing.assert_array_equal(desc["pairs-near"], desc["pairs"])
+    # A 20 m corridor, 2 m wide: its far ends (beyond 6 m) are open space to the near
+    # stage only, which is then the histogram of the corridor's middle 12 m.
+    hall = walls([[-10.0, -1.0], [10.0, -1.0], [10.0, 1.0], [-10.0, 1.0]])
+    desc = db.describe(hall)
+    near = PairHistogramMatcher(max_range=6.0).describe(hall)
+    np.testing.assert_array_equal(desc["pairs-near"], near)
+    assert np.asarray(near).sum() > 0
+    assert not np.allclose(desc["pairs-near"], desc["pairs"])
+    with pytest.raises(UserError, match="pairs_near_radius"):
+        PlaceDatabaseConfig(prefilter=("pairs", "pairs-near"), pairs_near_radius=0.0)
