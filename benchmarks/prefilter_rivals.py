@@ -3,17 +3,19 @@
 Run from the repository root::
 
     python benchmarks/prefilter_rivals.py LOG[:RELATIONS] ... --cache DIR [--weight 0.1]
+        [--near-radius 6] [--combo STAGE:W ...]
 
 Reads (or makes) the cache of `benchmarks/prefilter_misses.py` (every keyframe's own
 and wide virtual scans and the revisit queries of a log mapped as ``loopclosure bench
 loops`` maps it) and describes every scan by four prefilter vectors: the pair
 histogram (``pairs``, the default stage), the pair histogram of the surfaces within
-6 m of the sensor (``pairs<6``, `PairHistogramConfig.max_range`), the near+far FFT
-(``fft-near``) and the ring projection (``ring``).  Each view's distance is
-normalised by the median distance of 256 random pairs of its keyframes (as
-`benchmarks/fft_near_prefilter.py`).  For each revisit query the stored keyframes are
-ordered as ``bench loops``'s prefilter row orders them (own and wide view interleaved
-by rank) and, for a miss (no true place among the first 10), printed:
+``--near-radius`` (6 m) of the sensor (``pairs-near``,
+`PairHistogramConfig.max_range`), the near+far FFT (``fft-near``) and the ring
+projection (``ring``).  Each view's distance is normalised by the median distance
+of 256 random pairs of its keyframes (as `benchmarks/fft_near_prefilter.py`).  For
+each revisit query the stored keyframes are ordered as ``bench loops``'s prefilter
+row orders them (own and wide view interleaved by rank) and, for a miss (no true
+place among the first 10), printed:
 
 * the rivals (the wrong places ranked above the first true place): how many, how far
   from the query at the reference poses [m] (share within 2-4 m, 4-10 m, beyond
@@ -50,24 +52,24 @@ from loopclosure.matchers.pair_histogram import (  # noqa: E402
     PairHistogramConfig,
     PairHistogramMatcher,
 )
-from loopclosure.place_config import NEAR_FFT, PlaceDatabaseConfig  # noqa: E402
+from loopclosure.place_config import NEAR_FFT, NEAR_PAIRS, PlaceDatabaseConfig  # noqa: E402
 from slam.config import PipelineConfig  # noqa: E402
 
 BIG = 10**9
-STAGES = ("pairs", "pairs<6", NEAR_FFT, "ring")
+STAGES = ("pairs", NEAR_PAIRS, NEAR_FFT, "ring")
 K, EXTRA = 10, 5
 
 
 def view_vectors(data: dict, config: PipelineConfig, db: PlaceDatabaseConfig) -> dict:
     """Per view ("own", "wide"): its sorted keys and, per stage of `STAGES`, the
     matrix of vectors, which keys have one, and the view's scale."""
-    near6 = PairHistogramMatcher(PairHistogramConfig(max_range=6.0))
+    near = PairHistogramMatcher(PairHistogramConfig(max_range=db.pairs_near_radius))
     out = {}
     for view in ("own", "wide"):
         vk = data["keys"] if view == "own" else np.array(sorted(data["wide"]), np.intp)
         per = {}
         for stage in STAGES:
-            vecs = (describe_all(data[view], config, near6) if stage == "pairs<6"
+            vecs = (describe_all(data[view], config, near) if stage == NEAR_PAIRS
                     else describe(data[view], config, stage, db))
             m, has = matrix(vecs, vk)
             per[stage] = (m, has, scale(m, has) if has.sum() > 1 else 1.0)
@@ -252,11 +254,13 @@ def main() -> None:
     ap.add_argument("logs", nargs="+", help="LOG or LOG:RELATIONS")
     ap.add_argument("--cache", type=Path, required=True)
     ap.add_argument("--weight", type=float, default=0.1)
+    ap.add_argument("--near-radius", type=float, default=6.0,
+                    help="R of the pairs-near stage [m]")
     ap.add_argument("--combo", action="append", default=[], metavar="STAGE:W",
                     help="also rank by p = d_pairs + W d_STAGE (repeatable)")
     args = ap.parse_args()
     config = PipelineConfig()
-    db = PlaceDatabaseConfig()
+    db = PlaceDatabaseConfig(pairs_near_radius=args.near_radius)
     for spec in args.logs:
         t = time.perf_counter()
         data = mapped(spec, config, args.cache)
