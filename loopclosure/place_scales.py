@@ -3,9 +3,13 @@
 A prefilter stage's scale is the median Euclidean distance of 256 random pairs of
 stored keyframes; a verifier's the median of its `distances` over
 ``scale_pairs`` random stored pairs (sqrt(scale_pairs) anchors x as many others).
-Both are estimated from the first m rows, m a power of two, with a generator seeded
-by (``seed``, m): the scales depend on the stored descriptors only.  A median of 0
-falls back to the mean, then to 1.  Units: each stage's own distance unit.
+Both are estimated from the first m rows, m a power of two: the scales depend on the
+stored descriptors only.  The first prefilter stage and then the verifiers draw
+their pairs from one generator seeded by (``seed``, m); every further prefilter
+stage i (i >= 1) from a generator of its own, seeded by (``seed``, m, i), so that
+adding a prefilter stage leaves every other stage's scale as it was (a shared
+stream would hand the verifiers other pairs).  A median of 0 falls back to the
+mean, then to 1.  Units: each stage's own distance unit.
 """
 
 from __future__ import annotations
@@ -32,11 +36,13 @@ def stage_scales(
 ) -> Array:
     """``(S,)`` scale of every stage (`PlaceDatabaseConfig.stages` order) from the
     first `m` rows (m >= 2): prefilter stages from their vector stores, verifiers
-    from the stored descriptors."""
+    from the stored descriptors (each further prefilter stage's pairs from a
+    generator of its own: module docstring)."""
     rng = np.random.default_rng([config.seed, m])
     scales = []
-    for s in config.prefilter:
-        a, b = _random_pairs(rng, m, 256)
+    for i, s in enumerate(config.prefilter):
+        a, b = _random_pairs(rng if i == 0 else np.random.default_rng([config.seed, m, i]),
+                             m, 256)
         store = stores[s]
         diff = store.matrix[a].astype(float) - store.matrix[b].astype(float)
         scales.append(_positive_median(np.sqrt(np.einsum("ij,ij->i", diff, diff))))

@@ -162,3 +162,25 @@ def test_near_pairs_stage_is_the_pair_histogram_of_the_near_surfaces() -> None:
     assert not np.allclose(desc["pairs-near"], desc["pairs"])
     with pytest.raises(UserError, match="pairs_near_radius"):
         PlaceDatabaseConfig(prefilter=("pairs", "pairs-near"), pairs_near_radius=0.0)
+
+
+def test_a_further_prefilter_stage_leaves_the_other_stages_scales() -> None:
+    from loopclosure.place_database import PlaceDatabase
+
+    polygons = _box_polygons(9)[:16]
+    one = PlaceDatabase(prefilter=("pairs",))
+    two = PlaceDatabase(prefilter=("pairs", "pairs-near"), prefilter_weights=(1.0, 0.15))
+    for i, p in enumerate(polygons):
+        one.add(i, p)
+        two.add(i, p)
+    a, b = one.scales, two.scales
+    assert a["pairs"] == b["pairs"] and a["flirt"] == b["flirt"]
+    # The further stage's scale by hand: 256 pairs of the first 16 rows from the
+    # generator seeded (seed 0, m 16, stage 1), a != b, the median of their distances.
+    rng = np.random.default_rng([0, 16, 1])
+    i = rng.integers(0, 16, size=256)
+    j = rng.integers(0, 15, size=256)
+    j = j + (j >= i)
+    vecs = np.array([np.asarray(two.descriptors(k)["pairs-near"], float) for k in range(16)])
+    by_hand = np.median(np.linalg.norm(vecs[i] - vecs[j], axis=1))
+    assert abs(b["pairs-near"] - by_hand) < 1e-6 * by_hand
