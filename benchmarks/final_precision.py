@@ -39,6 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from refused_places import ModelSides  # noqa: E402
+
 from data import se2  # noqa: E402
 from evaluation.loop_bench import _query_plan, mapped_input  # noqa: E402
 from evaluation.loop_bench_input import LoopSource  # noqa: E402
@@ -110,10 +112,24 @@ def record(args: argparse.Namespace) -> None:
                             degeneracy=float(r.degeneracy))
         return out
 
+    sides = ModelSides(mapper, cfg) if args.models else None
+
+    def models(key: int, c, qpts) -> dict:
+        """Every free-space model at the check's fit and at the reference's pose
+        (`refused_places`), for a check that reached the consistency test."""
+        if sides is None or c.verification is None or not np.isfinite(
+                c.verification.consistency) or not np.isfinite(ref[[key, c.match]]).all():
+            return {}
+        q = sides.query(key, qpts)
+        p = sides.candidate(int(c.match))
+        return dict(fit=sides.figures(q, p, np.asarray(c.relative, float)),
+                    ref=sides.figures(q, p, se2.between(ref[int(c.match)], ref[key])))
+
     def recorded(key, *a, **kw):
         out = original(key, *a, **kw)
         qpts = a[2] if len(a) > 2 else kw.get("query_points")
-        checks[key] = [dict(own=own_scans(key, c, qpts) if c.accepted and args.own else {},
+        checks[key] = [dict(models=models(key, c, qpts),
+                            own=own_scans(key, c, qpts) if c.accepted and args.own else {},
                             match=int(c.match), accepted=bool(c.accepted), reason=str(c.reason),
                             relative=np.asarray(c.relative, float), score=float(c.fused_score),
                             covariance=np.asarray(c.covariance, float),
@@ -292,6 +308,9 @@ def main() -> None:
     r.add_argument("--max-queries", type=int)
     r.add_argument("--out", required=True)
     r.add_argument("--set", action="append", default=[])
+    r.add_argument("--models", action="store_true",
+                   help="every free-space model at each check's fit and the reference's "
+                        "pose (refused_places)")
     r.add_argument("--own", action="store_true",
                    help="also refit each keyframe's own scan from every accepted pose")
     p = sub.add_parser("report")

@@ -5,6 +5,7 @@ Run from the repository root::
 
     python benchmarks/scan_origins_bench.py LOG [--relations FILE] [--bar B ...]
         [--max-queries N] [--npz PREFIX] [--no-default] [--variant CAP:WINDOW:BAR ...]
+        [--confirm WINDOW:BAR ...]
 
 The log is mapped once as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0 --stages fused`` maps it (``--relations FILE``: the relations-fitted
@@ -14,7 +15,9 @@ keyframe's scan free space (mapping runs no loop check).  Then every query is ru
 ``free_space_origins = keyframe``, then with ``scans`` at each ``--bar`` (the check's
 ``min_consistency``; default: the config's), then with the margin across each scan's
 surface (``free_space_surface_cap``, `loopclosure.free_space` (1'')) and beside its
-returns (``free_space_return_window``, (4)) at each ``--variant CAP:WINDOW:BAR``.
+returns (``free_space_return_window``, (4)) at each ``--variant CAP:WINDOW:BAR``, then
+with the confirmed free space (``free_space_confirm``, (5): (1) and the scans' model with
+returns window WINDOW) at each ``--confirm WINDOW:BAR``.
 Prints per pass R@100P / R@99P / AP of the final row, accepted / correct detections
 and the accepted ones more than 1 m or 5 degrees from the reference (a wrong place,
 not a tolerance case), CPU ms per query (the whole query: cascade and checks) and the
@@ -102,6 +105,10 @@ def main() -> None:
                     help="also a pass with the margin across each scan's surface "
                          "(``loops.check.free_space_surface_cap = CAP``) and its returns "
                          "(``free_space_return_window = WINDOW``) at bar BAR; repeatable")
+    ap.add_argument("--confirm", action="append", metavar="WINDOW:BAR",
+                    help="also a pass with the confirmed free space (1) and (1'), "
+                         "(``free_space_confirm``, `loopclosure.free_space` (5)), the "
+                         "scans' returns window WINDOW, at bar BAR; repeatable")
     ap.add_argument("--no-default", action="store_true")
     ap.add_argument("--default-only", action="store_true",
                     help="the default alone, mapped without the option (its memory)")
@@ -133,7 +140,8 @@ def main() -> None:
         check.free_space_origins, check.min_consistency = "keyframe", default_bar
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries, f"keyframe-{default_bar}", args.npz)
-    for bar in [] if args.default_only else args.bar or ([] if args.variant else [default_bar]):
+    for bar in [] if args.default_only else args.bar or (
+            [] if args.variant or args.confirm else [default_bar]):
         check.free_space_origins, check.min_consistency = "scans", bar
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries, f"scans-{bar}", args.npz)
@@ -145,6 +153,14 @@ def main() -> None:
         run_pass(mapper, result, ref, args.max_queries, f"surface{cap:g}-w{int(window)}-{bar}",
                  args.npz)
     check.free_space_surface_cap, check.free_space_return_window = 1.0, 0
+    for variant in [] if args.default_only else args.confirm or []:
+        window, bar = variant.split(":")
+        check.free_space_origins, check.min_consistency = "scans", float(bar)
+        check.free_space_return_window, check.free_space_confirm = int(window), True
+        det.release_caches()
+        run_pass(mapper, result, ref, args.max_queries, f"confirm-w{int(window)}-{bar}",
+                 args.npz)
+    check.free_space_return_window, check.free_space_confirm = 0, False
     print(f"  peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

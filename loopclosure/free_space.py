@@ -62,6 +62,20 @@ the first term is (1'')'s.  Only the scan's own
 returns count, not the other scans' of its submap: a point is excused by the rays
 that ended beside it, not by a surface some other scan saw.
 
+The confirmed model (`ConfirmedFreeSpace`) asks both: a point is in observed free
+space when (1) calls it free *and* some scan of the submap saw through it, (1') or
+its variants (1''), (4):
+
+    (1) and (1')                                                                   (5)
+
+(1) alone invents free space along rays from the keyframe's origin that no scan cast
+(behind a corner, a door frame, from the origin's side); (1') alone reaches as far
+as every scan's longest ray, metres past the surfaces the keyframe itself saw, where
+two passes' walls a few centimetres apart, seen obliquely, and the changes between
+passes (a door, a person) lie.  (5) keeps the free space both agree on: the
+keyframe's own neighbourhood up to the nearest surface of the merged submap in each
+direction, and of it only what a real ray crossed.
+
 Consistency (`consistency`) of the query submap Q (query frame) and the candidate
 submap P (candidate frame) at the pose T of the query in the candidate's frame:
 a point of Q is a *hit* when ``T q`` is within `tolerance` [m] of a point of P, a
@@ -227,6 +241,27 @@ class ScanFreeSpace:
         return self.poses.nbytes + self.ranges.nbytes
 
 
+class ConfirmedFreeSpace:
+    """Free space both about the keyframe (1) and about some scan of the submap (1'):
+    (5).  `image` and `scans` describe the same submap (its sensor frame)."""
+
+    __slots__ = ("image", "scans")
+
+    def __init__(self, image: RangeImage, scans: ScanFreeSpace) -> None:
+        self.image = image
+        self.scans = scans
+
+    def free(self, points: ArrayLike, margin: float) -> NDArray[np.bool_]:
+        """``(N,)`` True where a point [m] (the submap's frame) is free under (1) and
+        under the scans' model; the scans' test runs on the points (1) calls free only."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        out = self.image.free(pts, margin)
+        idx = np.flatnonzero(out)
+        if len(idx):
+            out[idx] = self.scans.free(pts[idx], margin)
+        return out
+
+
 def surface_secant(ranges: ArrayLike, cap: float, step: int = SURFACE_STEP) -> NDArray[np.float32]:
     """(3): ``min(cap, sqrt(1 + (r' / r)^2))`` for ``(K, bins)`` free ranges [m] per
     bearing sector (0: nothing observed), r' [m/rad] the smaller magnitude of the
@@ -287,15 +322,21 @@ class Submap:
 
     points: Array
     tree: cKDTree | None
-    image: RangeImage | ScanFreeSpace
+    image: RangeImage | ScanFreeSpace | ConfirmedFreeSpace
 
     @classmethod
     def of(cls, points: ArrayLike, bins: int = 720, spread: int = 2,
-           scans: ScanFreeSpace | None = None) -> Submap:
+           scans: ScanFreeSpace | None = None, confirm: bool = False) -> Submap:
         """Prepare ``(N, 2)`` points (its sensor frame [m]); free space (1) about the
-        origin, or `scans`' (1') when given."""
+        origin, or `scans`' (1') when given, or with `confirm` and `scans` both (5)."""
         pts = np.asarray(points, dtype=float).reshape(-1, 2)
-        image = RangeImage(pts, bins, spread) if scans is None else scans
+        image: RangeImage | ScanFreeSpace | ConfirmedFreeSpace
+        if scans is None:
+            image = RangeImage(pts, bins, spread)
+        elif confirm:
+            image = ConfirmedFreeSpace(RangeImage(pts, bins, spread), scans)
+        else:
+            image = scans
         return cls(pts, cKDTree(pts) if len(pts) else None, image)
 
 

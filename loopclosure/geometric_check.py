@@ -211,6 +211,11 @@ class GeometricCheckConfig:
             point within ``search.free_margin`` of a return of the scan that saw
             through it, in this many bearing sectors either side, is not in that
             scan's free space (`loopclosure.free_space` (4)).  0 (the default): off.
+        free_space_confirm: with ``free_space_origins = "scans"``, a point is in free
+            space only where the keyframe model (1) calls it free as well, (1) and
+            (1') (`loopclosure.free_space` (5)): no ray from the keyframe's origin
+            that no scan cast, and no scan's ray beyond the merged submap's nearest
+            surface.  Off (the default): the scans' model alone.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -282,6 +287,7 @@ class GeometricCheckConfig:
     free_space_origins: str = "keyframe"
     free_space_surface_cap: float = 1.0
     free_space_return_window: int = 0
+    free_space_confirm: bool = False
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -511,7 +517,7 @@ def _verify_correlative(
                              icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp,
                              profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial),
                              cross_profile=cfg.pinned_degenerate and cfg.pinned_cross,
-                             scans=scans)
+                             scans=scans, confirm=cfg.free_space_confirm)
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),

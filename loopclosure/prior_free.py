@@ -265,6 +265,7 @@ def match_prior_free(
     profile_below: float = 1.0,
     cross_profile: bool = False,
     scans: tuple[ScanFreeSpace, ScanFreeSpace] | None = None,
+    confirm: bool = False,
 ) -> PriorFreeMatch:
     """Search, peaks, ICP and consistency (module docstring).
 
@@ -285,6 +286,8 @@ def match_prior_free(
         scans: the free space of the query's and the candidate's scans, each about
             its own sensor (`loopclosure.free_space` (1'); their submaps' frames),
             instead of (1) about the submaps' origins.
+        confirm: with `scans`, a point is free only where (1) about the submap's
+            origin calls it free as well (`loopclosure.free_space` (5)).
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -323,13 +326,16 @@ def match_prior_free(
         results = [register(source, candidate, s, config=icp) for s in starts]
     order = sorted(range(len(results)), key=lambda i: _rank(results[i]))
     q_scans, c_scans = (None, None) if scans is None else scans
-    key = ("free", cfg.submap_voxel, cfg.free_bins) + (() if c_scans is None else ("scans",))
+    confirm = confirm and c_scans is not None
+    key = (("free", cfg.submap_voxel, cfg.free_bins) + (() if c_scans is None else ("scans",))
+           + (("confirm",) if confirm else ()))
     cand_submap = _cached(
         candidate, key,
         lambda: Submap.of(voxel_downsample(candidate.points, cfg.submap_voxel), cfg.free_bins,
-                          scans=c_scans))
-    query_submap = _QUERY.get(query, ("free", source_voxel, cfg.free_bins, q_scans),
-                              lambda: Submap.of(source, cfg.free_bins, scans=q_scans))
+                          scans=c_scans, confirm=confirm))
+    query_submap = _QUERY.get(query, ("free", source_voxel, cfg.free_bins, q_scans, confirm),
+                              lambda: Submap.of(source, cfg.free_bins, scans=q_scans,
+                                                confirm=confirm))
     figures = [consistency(query_submap, cand_submap, results[i].pose,
                            cfg.consistency_tolerance, cfg.free_margin) for i in order]
     best = results[order[0]]
