@@ -5,7 +5,7 @@ Run from the repository root::
 
     python benchmarks/consistency_bar_rule.py LOG [LOG ...] [--relations FILE] [--step S]
         [--bar 0.92] [--surface-cap C ...] [--return-window W ...] [--variant C:W ...]
-        [--out FILE.npz]
+        [--confirm-window W ...] [--out FILE.npz]
 
 Each log is mapped as ``loopclosure bench loops`` maps it (`scan_origins_bench.py`).
 For every `step`-th keyframe k, two submaps made of disjoint scans overlap by
@@ -93,11 +93,14 @@ def pairs_in_caps(mapper, step: int, caps) -> tuple[np.ndarray, dict]:
         q_free, c_free = det.submap_free_space(k, last=k), det.submap_free_space(m, last=m)
         for variant, out in per.items():
             v = variant if isinstance(variant, tuple) else (variant,)
+            both = len(v) > 2 and bool(v[2])  # (5): confirmed by (1)
             out.append(consistency(
                 Submap.of(q_pts, s.free_bins,
-                          scans=ScanFreeSpace(q_free.poses, q_free.ranges, *v)),
+                          scans=ScanFreeSpace(q_free.poses, q_free.ranges, *v[:2]),
+                          confirm=both),
                 Submap.of(c_pts, s.free_bins,
-                          scans=ScanFreeSpace(c_free.poses, c_free.ranges, *v)),
+                          scans=ScanFreeSpace(c_free.poses, c_free.ranges, *v[:2]),
+                          confirm=both),
                 *args).consistency)
     return np.array(one), {c: np.array(v) for c, v in per.items()}
 
@@ -116,12 +119,16 @@ def main() -> None:
                          "along the ray; repeatable")
     ap.add_argument("--variant", action="append", metavar="CAP:WINDOW",
                     help="(1'') with cap CAP and (4) with window WINDOW; repeatable")
+    ap.add_argument("--confirm-window", type=int, action="append", metavar="W",
+                    help="the confirmed model (5), (1) and (1') with returns window W "
+                         "(0: none); repeatable")
     ap.add_argument("--out", help="save every log's pairs here (npz: keyframe, then "
                                   "each cap's row, 1 first)")
     args = ap.parse_args()
     caps = ([(1.0, 0)] + [(c, 0) for c in args.surface_cap or [] if c != 1.0]
             + [(1.0, w) for w in args.return_window or [] if w > 0]
-            + [(float(v.split(":")[0]), int(v.split(":")[1])) for v in args.variant or []])
+            + [(float(v.split(":")[0]), int(v.split(":")[1])) for v in args.variant or []]
+            + [(1.0, w, 1) for w in args.confirm_window or []])
     q = [1, 5, 10, 25, 50]
     pooled_one, pooled_per, saved = [], {c: [] for c in caps}, {}
     for log in args.logs:
@@ -135,13 +142,15 @@ def main() -> None:
         for c in caps:
             pooled_per[c].append(per[c])
             quant = np.round(np.percentile(per[c], q), 3).tolist()
-            print(f"  cap {c[0]:g} window {c[1]}: quantiles {quant}; "
+            print(f"  cap {c[0]:g} window {c[1]}{' confirmed' if len(c) > 2 else ''}: "
+                  f"quantiles {quant}; "
                   f"matched bar {matched_bar(one, per[c], args.bar):.3f}", flush=True)
     one = np.concatenate(pooled_one)
     print(f"pooled: {len(one)} pairs; below {args.bar} with (1) {np.mean(one < args.bar):.3f}")
     for c in caps:
         bar = matched_bar(one, np.concatenate(pooled_per[c]), args.bar)
-        print(f"  cap {c[0]:g} window {c[1]}: matched bar {bar:.3f}")
+        print(f"  cap {c[0]:g} window {c[1]}{' confirmed' if len(c) > 2 else ''}: "
+              f"matched bar {bar:.3f}")
     if args.out:
         np.savez(args.out, **saved)
 
