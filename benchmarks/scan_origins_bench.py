@@ -109,6 +109,9 @@ def main() -> None:
                     help="also a pass with the confirmed free space (1) and (1'), "
                          "(``free_space_confirm``, `loopclosure.free_space` (5)), the "
                          "scans' returns window WINDOW, at bar BAR; repeatable")
+    ap.add_argument("--either", type=float, default=0.0, metavar="BAR",
+                    help="with --confirm: a fit failing the pass's bar under (5) passes "
+                         "when (1) reaches BAR (``free_space_either``)")
     ap.add_argument("--no-default", action="store_true")
     ap.add_argument("--default-only", action="store_true",
                     help="the default alone, mapped without the option (its memory)")
@@ -157,10 +160,13 @@ def main() -> None:
         window, bar = variant.split(":")
         check.free_space_origins, check.min_consistency = "scans", float(bar)
         check.free_space_return_window, check.free_space_confirm = int(window), True
+        check.free_space_either = args.either
         det.release_caches()
-        run_pass(mapper, result, ref, args.max_queries, f"confirm-w{int(window)}-{bar}",
+        run_pass(mapper, result, ref, args.max_queries,
+                 f"confirm-w{int(window)}-{bar}" + (f"-or-{args.either}" if args.either else ""),
                  args.npz)
     check.free_space_return_window, check.free_space_confirm = 0, False
+    check.free_space_either = 0.0
     print(f"  peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

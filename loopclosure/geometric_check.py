@@ -216,6 +216,10 @@ class GeometricCheckConfig:
             (1') (`loopclosure.free_space` (5)): no ray from the keyframe's origin
             that no scan cast, and no scan's ray beyond the merged submap's nearest
             surface.  Off (the default): the scans' model alone.
+        free_space_either: with ``free_space_origins = "scans"`` and above 0, a fit
+            that fails `min_consistency` under the scans' model passes the free-space
+            test when its consistency under the keyframe model (1) reaches this bar
+            instead: either model's bar.  0 (the default): off.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -288,6 +292,7 @@ class GeometricCheckConfig:
     free_space_surface_cap: float = 1.0
     free_space_return_window: int = 0
     free_space_confirm: bool = False
+    free_space_either: float = 0.0
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -517,7 +522,8 @@ def _verify_correlative(
                              icp=cfg.icp, config=cfg.search, compiled=cfg.compiled_icp,
                              profile_below=max(cfg.min_degeneracy, cfg.min_degeneracy_partial),
                              cross_profile=cfg.pinned_degenerate and cfg.pinned_cross,
-                             scans=scans, confirm=cfg.free_space_confirm)
+                             scans=scans, confirm=cfg.free_space_confirm,
+                             keyframe_too=cfg.free_space_either > 0)
     if not multi.results:
         return LoopVerification(
             accepted=False, reason="registration failed", relative=np.zeros(3),
@@ -543,7 +549,9 @@ def _verify_correlative(
     elif matched < cfg.min_matched_length:
         reason = (f"matched {matched:.1f} m of surface < {cfg.min_matched_length} m "
                   f"(fitness {best.fitness:.3f})")
-    elif free.consistency < cfg.min_consistency:
+    elif free.consistency < cfg.min_consistency and not (
+            multi.keyframe_best is not None
+            and multi.keyframe_best.consistency >= cfg.free_space_either):
         reason = f"inconsistent free space ({free.consistency:.2f} < {cfg.min_consistency})"
     elif best.rms > cfg.max_rms:
         reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"

@@ -86,3 +86,23 @@ def test_the_check_confirms_only_with_the_option() -> None:
     blind.derived[SCAN_FREE_SPACE] = ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720)))
     q_blind = SubmapPoints(query, ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720))))
     assert verify(q_blind, blind, headings=[truth[2]], config=confirm).consistency == 1.0
+
+
+def test_either_model_at_its_own_bar_passes_the_free_space_test() -> None:
+    cand, query, truth = _inner_walls_case()
+    base = verify(query, RegistrationTarget(cand), headings=[truth[2]],
+                  config=GeometricCheckConfig())
+    assert base.reason.startswith("inconsistent free space")
+    # Scans that observed nothing: (5) has no conflicts; at a bar above 1 it refuses.
+    blind = RegistrationTarget(cand)
+    blind.derived[SCAN_FREE_SPACE] = ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720)))
+    q_blind = SubmapPoints(query, ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720))))
+
+    def check(either: float) -> str:
+        cfg = GeometricCheckConfig(free_space_origins="scans", free_space_confirm=True,
+                                   min_consistency=1.01, free_space_either=either)
+        return verify(q_blind, blind, headings=[truth[2]], config=cfg).reason
+
+    assert check(0.0).startswith("inconsistent free space")  # off
+    assert check(base.consistency + 0.01).startswith("inconsistent free space")
+    assert not check(base.consistency - 0.01).startswith("inconsistent free space")
