@@ -111,7 +111,7 @@ ICP's Gauss-Newton covariance, which is optimistic, never below `covariance_floo
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -219,7 +219,9 @@ class GeometricCheckConfig:
         free_space_either: with ``free_space_origins = "scans"`` and above 0, a fit
             that fails `min_consistency` under the scans' model passes the free-space
             test when its consistency under the keyframe model (1) reaches this bar
-            instead: either model's bar.  0 (the default): off.
+            instead: either model's bar; the runner-up test (`implausible_runner_up`)
+            then judges the runs by (1) at this bar, as the keyframe model alone
+            does.  0 (the default): off.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -532,9 +534,12 @@ def _verify_correlative(
             hypotheses=0, consistency=0.0, conflict_ratio=0.0)
     best = multi.results[0]
     free = multi.consistency[0]
-    others = [r.fitness for r, c in zip(multi.results[1:], multi.consistency[1:], strict=True)
+    either = bool(multi.keyframe) and cfg.free_space_either > 0
+    judged, bar_cfg = ((multi.keyframe, replace(cfg, min_consistency=cfg.free_space_either))
+                       if either else (multi.consistency, cfg))
+    others = [r.fitness for r, c in zip(multi.results[1:], judged[1:], strict=True)
               if r.ok and _different(r.pose, best.pose, cfg)
-              and not (cfg.plausible_runner_up and implausible_runner_up(c, free, cfg))]
+              and not (cfg.plausible_runner_up and implausible_runner_up(c, judged[0], bar_cfg))]
     margin = best.fitness - (max(others) if others else 0.0)
     reason = "accepted"
     partial = best.fitness < cfg.min_fitness or best.inlier_ratio < cfg.min_inlier_ratio
@@ -550,8 +555,7 @@ def _verify_correlative(
         reason = (f"matched {matched:.1f} m of surface < {cfg.min_matched_length} m "
                   f"(fitness {best.fitness:.3f})")
     elif free.consistency < cfg.min_consistency and not (
-            multi.keyframe_best is not None
-            and multi.keyframe_best.consistency >= cfg.free_space_either):
+            either and multi.keyframe[0].consistency >= cfg.free_space_either):
         reason = f"inconsistent free space ({free.consistency:.2f} < {cfg.min_consistency})"
     elif best.rms > cfg.max_rms:
         reason = f"rms {best.rms:.3f} m > {cfg.max_rms}"

@@ -137,8 +137,9 @@ class PriorFreeMatch:
         cross_hits: ``(2,)`` the same with the pose moved across that axis (along its
             perpendicular, the best-constrained direction; `axis_profile`); empty
             unless asked (``cross_profile``).
-        keyframe_best: with ``keyframe_too``, the best run's consistency with the
-            free space about each submap's origin (1) (None otherwise).
+        keyframe: with ``keyframe_too``, each run's consistency with the free space
+            about each submap's origin (1), in the order of `consistency` (empty
+            otherwise).
     """
 
     results: list[IcpResult] = field(default_factory=list)
@@ -147,7 +148,7 @@ class PriorFreeMatch:
     source_points: int = 0
     axis_hits: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
     cross_hits: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
-    keyframe_best: Consistency | None = None
+    keyframe: list[Consistency] = field(default_factory=list)
 
 
 def axis_profile(query: Submap, candidate: Submap, pose: ArrayLike, axis: ArrayLike,
@@ -292,8 +293,8 @@ def match_prior_free(
             instead of (1) about the submaps' origins.
         confirm: with `scans`, a point is free only where (1) about the submap's
             origin calls it free as well (`loopclosure.free_space` (5)).
-        keyframe_too: with `scans`, also the best run's consistency under (1)
-            (`PriorFreeMatch.keyframe_best`).
+        keyframe_too: with `scans`, also each run's consistency under (1)
+            (`PriorFreeMatch.keyframe`).
 
     Returns:
         The runs, best first; none when either submap is empty or nothing scores.
@@ -352,14 +353,14 @@ def match_prior_free(
                      cfg.consistency_tolerance, cfg.free_margin)
         if profiled and ask else np.zeros(0, np.intp)
         for a, ask in ((axis, True), (np.array([-axis[1], axis[0]]), cross_profile)))
-    keyframe_best = None
+    keyframe = []
     if keyframe_too and c_scans is not None:
         plain_c = _cached(candidate, ("free", cfg.submap_voxel, cfg.free_bins),
                           lambda: Submap.of(voxel_downsample(candidate.points, cfg.submap_voxel),
                                             cfg.free_bins))
         plain_q = _QUERY.get(query, ("free", source_voxel, cfg.free_bins, None, False),
                              lambda: Submap.of(source, cfg.free_bins))
-        keyframe_best = consistency(plain_q, plain_c, best.pose, cfg.consistency_tolerance,
-                                    cfg.free_margin)
+        keyframe = [consistency(plain_q, plain_c, results[i].pose, cfg.consistency_tolerance,
+                                cfg.free_margin) for i in order]
     return PriorFreeMatch([results[i] for i in order], figures, scores[order], len(source),
-                          hits, cross, keyframe_best)
+                          hits, cross, keyframe)
