@@ -317,6 +317,9 @@ class GeometricCheckConfig:
         if not self.free_space_surface_cap >= 1.0:
             raise UserError("loops.check.free_space_surface_cap must be at least 1, got "
                             f"{self.free_space_surface_cap!r}")
+        if not 0.0 <= self.free_space_either <= 1.0:
+            raise UserError("loops.check.free_space_either must be in [0, 1], got "
+                            f"{self.free_space_either!r}")
         if not self.free_space_return_window >= 0:
             raise UserError("loops.check.free_space_return_window must be at least 0, got "
                             f"{self.free_space_return_window!r}")

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from data import se2
+from data.errors import UserError
 from loopclosure.free_space import (
     SCAN_FREE_SPACE,
     ConfirmedFreeSpace,
@@ -106,3 +107,9 @@ def test_either_model_at_its_own_bar_passes_the_free_space_test() -> None:
     assert check(0.0).startswith("inconsistent free space")  # off
     assert check(base.consistency + 0.01).startswith("inconsistent free space")
     assert not check(base.consistency - 0.01).startswith("inconsistent free space")
+
+
+def test_an_either_bar_outside_zero_to_one_is_a_user_error() -> None:
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(UserError, match="free_space_either"):
+            GeometricCheckConfig(free_space_either=bad)
