@@ -21,7 +21,8 @@ it, so ``rho_k + pen_k`` is the loop's negative log evidence as an inlier (up to
 constant); the TLS objective keeps it when ``rho_k < c``.  A loop is *lone* when no
 other obeyed loop has both ends within `--near` poses of its two ends.  Printed: the
 threshold ``c``; the `--show` obeyed loops of largest ``pen`` (true / false, pose ids,
-span, neighbours, rho, pen); how many true loops have ``rho + pen >= c``, and the largest
+span, neighbours, rho, pen, and its own cost ``0.5 |(I - M)^-1 b|^2`` at the optimum
+without it, linearised); how many true loops have ``rho + pen >= c``, and the largest
 ``rho + pen`` of a lone true loop and of any false loop.  `--drop i-j,...`: the obeyed
 loops less those between these pose ids, solved from the clean optimum, and that
 solution's ATE [m] against the clean optimum.
@@ -77,6 +78,10 @@ def main() -> None:
     rest = np.eye(b.shape[1]) - m
     rho = 0.5 * np.einsum("ma,ma->m", b, np.linalg.solve(rest, b[..., None])[..., 0])
     pen = -0.5 * np.linalg.slogdet(rest)[1]
+    # The loop's own cost at the graph's optimum without it (linearised): 0.5 |b_loo|^2,
+    # b_loo = (I - M)^-1 b its whitened residual there.
+    loo = np.linalg.solve(rest, b[..., None])[..., 0]
+    raw = 0.5 * np.einsum("ma,ma->m", loo, loo)
     ends = np.sort(np.array([(corrupted.loops[k].i, corrupted.loops[k].j) for k in obeyed]), axis=1)
     near = neighbours(ends, args.near)
     bad = false[obeyed]
@@ -84,13 +89,17 @@ def main() -> None:
           f"{len(obeyed)} obeyed ({int(bad.sum())} false), c {c:.2f}")
     for n in np.argsort(-pen)[:args.show]:
         print(f"  {'F' if bad[n] else 'T'} {ends[n][0]}-{ends[n][1]} span {ends[n][1] - ends[n][0]}"
-              f" neighbours {near[n]} rho {rho[n]:.2f} pen {pen[n]:.2f}")
+              f" neighbours {near[n]} rho {rho[n]:.2f} pen {pen[n]:.2f}"
+              f" own cost without {raw[n]:.3g}")
     evidence = rho + pen
     lone_true = (near == 0) & ~bad
     print(f"true with rho + pen >= c: {int((evidence[~bad] >= c).sum())} "
           f"(lone {int((evidence[lone_true] >= c).sum())} of {int(lone_true.sum())} lone); "
           f"largest rho + pen: lone true {evidence[lone_true].max(initial=0):.2f}, "
           f"false {evidence[bad].max(initial=0):.2f}")
+    print(f"own cost without it: largest of a true loop {raw[~bad].max(initial=0):.3g}, "
+          f"of a lone true loop {raw[lone_true].max(initial=0):.3g}, smallest of a false loop "
+          f"{raw[bad].min(initial=np.inf):.3g}")
     if args.drop:
         drop = {tuple(sorted(map(int, pair.split("-")))) for pair in args.drop.split(",")}
         kept = gtsam.NonlinearFactorGraph()
