@@ -6,7 +6,7 @@ Run from the repository root::
 
     python benchmarks/robust_time_ab.py input_M3500_g2o.g2o [--data DIR] [--scale 1]
         [--policy random] [--ratio 50] [--seed 0] [--repeat 1] [--cache DIR]
-        [--compare screen|memo|stiff|undo-isam|isam-stiff]
+        [--compare screen|memo|stiff|undo-isam]
 
 ``--compare screen``: ``old`` is `slam.optimize.optimize` (``gnc``, incremental, from
 the odometry chain) with ``screen=False`` (the fast path's check solved in full); ``new``:
@@ -16,11 +16,7 @@ with no solution remembered by the least-squares solvers
 ``old`` the default, ``new`` with ``slam.least_squares.STIFF_CHOLESKY = True`` (dogleg by
 Cholesky, stiff factors' poses first). ``--compare undo-isam``: ``old`` with the undo
 hypotheses batch-solved, ``new`` with ``slam.admission_undo.BY_ISAM = True`` (solved on a
-copy of the pass's iSAM2 prefix; the default). ``--compare isam-stiff``: ``old`` the
-default, ``new`` with ``slam.isam_prefix.STIFF_FIRST = True`` (the iSAM2 prefix kept by
-Cholesky with the stiff factors' poses ordered first where Cholesky breaks down, instead
-of QR).  ``--repeat N`` runs old and new alternately N times (CPU: the median).  Prints
-for each the
+copy of the pass's iSAM2 prefix; the default). Prints for each the
 CPU seconds of this process, the memo's hits among the solvers' calls, the ATE against the
 outlier-free optimum [m], false loops obeyed and true loops rejected (as
 `benchmarks/robust_modes.py`), then whether both kept the same loops, the largest position
@@ -39,7 +35,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.admission_undo as admission_undo
-import slam.isam_prefix as isam_prefix
 import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_parser, read_cell
 from evaluation.robustness import aligned_position_error
@@ -56,8 +51,6 @@ COMPARISONS = {
               "new": {"screen": False, "memo": MEMO, "stiff": True}},
     "undo-isam": {"old": {"screen": False, "memo": MEMO, "stiff": False, "undo_isam": False},
                   "new": {"screen": False, "memo": MEMO, "stiff": False, "undo_isam": True}},
-    "isam-stiff": {"old": {"screen": False, "memo": MEMO, "stiff": False, "isam_stiff": False},
-                   "new": {"screen": False, "memo": MEMO, "stiff": False, "isam_stiff": True}},
 }
 
 
@@ -90,7 +83,6 @@ def main() -> None:
             least_squares.MEMO_ENTRIES = setting["memo"]
             least_squares.STIFF_CHOLESKY = setting["stiff"]
             admission_undo.BY_ISAM = setting.get("undo_isam", admission_undo.BY_ISAM)
-            isam_prefix.STIFF_FIRST = setting.get("isam_stiff", False)
             LOOKUPS.update(hits=0, lookups=0)
             start = time.process_time()
             result = optimize(corrupted, "none", "gnc", init="odometry",

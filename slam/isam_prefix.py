@@ -13,12 +13,9 @@ from __future__ import annotations
 
 import gtsam
 
-from slam.least_squares import StickySolver, stiff_keys
+from slam.least_squares import StickySolver
 
 RELINEARIZE = 1e-3  # iSAM2 relinearisation threshold of the prefix (tangent units)
-# On a Cholesky breakdown: Cholesky again with the stiff factors' poses eliminated first
-# (module docstring), QR only if that breaks down too.  False: QR at once.
-STIFF_FIRST = False
 
 
 class IsamPrefix:
@@ -41,11 +38,8 @@ class IsamPrefix:
     finishes that pass with damped batch solves (`isam_or_batch`).
     """
 
-    def __init__(self, max_updates: int = 20, stiff_first: bool | None = None) -> None:
+    def __init__(self, max_updates: int = 20) -> None:
         self.factorization = "CHOLESKY"
-        self.stiff_first = STIFF_FIRST if stiff_first is None else stiff_first
-        self._first: frozenset[int] = frozenset()  # poses ordered first (empty: gtsam's order)
-        self._keys: list[int] = []  # every pose handed over (the ordering groups' keys)
         self._isam = self._new()
         self._all = gtsam.NonlinearFactorGraph()  # every factor handed over, for a rebuild
         self._all_tags: list[object] = []  # the tag of each factor of `_all` (None: untagged)
@@ -80,9 +74,6 @@ class IsamPrefix:
         copy and the original updated alike give the same estimates, bit for bit)."""
         other = IsamPrefix.__new__(IsamPrefix)
         other.factorization = self.factorization
-        other.stiff_first = self.stiff_first
-        other._first = self._first
-        other._keys = list(self._keys)
         other._isam = gtsam.ISAM2(self._isam)
         other._all = gtsam.NonlinearFactorGraph(self._all)
         other._all_tags = list(self._all_tags)
@@ -129,76 +120,34 @@ class IsamPrefix:
         for k in range(factors.size()):
             self._all.add(factors.at(k))
         self._all_tags.extend(tags)
-        self._keys.extend(int(k) for k in values.keys())
         try:
             self._converge(factors, values, tags, indices)
         except RuntimeError:  # gtsam IndeterminateLinearSystemException
             if self.factorization == "QR":
                 raise
+            self.factorization = "QR"
+            self._isam = self._new()
             start = gtsam.Values(self._estimate)
             start.insert_or_assign(values)
-            self._rebuild(start)
+            self._converge(self._all, start, self._all_tags, [])
         self._estimate = self._isam.calculateEstimate()
         return self._estimate
 
-    def _rebuild(self, start: gtsam.Values) -> None:
-        """A new iSAM2 from every factor held, at `start`: Cholesky with the stiff poses
-        ordered first (`stiff_first`, when there are stiff factors and they are not
-        ordered first already), else QR."""
-        first = frozenset(stiff_keys(self._all)) if self.stiff_first and not self._first \
-            else frozenset()
-        if first:
-            self._first, self._isam = first, self._new()
-            try:
-                self._converge(self._all, start, self._all_tags, [])
-                return
-            except RuntimeError:  # still indeterminate: QR
-                pass
-        self.factorization, self._first = "QR", frozenset()
-        self._isam = self._new()
-        self._converge(self._all, start, self._all_tags, [])
-
     def _converge(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                   tags: list[object], remove: list[int]) -> None:
-        result = self._update(factors, values, remove)
+        result = self._isam.update(factors, values, remove)
         self._index.update((t, int(n)) for t, n in zip(tags, result.getNewFactorsIndices(),
                                                          strict=True) if t is not None)
         if remove:
             # An update relinearises by the step of the system before it: after a
             # removal that step is small and says nothing of the factor taken out.
-            result = self._update()
+            result = self._isam.update()
         for _ in range(self.max_updates):
             if result.getVariablesRelinearized() == 0:
                 self.converged = True
                 return
-            result = self._update()
+            result = self._isam.update()
         self.converged = result.getVariablesRelinearized() == 0
-
-    def _update(
-        self, factors: gtsam.NonlinearFactorGraph | None = None,
-        values: gtsam.Values | None = None, remove: list[int] | None = None,
-    ) -> gtsam.ISAM2Result:
-        """One ``ISAM2.update``; with poses to order first (`_first`), every pose held
-        is given its ordering group (`ordering_groups`)."""
-        factors = gtsam.NonlinearFactorGraph() if factors is None else factors
-        values = gtsam.Values() if values is None else values
-        if not self._first:
-            return self._isam.update(factors, values, remove or [])
-        params = gtsam.ISAM2UpdateParams()
-        params.removeFactorIndices = remove or []
-        params.constrainedKeys = ordering_groups(
-            self._keys, self._first, [int(k) for k in factors.keyVector()])
-        return self._isam.update(factors, values, params)
-
-
-def ordering_groups(keys: list[int], first: frozenset[int], last: list[int]) -> gtsam.KeyGroupMap:
-    """gtsam ordering groups (eliminated in increasing group) of every key of `keys`:
-    0 for those in `first`, 2 for those in `last` (and not in `first`), 1 for the rest."""
-    late = set(last)
-    groups = gtsam.KeyGroupMap()
-    for k in keys:
-        groups.insert2(k, 0 if k in first else 2 if k in late else 1)
-    return groups
 
 
 def isam_or_batch(
