@@ -17,8 +17,9 @@ results unchanged).  Prints
   innermost `slam` callers: solves and CPU seconds;
 * the CPU seconds of every admission pass's `AdmissionPass.advance` calls (bar search's
   passes included), by the pass's gate and its first odometry factor's information
-  ``I[0, 0]`` (which tells the ladder's rungs apart), with the iSAM2 solves and updates
-  made while it advanced, and its updates that relinearised over 1000 poses;
+  ``I[0, 0]`` (which tells the ladder's rungs apart), with the iSAM2 solves (and by which
+  caller) and updates made while it advanced, and its updates that relinearised over
+  1000 poses;
 * the updates split by the poses they relinearised (gtsam's ``variablesRelinearized``,
   which counts the poses of new factors too): the update that hands new factors over,
   then the others in bands of 0, 1-10, 11-100, 101-1000 and over 1000 poses, with their
@@ -57,7 +58,7 @@ _inner = least_squares.StickySolver._solve
 _SOLVED = [False]
 _advance = admission.AdmissionPass.advance
 # id of the pass -> [gate, odometry I[0, 0], advance calls, CPU s, iSAM2 solves, updates,
-# whole-prefix updates (over 1000 poses relinearised), their CPU s]
+# whole-prefix updates (over 1000 poses relinearised), their CPU s, {caller: solves}]
 PASSES: dict[int, list] = {}
 _RUNNING: list[list] = []  # the entry of the pass being advanced (innermost last)
 
@@ -96,7 +97,8 @@ def _timed_converge(self, *args):  # type: ignore[no-untyped-def]
 
 
 def _counted_solve(self):  # type: ignore[no-untyped-def]
-    entry = PREFIX[_callers(2)]
+    caller = _callers(2)
+    entry = PREFIX[caller]
     before, start = len(UPDATES), time.process_time()
     try:
         return _solve(self)
@@ -110,6 +112,8 @@ def _counted_solve(self):  # type: ignore[no-untyped-def]
             _RUNNING[-1][4:8] = [_RUNNING[-1][4] + 1, _RUNNING[-1][5] + len(done),
                                  _RUNNING[-1][6] + len(whole),
                                  _RUNNING[-1][7] + sum(u[3] for u in whole)]
+            by_caller = _RUNNING[-1][8]
+            by_caller[caller] = by_caller.get(caller, 0) + 1
 
 
 def _counted_call(self, factors, values):  # type: ignore[no-untyped-def]
@@ -129,7 +133,7 @@ def _counted_inner(self, factors, values):  # type: ignore[no-untyped-def]
 
 def _timed_advance(self, *args, **kwargs):  # type: ignore[no-untyped-def]
     info = float(self.graph.odometry[0].information[0, 0])
-    entry = PASSES.setdefault(id(self), [self.gate, info, 0, 0.0, 0, 0, 0, 0.0])
+    entry = PASSES.setdefault(id(self), [self.gate, info, 0, 0.0, 0, 0, 0, 0.0, {}])
     start = time.process_time()
     _RUNNING.append(entry)
     try:
@@ -198,10 +202,12 @@ def main() -> None:
     print(f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed}: "
           f"{time.process_time() - start:.1f} s CPU")
     print("admission passes (gate, odometry I[0, 0]; in order of their first advance):")
-    for gate, info, calls, cpu, solves, updates, whole, whole_cpu in PASSES.values():
+    for gate, info, calls, cpu, solves, updates, whole, whole_cpu, by in PASSES.values():
         print(f"  {gate:10s} {info:10.4g} {calls:3d} advance calls {cpu:7.2f} s: {solves:4d} "
               f"iSAM2 solves, {updates:5d} updates, {whole:4d} over 1000 poses "
               f"({whole_cpu:.2f} s)")
+        for caller, n in sorted(by.items(), key=lambda kv: -kv[1]):
+            print(f"      {n:4d} solves by {caller}")
     print("iSAM2 prefix solves by caller:")
     for name, (n, updates, cpu) in sorted(PREFIX.items(), key=lambda kv: -kv[1][2]):
         print(f"  {n:5d} solves {updates:6d} updates {cpu:7.2f} s  {name}")
