@@ -69,6 +69,25 @@ def scale(m: np.ndarray, has: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(m[a[keep]] - m[b[keep]], axis=1)))
 
 
+def distances(views: dict, keys: np.ndarray, q: dict) -> dict[tuple[str, str], np.ndarray]:
+    """Normalised distance of query `q` to its eligible rows, per (view, stage): `views`
+    maps a view to its keys and, per stage, (vectors, has-vector mask, scale)."""
+    rows = q["rows"]
+    out = {}
+    for view, (vk, per) in views.items():
+        asked = q["k"] if view == "own" else q["asked"]
+        for stage, (m, has, s) in per.items():
+            d = np.full(len(rows), np.inf)
+            qi = np.searchsorted(vk, asked) if asked is not None else -1
+            if 0 <= qi < len(vk) and vk[qi] == asked and has[qi]:
+                at = np.searchsorted(vk, keys[rows])
+                ok = (at < len(vk)) & (vk[np.minimum(at, len(vk) - 1)] == keys[rows])
+                ok[ok] &= has[at[ok]]
+                d[ok] = np.linalg.norm(m[at[ok]] - m[qi], axis=1) / s
+            out[view, stage] = d
+    return out
+
+
 def first_hits(data: dict, config: PipelineConfig, db: PlaceDatabaseConfig,
                weights: list[float]) -> dict[str, np.ndarray]:
     """Per variant, the 0-based rank of each revisit query's first true place."""
@@ -84,19 +103,8 @@ def first_hits(data: dict, config: PipelineConfig, db: PlaceDatabaseConfig,
     big = 10**9
     out: dict[str, list[int]] = {}
     for q in data["queries"]:
-        k, rows, near = q["k"], q["rows"], q["near"]
-        dist: dict[tuple[str, str], np.ndarray] = {}
-        for view, (vk, per) in views.items():
-            asked = k if view == "own" else q["asked"]
-            for stage, (m, has, s) in per.items():
-                d = np.full(len(rows), np.inf)
-                qi = np.searchsorted(vk, asked) if asked is not None else -1
-                if 0 <= qi < len(vk) and vk[qi] == asked and has[qi]:
-                    at = np.searchsorted(vk, keys[rows])
-                    ok = (at < len(vk)) & (vk[np.minimum(at, len(vk) - 1)] == keys[rows])
-                    ok[ok] &= has[at[ok]]
-                    d[ok] = np.linalg.norm(m[at[ok]] - m[qi], axis=1) / s
-                dist[view, stage] = d
+        near = q["near"]
+        dist = distances(views, keys, q)
         with np.errstate(invalid="ignore"):  # 0 x inf: a view without the keyframe
             variants = {f"w={w:g}": [dist[v, "pairs"] + w * dist[v, NEAR_FFT]
                                      for v in ("own", "wide")] for w in weights}

@@ -19,26 +19,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from fft_near_cost import best  # noqa: E402
+
 from data.sim import place_dataset  # noqa: E402
 from loopclosure.place_config import PlaceDatabaseConfig, stage_matcher  # noqa: E402
 from loopclosure.place_database import PlaceDatabase  # noqa: E402
 from loopclosure.polygon import polygon_from_scan  # noqa: E402
-
-
-def best(fn, repeat: int) -> float:
-    """Smallest CPU seconds of `repeat` calls of `fn`."""
-    out = []
-    for _ in range(repeat):
-        t = time.process_time()
-        fn()
-        out.append(time.process_time() - t)
-    return min(out)
 
 
 def main() -> None:

@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from fft_near_prefilter import describe, matrix, scale  # noqa: E402
+from fft_near_prefilter import describe, distances, matrix, scale  # noqa: E402
 from prefilter_misses import describe_all, mapped  # noqa: E402
 
 from evaluation.loop_bench_queries import interleaved_order  # noqa: E402
@@ -74,24 +74,6 @@ def view_vectors(data: dict, config: PipelineConfig, db: PlaceDatabaseConfig) ->
             m, has = matrix(vecs, vk)
             per[stage] = (m, has, scale(m, has) if has.sum() > 1 else 1.0)
         out[view] = (vk, per)
-    return out
-
-
-def distances(views: dict, keys: np.ndarray, q: dict) -> dict[tuple[str, str], np.ndarray]:
-    """Normalised distance of query `q` to its eligible rows, per (view, stage)."""
-    rows = q["rows"]
-    out = {}
-    for view, (vk, per) in views.items():
-        asked = q["k"] if view == "own" else q["asked"]
-        for stage, (m, has, s) in per.items():
-            d = np.full(len(rows), np.inf)
-            qi = np.searchsorted(vk, asked) if asked is not None else -1
-            if 0 <= qi < len(vk) and vk[qi] == asked and has[qi]:
-                at = np.searchsorted(vk, keys[rows])
-                ok = (at < len(vk)) & (vk[np.minimum(at, len(vk) - 1)] == keys[rows])
-                ok[ok] &= has[at[ok]]
-                d[ok] = np.linalg.norm(m[at[ok]] - m[qi], axis=1) / s
-            out[view, stage] = d
     return out
 
 
