@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 
 
-def _cached_files(kernel: object) -> list[str] | None:
+def cached_files(kernel: object) -> list[str] | None:
     """Paths of the machine-code files that numba's cache index of `kernel` (a
     dispatcher) refers to now (none when the index is missing or stale for the
     kernel's own file); None without an on-disk cache (or a numba that keeps it
@@ -42,7 +42,7 @@ def drop_stale(module: str, callees: Sequence[str]) -> list[str]:
         py_func = getattr(kernel, "py_func", None)
         if getattr(py_func, "__module__", None) != module:
             continue  # not a kernel, or one imported from elsewhere
-        paths = _cached_files(kernel)
+        paths = cached_files(kernel)
         if paths and any(os.path.exists(p) and os.stat(p).st_mtime < newest for p in paths):
             try:
                 kernel._cache.flush()  # type: ignore[attr-defined]
@@ -52,4 +52,15 @@ def drop_stale(module: str, callees: Sequence[str]) -> list[str]:
     return dropped
 
 
-__all__ = ["drop_stale"]
+def kernels_cold(kernels: Sequence[object]) -> bool:
+    """True when a kernel of `kernels` (dispatchers with ``cache=True``) has no usable
+    machine code on disk: its index missing, stale for its own file, emptied by
+    `drop_stale`, or naming a file that is gone; False as well for a numba that keeps
+    its cache otherwise (no way to tell)."""
+    files = [cached_files(k) for k in kernels]
+    if any(f is None for f in files):
+        return False
+    return not all(f and all(os.path.exists(p) for p in f) for f in files)
+
+
+__all__ = ["cached_files", "drop_stale", "kernels_cold"]

@@ -18,13 +18,13 @@ mapper (with the front-end worker it forks) only loads the kernels.
 from __future__ import annotations
 
 import multiprocessing
-import os
 from collections.abc import Callable
 
 import numpy as np
 
 from data.types import Scan
 from loopclosure import correlative, fast_icp, fast_points, grid_overlap, icp_kernel
+from loopclosure.kernel_cache import kernels_cold
 from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher
 from loopclosure.polygon import polygon_from_scan
@@ -91,9 +91,10 @@ def warm_up() -> None:
 
 
 def cache_is_cold() -> bool:
-    """True when numba's on-disk index of a kernel `warm_up` compiles is missing (a
-    first run after an install, or sources changed since).  Read from numba's cache
-    objects; a numba that keeps them elsewhere counts as warm (no child)."""
+    """True when a kernel `warm_up` compiles has no usable machine code in numba's
+    on-disk cache (a first run after an install, sources changed since, or an index
+    `loopclosure.kernel_cache.drop_stale` emptied).  Read from numba's cache objects;
+    a numba that keeps them elsewhere counts as warm (no child)."""
     from loopclosure import virtual_scan_kernel
     from loopclosure.matchers import (
         flirt_curve_kernel,
@@ -114,11 +115,7 @@ def cache_is_cold() -> bool:
                pair_kernel._pair_kernel, pair_kernel.surface_samples_kernel,
                virtual_scan_kernel.candidates,
                virtual_scan_kernel.front_most)
-    try:
-        paths = [k._cache._cache_file._index_path for k in kernels]
-    except AttributeError:
-        return False
-    return not all(os.path.exists(p) for p in paths)
+    return kernels_cold(kernels)
 
 
 def warm_up_isolated(

@@ -14,12 +14,11 @@ mapping's, on the first run after an install too.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import scipy.sparse as sp
 
 from loopclosure import warm_up as loopclosure_warm_up
+from loopclosure.kernel_cache import kernels_cold
 
 
 def _chain_jacobian(poses: int = 4, dof: int = 3) -> sp.csr_matrix:
@@ -55,11 +54,7 @@ def cache_is_cold() -> bool:
     compiled = (kernels._reach_counts, kernels._solves, kernels.sparse_block_dots,
                 fast_points._within_kernel, fast_points._compact,
                 grid_target._cells_kernel, grid_target._all_finite)
-    try:
-        paths = [k._cache._cache_file._index_path for k in compiled]
-    except AttributeError:
-        return False
-    return not all(os.path.exists(p) for p in paths)
+    return kernels_cold(compiled)
 
 
 def warm_up_isolated() -> None:

@@ -7,7 +7,7 @@ import importlib
 import os
 import sys
 
-from loopclosure.kernel_cache import _cached_files, drop_stale
+from loopclosure.kernel_cache import cached_files, drop_stale, kernels_cold
 
 _CALLEE = "import numba\n\n\n@numba.njit(cache=True)\ndef f(x):\n    return x + {}\n"
 _CALLER = ("import numba\n\nfrom kc_callee import f\n\n\n@numba.njit(cache=True)\n"
@@ -30,7 +30,7 @@ def test_a_kernel_cached_before_its_callee_changed_is_compiled_again(tmp_path, m
         first = _load()
         assert first.g(1) == 2  # compiled with f inlined, written to the cache
         assert drop_stale("kc_caller", ["kc_callee"]) == []  # the callee is older
-        cached = _cached_files(first.g)
+        cached = cached_files(first.g)
         assert cached
         callee.write_text(_CALLEE.format(20))  # an edit of the callee only ...
         edited = os.stat(callee).st_mtime
@@ -38,10 +38,12 @@ def test_a_kernel_cached_before_its_callee_changed_is_compiled_again(tmp_path, m
             os.utime(path, (edited - 10.0, edited - 10.0))
         second = _load()
         assert drop_stale("kc_caller", ["kc_callee"]) == ["g"]
+        assert kernels_cold([second.g])  # its index emptied: a warm-up would compile it
         assert second.g(1) == 21  # compiled again with the new f
         third = _load()
         assert drop_stale("kc_caller", ["kc_callee"]) == []  # dropped once only
         assert third.g(1) == 21
+        assert not kernels_cold([third.g])
     finally:
         for name in ("kc_callee", "kc_caller"):
             sys.modules.pop(name, None)
