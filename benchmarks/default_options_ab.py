@@ -37,13 +37,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
-from benchmarks.robust_confirm_ab import _head, _position
+from benchmarks.robust_confirm_ab import _head, versus
 from evaluation.robustness import corrupted_graph
 from slam.consistency import ODOMETRY_LADDER
 from slam.optimize import _clean_optimum, initial_guess, optimize
@@ -116,10 +114,7 @@ def main() -> None:
         if first is None:
             first = (cpu, out.obeyed, result.poses)
         else:
-            apart = max(float(np.linalg.norm(_position(result.poses[k])
-                                              - _position(first[2][k]))) for k in result.poses)
-            line += (f"; vs first: same loops {bool((out.obeyed == first[1]).all())}, "
-                     f"{apart:.2g} m apart, CPU x{cpu / first[0]:.2f}")
+            line += versus("first", first, cpu, out.obeyed, result.poses)
         print(line, flush=True)
 
 

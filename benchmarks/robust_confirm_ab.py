@@ -76,6 +76,16 @@ def _position(pose: np.ndarray) -> np.ndarray:
     return pose[:2] if pose.ndim == 1 else pose[:3, 3]
 
 
+def versus(label: str, first: tuple, cpu: float, obeyed: np.ndarray, poses: dict) -> str:
+    """`; vs LABEL: same loops B, D m apart, CPU xR`: a run (its CPU seconds, obeyed-loop
+    mask and poses) against `first` = (cpu, obeyed, poses) of the run it is compared with
+    (D the largest position difference [m], R the CPU ratio)."""
+    apart = max(float(np.linalg.norm(_position(poses[k]) - _position(first[2][k])))
+                for k in poses)
+    return (f"; vs {label}: same loops {bool((obeyed == first[1]).all())}, "
+            f"{apart:.2g} m apart, CPU x{cpu / first[0]:.2f}")
+
+
 def _head(graph: PoseGraph, n: int) -> PoseGraph:
     """The first `n` poses of `graph` with the constraints among them."""
     head = PoseGraph(dim=graph.dim)

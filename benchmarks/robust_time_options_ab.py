@@ -32,15 +32,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.fast_path_screen as fast_path_screen
 import slam.isam_prefix as isam_prefix
 import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
-from benchmarks.robust_confirm_ab import _head, _position
+from benchmarks.robust_confirm_ab import _head, versus
 from slam.optimize import optimize
 
 DEFAULTS = (fast_path_screen.STALL_WINDOW, isam_prefix.RELINEARIZE,
@@ -92,10 +90,7 @@ def main() -> None:
         if first is None and run == "default":
             first = (cpu, out.obeyed, result.poses)
         elif first is not None:
-            apart = max(float(np.linalg.norm(_position(result.poses[k])
-                                              - _position(first[2][k]))) for k in result.poses)
-            line += (f"; vs default: same loops {bool((out.obeyed == first[1]).all())}, "
-                     f"{apart:.2g} m apart, CPU x{cpu / first[0]:.2f}")
+            line += versus("default", first, cpu, out.obeyed, result.poses)
         print(line, flush=True)
 
 
