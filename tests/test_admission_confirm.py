@@ -45,6 +45,19 @@ def _square() -> tuple[PoseGraph, int, int]:
     return graph, true, false
 
 
+def _count_solves(run) -> list[int]:  # type: ignore[no-untyped-def]
+    """The loops `run` solves without, one entry per leave-one-out solve, as they happen."""
+    solves: list[int] = []
+    solved_without = run._solved_without
+
+    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
+        solves.append(int(removed[-1]))
+        return solved_without(without, current, start, removed)
+
+    run._solved_without = counted  # type: ignore[method-assign]
+    return solves
+
+
 def test_the_check_returns_the_loop_whose_actual_cost_is_above_c() -> None:
     graph, true, false = _square()
     values = graph.gtsam_values(initial_guess(graph, "odometry"))
@@ -100,14 +113,7 @@ def test_the_screen_turns_back_the_false_loop_with_one_solve() -> None:
     before = run._base.error(run._solve(run._base, run.current))
     rho = run._screened(kept, current, pending)
     assert rho[0] < 1e-6 * run._c < run._c < rho[1]
-    solves: list[int] = []
-    solved_without = run._solved_without
-
-    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
-        solves.append(int(removed[-1]))
-        return solved_without(without, current, start, removed)
-
-    run._solved_without = counted  # type: ignore[method-assign]
+    solves = _count_solves(run)
     back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
                             current, before, run.current)
     np.testing.assert_array_equal(back, [1])
@@ -169,14 +175,7 @@ def test_the_screen_skips_a_loop_that_cannot_be_the_costliest(
     rho = run._screened(kept, current, pending)
     np.testing.assert_allclose(rho, [0.5 * 0.25 / 0.0325, 0.5 * 4.0 / 0.0225], rtol=1e-6)
     assert admission.SCREEN_FRACTION * run._c < rho[0] < run._c
-    solves: list[int] = []
-    solved_without = run._solved_without
-
-    def counted(without, current, start, removed):  # type: ignore[no-untyped-def]
-        solves.append(int(removed[-1]))
-        return solved_without(without, current, start, removed)
-
-    run._solved_without = counted  # type: ignore[method-assign]
+    solves = _count_solves(run)
     monkeypatch.setattr(admission, "SCREEN_SKIP", skip)
     back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
                             current, before, run.current)
