@@ -33,8 +33,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from data.g2o import read_g2o
-from slam.optimize import IncrementalSmoother, optimize
+from slam.optimize import optimize
 from slam.pose_graph import PoseGraph, relative_compose
+from slam.smoothers import IncrementalSmoother
 
 
 def batch(graph: PoseGraph, kernel: str, method: str, repeat: int) -> tuple[float, object]:

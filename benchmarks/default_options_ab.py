@@ -43,8 +43,9 @@ import slam.least_squares as least_squares
 from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
 from benchmarks.robust_confirm_ab import _head, versus
 from evaluation.robustness import corrupted_graph
+from slam.clean_optimum import _clean_optimum
 from slam.consistency import ODOMETRY_LADDER
-from slam.optimize import _clean_optimum, initial_guess, optimize
+from slam.optimize import initial_guess, optimize
 from slam.pose_graph import PoseGraph, RobustKernel
 
 RUNS = {

@@ -26,12 +26,13 @@ from data.lazy_exports import lazy_exports
 if TYPE_CHECKING:
     from slam.config import BackendConfig, PipelineConfig, SubmapConfig
     from slam.occupancy_map import MapConfig, OccupancyGrid, build_occupancy_grid
-    from slam.optimize import IncrementalSmoother, OptimizationResult
+    from slam.optimization_result import OptimizationResult
     from slam.pipeline import LoopEvent, Mapper, MappingResult
     from slam.pose_graph import PoseGraph, RobustKernel
     from slam.results import write_results
     from slam.session_file import SavedMap, SessionInfo, read_saved_map, write_saved_map
     from slam.sessions import SessionsConfig
+    from slam.smoothers import IncrementalSmoother
 
 # Where each exported name lives.  Loaded on first use, so the CLI (which lives in
 # `slam.cli` and so imports this package first) starts without gtsam and scipy.
@@ -42,8 +43,8 @@ _HOMES = {
     "MapConfig": "slam.occupancy_map",
     "OccupancyGrid": "slam.occupancy_map",
     "build_occupancy_grid": "slam.occupancy_map",
-    "IncrementalSmoother": "slam.optimize",
-    "OptimizationResult": "slam.optimize",
+    "IncrementalSmoother": "slam.smoothers",
+    "OptimizationResult": "slam.optimization_result",
     "LoopEvent": "slam.pipeline",
     "Mapper": "slam.pipeline",
     "MappingResult": "slam.pipeline",

@@ -62,7 +62,7 @@ from slam.kernel_warm_up import warm_up_isolated
 from slam.keyframes import GrowingRows, Keyframe, KeyframeSelector, scan_poses_from_keyframes
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
-from slam.optimize import IncrementalSmoother, optimize
+from slam.optimize import optimize
 from slam.pose_graph import PoseGraph
 from slam.refine_scans import refine_scan_poses
 from slam.session_file import SavedMap, SessionInfo
@@ -74,6 +74,7 @@ from slam.sessions import (
     saved_keyframes,
     session_spans,
 )
+from slam.smoothers import IncrementalSmoother
 
 Array = NDArray[np.float64]
 Progress = Callable[[int, int, int], None]

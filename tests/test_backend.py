@@ -19,8 +19,9 @@ from slam.consistency import (
     tls_cost,
     tls_threshold,
 )
-from slam.optimize import BatchSmoother, IncrementalSmoother, initial_guess, optimize
+from slam.optimize import initial_guess, optimize
 from slam.pose_graph import PoseGraph, RobustKernel, whitened_residual
+from slam.smoothers import BatchSmoother, IncrementalSmoother
 from tests.helpers import shared_file
 
 INFO = np.diag([100.0, 100.0, 400.0])

@@ -128,7 +128,7 @@ def test_loops_a_gate_rejected_come_back_when_no_group_is_removed() -> None:
     assert check.removed == []
     assert check.groups is not None and check.groups.tested == []
     assert check.groups.readmitted == [5, 40]
-    from slam.optimize import _segment_rechecked
+    from slam.rechecked import _segment_rechecked
 
     factors, loop_index = graph.factor_graph()
     result, w, solver = _segment_rechecked(graph, factors, loop_index, values, weights, 0.99,

@@ -7,7 +7,8 @@ import pytest
 
 from data import se2
 from data.errors import DataWarning
-from slam.optimize import IncrementalSmoother, optimize
+from slam.optimize import optimize
+from slam.smoothers import IncrementalSmoother
 
 
 def _chain(smoother: IncrementalSmoother, lost_at: int, n: int = 12) -> list[np.ndarray]:

@@ -58,7 +58,7 @@ def test_false_loops_absorbed_by_loose_odometry_are_seen_on_the_stiff_rungs() ->
     # stated graph's least-squares map bends onto every one of them at an error below c.
     from data.g2o import read_g2o
     from evaluation.robustness import inject_false_loops
-    from slam.optimize import _clean_optimum
+    from slam.clean_optimum import _clean_optimum
     from slam.pose_graph import PoseGraph
     from tests.helpers import shared_file
 
