@@ -203,6 +203,18 @@ def _pair(a, b_t, sa, sb, table, n_dummy, dummy_cost, full, u, v, p, way, minv, 
 
 
 @numba.njit(cache=True)
+def _workspace(size):
+    """`_pair`'s work arrays for shapes of ``size`` points with their dummies: the
+    ``(size, size)`` cost matrix `full` and `_hungarian`'s ``u, v, p, way, minv, used,
+    visited, key, row`` (length ``size + 1``; ``p, way, visited`` int64, ``used``
+    bool, the rest float64), uninitialised (`_pair` and `_hungarian` set them)."""
+    return (np.empty((size, size)), np.empty(size + 1), np.empty(size + 1),
+            np.empty(size + 1, np.int64), np.empty(size + 1, np.int64), np.empty(size + 1),
+            np.empty(size + 1, np.bool_), np.empty(size + 1, np.int64), np.empty(size + 1),
+            np.empty(size + 1))
+
+
+@numba.njit(cache=True)
 def chi2_costs(query, db, table):
     """``(M, n, n)`` exact chi^2 costs of `query` (n, K) against each of `db` (M, n, K)."""
     m, n = db.shape[0], db.shape[1]
@@ -218,12 +230,7 @@ def chi2_costs(query, db, table):
 def distances(query, db, table, n_dummy, dummy_cost):
     """``(M,)`` mean matched costs of `query` (n, K) against each of `db` (M, n, K)."""
     m, n = db.shape[0], db.shape[1]
-    size = n + n_dummy
-    full = np.empty((size, size))
-    u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
-    p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
-    used = np.empty(size + 1, np.bool_)
-    visited, key, row = np.empty(size + 1, np.int64), np.empty(size + 1), np.empty(size + 1)
+    full, u, v, p, way, minv, used, visited, key, row = _workspace(n + n_dummy)
     sa = query.sum(axis=1).astype(np.float64)
     out = np.empty(m)
     for e in range(m):
@@ -238,12 +245,7 @@ def distances(query, db, table, n_dummy, dummy_cost):
 def all_pairs(db, table, n_dummy, dummy_cost):
     """``(M, M)`` symmetric distance matrix of `db` (M, n, K): each unordered pair once."""
     m, n, n_bins = db.shape
-    size = n + n_dummy
-    full = np.empty((size, size))
-    u, v, minv = np.empty(size + 1), np.empty(size + 1), np.empty(size + 1)
-    p, way = np.empty(size + 1, np.int64), np.empty(size + 1, np.int64)
-    used = np.empty(size + 1, np.bool_)
-    visited, key, row = np.empty(size + 1, np.int64), np.empty(size + 1), np.empty(size + 1)
+    full, u, v, p, way, minv, used, visited, key, row = _workspace(n + n_dummy)
     sums = np.empty((m, n))
     b_t = np.empty((m, n_bins, n), db.dtype)
     for e in range(m):
