@@ -7,6 +7,8 @@ import importlib
 import sys
 from pathlib import Path
 
+import pytest
+
 from loopclosure.kernel_cache import drop_stale, kernel_callees, undeclared_callees
 
 _FILES = {
@@ -35,48 +37,38 @@ _FILES = {
 }
 
 
-def _write(folder: Path) -> None:
+@pytest.fixture
+def fixture_modules(tmp_path, monkeypatch):
+    """`_FILES` written to a folder on the import path; forgotten afterwards."""
     for name, text in _FILES.items():
-        path = folder / name
+        path = tmp_path / name
         path.parent.mkdir(exist_ok=True)
         path.write_text(text)
-
-
-def _forget() -> None:
+    monkeypatch.syspath_prepend(str(tmp_path))
+    importlib.invalidate_caches()
+    yield
     for name in [n for n in sys.modules if n.startswith("kcc_")]:
         sys.modules.pop(name)
 
 
-def test_callees_are_found_through_kernels_and_constants(tmp_path, monkeypatch):
-    _write(tmp_path)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    importlib.invalidate_caches()
-    try:
-        importlib.import_module("kcc_top")
-        # mid by its kernel, leaf through mid's kernel and as the home of SCALE (the
-        # re-export followed); not kcc_other (a plain function calls it), not math.
-        assert kernel_callees("kcc_top") == ["kcc_leaf", "kcc_mid"]
-        assert kernel_callees("kcc_mid") == ["kcc_leaf"]
-        assert kernel_callees("kcc_leaf") == []
-        importlib.import_module("kcc_pkg.a")
-        assert kernel_callees("kcc_pkg.a") == ["kcc_pkg.b"]
-    finally:
-        _forget()
+def test_callees_are_found_through_kernels_and_constants(fixture_modules):
+    importlib.import_module("kcc_top")
+    # mid by its kernel, leaf through mid's kernel and as the home of SCALE (the
+    # re-export followed); not kcc_other (a plain function calls it), not math.
+    assert kernel_callees("kcc_top") == ["kcc_leaf", "kcc_mid"]
+    assert kernel_callees("kcc_mid") == ["kcc_leaf"]
+    assert kernel_callees("kcc_leaf") == []
+    importlib.import_module("kcc_pkg.a")
+    assert kernel_callees("kcc_pkg.a") == ["kcc_pkg.b"]
 
 
-def test_undeclared_callees_are_those_no_drop_stale_call_named(tmp_path, monkeypatch):
-    _write(tmp_path)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    importlib.invalidate_caches()
-    try:
-        importlib.import_module("kcc_top")
-        assert undeclared_callees("kcc_top") == ["kcc_leaf", "kcc_mid"]
-        drop_stale("kcc_top", ["kcc_mid"])  # the direct callee only
-        assert undeclared_callees("kcc_top") == ["kcc_leaf"]
-        drop_stale("kcc_top", ["kcc_mid", "kcc_leaf"])
-        assert undeclared_callees("kcc_top") == []
-    finally:
-        _forget()
+def test_undeclared_callees_are_those_no_drop_stale_call_named(fixture_modules):
+    importlib.import_module("kcc_top")
+    assert undeclared_callees("kcc_top") == ["kcc_leaf", "kcc_mid"]
+    drop_stale("kcc_top", ["kcc_mid"])  # the direct callee only
+    assert undeclared_callees("kcc_top") == ["kcc_leaf"]
+    drop_stale("kcc_top", ["kcc_mid", "kcc_leaf"])
+    assert undeclared_callees("kcc_top") == []
 
 
 def _kernel_modules() -> list[str]:
