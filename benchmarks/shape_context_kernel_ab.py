@@ -38,14 +38,15 @@ ROOT = Path(__file__).resolve().parents[1]
 PATH = "loopclosure/matchers/shape_context_kernel.py"
 
 
-def load_revision(rev: str, folder: Path):  # type: ignore[no-untyped-def]
-    """Revision `rev`'s kernel module, imported as ``sck_<rev>`` from `folder`."""
-    text = subprocess.run(["git", "show", f"{rev}:{PATH}"], cwd=ROOT, check=True,
+def load_revision(rev: str, folder: Path, path: str = PATH):  # type: ignore[no-untyped-def]
+    """Revision `rev`'s module at `path` (one that imports no module of the project),
+    imported under a name of its own from `folder`."""
+    text = subprocess.run(["git", "show", f"{rev}:{path}"], cwd=ROOT, check=True,
                           capture_output=True, text=True).stdout
-    name = "sck_" + "".join(c if c.isalnum() else "_" for c in rev)
-    path = folder / f"{name}.py"
-    path.write_text(text)
-    spec = importlib.util.spec_from_file_location(name, path)
+    name = f"{Path(path).stem}_" + "".join(c if c.isalnum() else "_" for c in rev)
+    file = folder / f"{name}.py"
+    file.write_text(text)
+    spec = importlib.util.spec_from_file_location(name, file)
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
     sys.modules[name] = module
     spec.loader.exec_module(module)  # type: ignore[union-attr]

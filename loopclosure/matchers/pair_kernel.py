@@ -37,6 +37,18 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 
+@numba.njit(cache=True, inline="always")
+def _pair_bins(dx, dy, d2, nax, nay, nbx, nby, dscale, n_distance, n_angle):
+    """A pair's offset ``(dx, dy)`` [m] (``d2`` its square, > 0) and the normals at its
+    ends: the first index of its distance bin's row in the flat histogram (``dscale``
+    bins per m) and ``|n . u|`` at both ends.  Inlined into both pair kernels."""
+    d = math.sqrt(d2)
+    inv = 1.0 / d
+    ux, uy = dx * inv, dy * inv
+    row = min(int(d * dscale), n_distance - 1) * n_angle
+    return row, abs(nax * ux + nay * uy), abs(nbx * ux + nby * uy)
+
+
 @numba.njit(cache=True)
 def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, base, near, buckets, hist):
     """The pairs' histogram (module docstring) with the angle bins from the table
@@ -55,13 +67,9 @@ def _pair_kernel(p, nrm, w, max_distance, n_distance, n_angle, base, near, bucke
             d2 = dx * dx + dy * dy  # squared first: most far pairs skip the root
             if not (d2 > 0.0 and d2 < max_d2):
                 continue
-            d = math.sqrt(d2)
-            inv = 1.0 / d
-            ux, uy = dx * inv, dy * inv
-            row = min(int(d * dscale), n_distance - 1) * n_angle
+            row, ca, cb = _pair_bins(dx, dy, d2, nax, nay, nrm[b, 0], nrm[b, 1], dscale,
+                                     n_distance, n_angle)
             ww = wa * w[b]
-            ca = abs(nax * ux + nay * uy)
-            cb = abs(nrm[b, 0] * ux + nrm[b, 1] * uy)
             ia = max(min(int(ca * buckets), top), 0)
             ib = max(min(int(cb * buckets), top), 0)
             hist[row + base[ia] + (near[ia] <= ca)] += ww
@@ -106,13 +114,9 @@ def _pair_kernel_counting(p, nrm, w, max_distance, n_distance, n_angle, edges, h
             d2 = dx * dx + dy * dy  # squared first: most far pairs skip the root
             if not (d2 > 0.0 and d2 < max_d2):
                 continue
-            d = math.sqrt(d2)
-            inv = 1.0 / d
-            ux, uy = dx * inv, dy * inv
-            row = min(int(d * dscale), n_distance - 1) * n_angle
+            row, ca, cb = _pair_bins(dx, dy, d2, nax, nay, nrm[b, 0], nrm[b, 1], dscale,
+                                     n_distance, n_angle)
             ww = wa * w[b]
-            ca = abs(nax * ux + nay * uy)
-            cb = abs(nrm[b, 0] * ux + nrm[b, 1] * uy)
             # Angle bins: the number of edges sin(alpha_k) <= |n . u|, counted without
             # branches (a data-dependent loop exit mispredicts on every other pair).
             ka = 0
