@@ -77,7 +77,7 @@ def _kernel_modules() -> list[str]:
     names = []
     for package in ("loopclosure", "slam"):
         for path in sorted((root / package).rglob("*.py")):
-            if "numba.njit" in path.read_text(encoding="utf-8"):
+            if "njit" in path.read_text(encoding="utf-8"):  # numba.njit or njit
                 parts = path.relative_to(root).with_suffix("").parts
                 names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
     return names
