@@ -5,7 +5,7 @@ Run from the repository root::
 
     python benchmarks/scan_origins_bench.py LOG [--relations FILE] [--bar B ...]
         [--max-queries N] [--npz PREFIX] [--no-default] [--variant CAP:WINDOW:BAR ...]
-        [--confirm WINDOW:BAR ...]
+        [--confirm WINDOW:BAR ...] [--either BAR [--fallback]]
 
 The log is mapped once as ``loopclosure bench loops LOG --reference-from-log
 --odometry-noise 0 --stages fused`` maps it (``--relations FILE``: the relations-fitted
@@ -17,7 +17,9 @@ keyframe's scan free space (mapping runs no loop check).  Then every query is ru
 surface (``free_space_surface_cap``, `loopclosure.free_space` (1'')) and beside its
 returns (``free_space_return_window``, (4)) at each ``--variant CAP:WINDOW:BAR``, then
 with the confirmed free space (``free_space_confirm``, (5): (1) and the scans' model with
-returns window WINDOW) at each ``--confirm WINDOW:BAR``.
+returns window WINDOW) at each ``--confirm WINDOW:BAR`` (``--either BAR``: or (1) at
+BAR, ``free_space_either``; ``--fallback``: a fit only (5) passes is accepted only for a
+query none of whose places (1) passes, ``free_space_fallback``).
 Prints per pass R@100P / R@99P / AP of the final row, accepted / correct detections
 and the accepted ones more than 1 m or 5 degrees from the reference (a wrong place,
 not a tolerance case), CPU ms per query (the whole query: cascade and checks) and the
@@ -112,6 +114,9 @@ def main() -> None:
     ap.add_argument("--either", type=float, default=0.0, metavar="BAR",
                     help="with --confirm: a fit failing the pass's bar under (5) passes "
                          "when (1) reaches BAR (``free_space_either``)")
+    ap.add_argument("--fallback", action="store_true",
+                    help="with --either: a fit only (5) passes is accepted only for a "
+                         "query none of whose places (1) passes (``free_space_fallback``)")
     ap.add_argument("--no-default", action="store_true")
     ap.add_argument("--default-only", action="store_true",
                     help="the default alone, mapped without the option (its memory)")
@@ -161,12 +166,13 @@ def main() -> None:
         check.free_space_origins, check.min_consistency = "scans", float(bar)
         check.free_space_return_window, check.free_space_confirm = int(window), True
         check.free_space_either = args.either
+        check.free_space_fallback = args.fallback
         det.release_caches()
         run_pass(mapper, result, ref, args.max_queries,
-                 f"confirm-w{int(window)}-{bar}" + (f"-or-{args.either}" if args.either else ""),
-                 args.npz)
+                 f"confirm-w{int(window)}-{bar}" + (f"-or-{args.either}" if args.either else "")
+                 + ("-fallback" if args.fallback else ""), args.npz)
     check.free_space_return_window, check.free_space_confirm = 0, False
-    check.free_space_either = 0.0
+    check.free_space_either, check.free_space_fallback = 0.0, False
     print(f"  peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

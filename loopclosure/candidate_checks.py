@@ -143,11 +143,13 @@ class CandidateChecks(KeyframeStore):
 
     def _verify_free(
         self, key: int, matches: list[PlaceMatch], query_points: Array, poses: Array | None,
-        budget: int, allowed: ArrayLike | None = None,
+        budget: int, allowed: ArrayLike | None = None, rescue: bool = True,
     ) -> list[LoopCandidate]:
         """Checks with no prior of `matches`, in order, until `budget` are accepted
         (`allowed`: as `verify_places`); none accepted, the whole-circle re-checks
-        (`_circle_fallback`); then accepted candidates in one frame that put the
+        (`_circle_fallback`); still none accepted and `rescue` (no other search of the
+        query accepted a place), the first `budget` rescuable ones
+        (`_rescued`); then accepted candidates in one frame that put the
         query more than `agree_distance` apart (``poses[match] * relative``) are all
         rejected."""
         out: list[LoopCandidate] = []
@@ -163,6 +165,8 @@ class CandidateChecks(KeyframeStore):
             checked.append(m)
         if not any(c.accepted for c in out):
             out = self._circle_fallback(key, checked, out, query_points, poses, budget)
+        if rescue and not any(c.accepted for c in out):
+            out = _rescued(out, budget)
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
             return out
@@ -227,6 +231,10 @@ class CandidateChecks(KeyframeStore):
             cand = int(c.match)
             result = verify(query_points, self._target(cand), headings=None,
                             max_distance=cfg.max_distance, config=cfg.check)
+            if result.rescuable and not _rescuable(c):  # a rejection for a rejection
+                out[i] = LoopCandidate.checked(
+                    key, cand, "appearance", result,
+                    predicted_distance=c.predicted_distance, **place_figures(m))
             if result.accepted:
                 accepted += 1
                 out[i] = LoopCandidate.checked(
@@ -307,3 +315,22 @@ class CandidateChecks(KeyframeStore):
                         translation=implied[:2], max_distance=cfg.max_distance,
                         config=cfg.check)
         return (near, second) if second.accepted else (cand, result)
+
+
+def _rescuable(c: LoopCandidate) -> bool:
+    """`c`'s check refused it for its free space under the keyframe model alone
+    (`loopclosure.geometric_check.LoopVerification.rescuable`)."""
+    return c.verification is not None and c.verification.rescuable
+
+
+def _rescued(out: list[LoopCandidate], budget: int) -> list[LoopCandidate]:
+    """`out` (a query's checks, none accepted) with its first `budget` rescuable
+    checks accepted (`GeometricCheckConfig.free_space_fallback`): fits every test
+    passes once the scans' model judges their free space.  Only for a query with no
+    place the keyframe model passes, so they never displace one."""
+    out = list(out)
+    for i in [i for i, c in enumerate(out) if _rescuable(c)][:max(budget, 0)]:
+        v = dataclasses.replace(out[i].verification, accepted=True,
+                                reason="accepted (free space by its scans)")
+        out[i] = dataclasses.replace(out[i], accepted=True, reason=v.reason, verification=v)
+    return out

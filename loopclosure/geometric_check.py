@@ -221,7 +221,17 @@ class GeometricCheckConfig:
             test when its consistency under the keyframe model (1) reaches this bar
             instead: either model's bar; the runner-up test (`implausible_runner_up`)
             then judges the runs by (1) at this bar, as the keyframe model alone
-            does.  0 (the default): off.
+            does; a pair lacking the scans' free space is judged by (1) at this bar
+            too.  0 (the default): off.
+        free_space_fallback: with `free_space_either`, a fit that only the scans'
+            model passes (under (1) it stays below `free_space_either`) is not
+            accepted by the check: it is refused for its free space as (1) alone
+            refuses it, and marked `LoopVerification.rescuable` when every other test
+            passes.  The loop detector accepts such fits only for a query none of
+            whose places passes (1) (`loopclosure.candidate_checks`), so a query the
+            keyframe model serves keeps exactly its places, its fits and its fused
+            score: the scans' model adds places, it never replaces one.  Off (the
+            default): either model's pass is an acceptance.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -295,6 +305,7 @@ class GeometricCheckConfig:
     free_space_return_window: int = 0
     free_space_confirm: bool = False
     free_space_either: float = 0.0
+    free_space_fallback: bool = False
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -356,6 +367,9 @@ class LoopVerification:
         cross_hold: the hits kept when the fit slides the same distance across the
             axis (the better way) over the hits at the fit (NaN unless the check
             asked, `GeometricCheckConfig.pinned_cross`).
+        rescuable: refused for its free space under the keyframe model (1) alone,
+            while the scans' model passes it and every other test holds
+            (`GeometricCheckConfig.free_space_fallback`).
     """
 
     accepted: bool
@@ -376,6 +390,7 @@ class LoopVerification:
     axis_hold: float = float("nan")
     pinned_length: float = float("nan")
     cross_hold: float = float("nan")
+    rescuable: bool = False
 
 
 def slide_anisotropy(slid_hits: ArrayLike, cross_hits: ArrayLike) -> float:
@@ -538,8 +553,15 @@ def _verify_correlative(
     best = multi.results[0]
     free = multi.consistency[0]
     either = bool(multi.keyframe) and cfg.free_space_either > 0
+    if cfg.free_space_either > 0 and not multi.keyframe:  # no scans: (1) at the either bar
+        cfg = replace(cfg, min_consistency=cfg.free_space_either)
     judged, bar_cfg = ((multi.keyframe, replace(cfg, min_consistency=cfg.free_space_either))
                        if either else (multi.consistency, cfg))
+    # With the fallback, a fit only the scans' model passes is judged by every other
+    # test, then refused for its free space as (1) refuses it (`free_space_fallback`).
+    held_back = (either and cfg.free_space_fallback
+                 and multi.keyframe[0].consistency < cfg.free_space_either
+                 and free.consistency >= cfg.min_consistency)
     others = [r.fitness for r, c in zip(multi.results[1:], judged[1:], strict=True)
               if r.ok and _different(r.pose, best.pose, cfg)
               and not (cfg.plausible_runner_up and implausible_runner_up(c, judged[0], bar_cfg))]
@@ -575,6 +597,10 @@ def _verify_correlative(
         reason = f"ambiguous (fitness margin {margin:.2f})"
     elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
         reason = f"{NOT_A_REVISIT} ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
+    rescuable = held_back and reason == "accepted"
+    if held_back and not matched < cfg.min_matched_length and best.ok:
+        reason = (f"inconsistent free space ({multi.keyframe[0].consistency:.2f} < "
+                  f"{cfg.free_space_either})" + ("; rescuable" if rescuable else ""))
     return LoopVerification(
         accepted=reason == "accepted", reason=reason,
         relative=np.asarray(best.pose, dtype=float),
@@ -590,6 +616,7 @@ def _verify_correlative(
         pinned_length=pinned,
         cross_hold=(float(np.max(multi.cross_hits)) / free.hits
                     if len(multi.cross_hits) and free.hits else float("nan")),
+        rescuable=rescuable,
     )
 
 

@@ -247,7 +247,8 @@ class LoopClosureDetector(CandidateChecks):
             return out
         self._since_free = 0
         return out + self._verify_free(key, free, query_points, poses,
-                                       cfg.max_loops - sum(c.accepted for c in out))
+                                       cfg.max_loops - sum(c.accepted for c in out),
+                                       rescue=not any(c.accepted for c in out))
 
     def detect_pose(
         self, key: int, poses: ArrayLike, covariance: ArrayLike | None = None,
