@@ -113,3 +113,49 @@ def test_an_either_bar_outside_zero_to_one_is_a_user_error() -> None:
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(UserError, match="free_space_either"):
             GeometricCheckConfig(free_space_either=bad)
+
+
+def test_the_fallback_holds_back_a_fit_only_the_scans_model_passes() -> None:
+    cand, query, truth = _inner_walls_case()
+    base = verify(query, RegistrationTarget(cand), headings=[truth[2]],
+                  config=GeometricCheckConfig())
+    # Scans that observed nothing: (5) has no conflicts (consistency 1, above 0.95).
+    blind = RegistrationTarget(cand)
+    blind.derived[SCAN_FREE_SPACE] = ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720)))
+    q_blind = SubmapPoints(query, ScanFreeSpace(np.zeros((1, 3)), np.zeros((1, 720))))
+
+    def check(either: float, fallback: bool):
+        cfg = GeometricCheckConfig(free_space_origins="scans", free_space_confirm=True,
+                                   min_consistency=0.95, free_space_either=either,
+                                   free_space_fallback=fallback)
+        return verify(q_blind, blind, headings=[truth[2]], config=cfg)
+
+    above = base.consistency + 0.01  # (1) refuses the fit at this bar
+    passed = check(above, False)
+    assert passed.accepted and not passed.rescuable
+    held = check(above, True)
+    assert not held.accepted and held.rescuable
+    assert held.reason.startswith("inconsistent free space (0.83 <")
+    np.testing.assert_array_equal(held.relative, passed.relative)
+    # (1) passes it at a lower bar: an acceptance, nothing to rescue.
+    both = check(base.consistency - 0.01, True)
+    assert both.accepted and not both.rescuable
+    # A fit (5) refuses as well is neither accepted nor rescuable.
+    refused = verify(query, RegistrationTarget(cand), headings=[truth[2]],
+                     config=GeometricCheckConfig(free_space_either=above,
+                                                 free_space_fallback=True))
+    assert not refused.accepted and not refused.rescuable
+
+
+def test_a_pair_without_scans_is_judged_by_the_keyframe_model_at_the_either_bar() -> None:
+    cand, query, truth = _inner_walls_case()
+    base = verify(query, RegistrationTarget(cand), headings=[truth[2]],
+                  config=GeometricCheckConfig())
+    # No scans' free space on either side: (1) alone, at the either bar (0.99 is the
+    # scans' bar and would refuse the fit).
+    cfg = GeometricCheckConfig(free_space_origins="scans", free_space_confirm=True,
+                               min_consistency=0.99, free_space_either=base.consistency - 0.01)
+    assert verify(query, RegistrationTarget(cand), headings=[truth[2]], config=cfg).accepted
+    cfg = GeometricCheckConfig(free_space_origins="scans", free_space_confirm=True,
+                               min_consistency=0.5, free_space_either=base.consistency + 0.01)
+    assert not verify(query, RegistrationTarget(cand), headings=[truth[2]], config=cfg).accepted

@@ -1,0 +1,67 @@
+"""The loop detector's rescue of fits only the scans' free space passes
+(`GeometricCheckConfig.free_space_fallback`): accepted only for a query none of whose
+places passes the keyframe model, never in place of one."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from loopclosure.candidate_checks import _rescued
+from loopclosure.loop_candidate import LoopCandidate
+from tests.test_circle_fallback import _apart, _calls, _match, _three, _verdict
+
+
+def _rescuable():
+    return dataclasses.replace(_verdict(False, "inconsistent free space (0.90 < 0.92); "
+                                               "rescuable"), rescuable=True)
+
+
+def test_a_rescuable_fit_is_accepted_only_when_no_place_passes(monkeypatch) -> None:
+    fail = _verdict(False, "registration failed")
+    ok = _verdict(True, "accepted")
+    # Place 0 only the scans' model passes, place 1 the keyframe model: place 1 alone.
+    _calls(monkeypatch, {(0, False): _rescuable(), (1, False): ok, (2, False): fail})
+    out = _three(0).verify_places(3, [_match(k, 0.0) for k in range(3)], _apart())
+    assert [c.accepted for c in out] == [False, True, False]
+    assert out[0].reason.endswith("rescuable")
+    # No place passes the keyframe model: the rescuable one is accepted.
+    _calls(monkeypatch, {(0, False): fail, (1, False): _rescuable(), (2, False): fail})
+    out = _three(0).verify_places(3, [_match(k, 0.0) for k in range(3)], _apart())
+    assert [c.accepted for c in out] == [False, True, False]
+    assert out[1].reason == out[1].verification.reason == "accepted (free space by its scans)"
+    assert out[1].verification.accepted
+
+
+def test_rescues_stop_at_the_budget_and_follow_the_check_order(monkeypatch) -> None:
+    calls = _calls(monkeypatch, {(k, False): _rescuable() for k in range(3)})
+    out = _three(0).verify_places(3, [_match(k, 0.0) for k in range(3)], _apart())
+    # Every place checked (none accepted on the way), the first max_loops = 2 rescued;
+    # they put the query 10 m apart, so the agreement test then refuses both.
+    assert calls == [(0, False), (1, False), (2, False)]
+    assert [c.reason.split(" (")[0] for c in out] == [
+        "ambiguous places", "ambiguous places", "inconsistent free space"]
+
+
+def test_the_whole_circle_comes_first_and_its_rescuable_fit_counts(monkeypatch) -> None:
+    fail = _verdict(False, "inconsistent free space (0.50 < 0.92)")
+    ok = _verdict(True, "accepted")
+    # The circle's re-check of place 0 passes the keyframe model: it wins over the
+    # rescuable place 1.
+    _calls(monkeypatch, {(0, False): fail, (1, False): _rescuable(), (0, True): ok,
+                         (1, True): fail})
+    out = _three(2).verify_places(3, [_match(k, 0.0) for k in range(2)], _apart())
+    assert [c.accepted for c in out] == [True, False]
+    # The circle's re-check is only rescuable: it replaces the refusal, and is rescued.
+    _calls(monkeypatch, {(0, False): fail, (1, False): fail, (0, True): _rescuable(),
+                         (1, True): fail})
+    out = _three(2).verify_places(3, [_match(k, 0.0) for k in range(2)], _apart())
+    assert [c.accepted for c in out] == [True, False]
+
+
+def test_no_rescue_when_another_search_accepted_a_place() -> None:
+    c = LoopCandidate.checked(3, 1, "appearance", _rescuable())
+    other = LoopCandidate.checked(3, 2, "appearance", _verdict(False, "registration failed"))
+    assert [x.accepted for x in _rescued([other, c], 1)] == [False, True]
+    assert [x.accepted for x in _rescued([c, c], 0)] == [False, False]
+    assert [x.accepted for x in _rescued([c, other, c, c], 2)] == [True, False, True, False]
+    assert not c.accepted  # the input is not changed
