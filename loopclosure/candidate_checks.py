@@ -34,6 +34,8 @@ if TYPE_CHECKING:
     from loopclosure.grid_target import GridTarget
 
 Array = NDArray[np.float64]
+RESCUED = "accepted (free space by its scans)"
+"""Reason of a check accepted by the scans' free space (`CandidateChecks._rescued`)."""
 
 
 class CandidateChecks(KeyframeStore):
@@ -148,10 +150,9 @@ class CandidateChecks(KeyframeStore):
         """Checks with no prior of `matches`, in order, until `budget` are accepted
         (`allowed`: as `verify_places`); none accepted, the whole-circle re-checks
         (`_circle_fallback`); still none accepted and `rescue` (no other search of the
-        query accepted a place), the first `budget` rescuable ones
-        (`_rescued`); then accepted candidates in one frame that put the
-        query more than `agree_distance` apart (``poses[match] * relative``) are all
-        rejected."""
+        query accepted a place), the first `budget` rescuable ones (`_rescued`); then
+        accepted candidates in one frame that put the query more than `agree_distance`
+        apart (``poses[match] * relative``) are all rejected."""
         out: list[LoopCandidate] = []
         checked: list[PlaceMatch] = []
         for m in matches:
@@ -166,7 +167,7 @@ class CandidateChecks(KeyframeStore):
         if not any(c.accepted for c in out):
             out = self._circle_fallback(key, checked, out, query_points, poses, budget)
         if rescue and not any(c.accepted for c in out):
-            out = _rescued(out, budget)
+            out = self._rescued(key, out, budget, poses)
         accepted = [i for i, c in enumerate(out) if c.accepted]
         if poses is None or len(accepted) < 2:
             return out
@@ -231,7 +232,8 @@ class CandidateChecks(KeyframeStore):
             cand = int(c.match)
             result = verify(query_points, self._target(cand), headings=None,
                             max_distance=cfg.max_distance, config=cfg.check)
-            if result.rescuable and not _rescuable(c):  # a rejection for a rejection
+            if result.rescuable and not (c.verification is not None
+                                         and c.verification.rescuable):  # a refusal for a refusal
                 out[i] = LoopCandidate.checked(
                     key, cand, "appearance", result,
                     predicted_distance=c.predicted_distance, **place_figures(m))
@@ -314,23 +316,42 @@ class CandidateChecks(KeyframeStore):
         second = verify(query_points, self._target(near), headings=[float(implied[2])],
                         translation=implied[:2], max_distance=cfg.max_distance,
                         config=cfg.check)
-        return (near, second) if second.accepted else (cand, result)
+        if second.accepted:
+            return near, second
+        if second.rescuable:  # kept aside: the default's verdict stands (`_rescued`)
+            return cand, dataclasses.replace(result, rescue=second, rescue_at=near)
+        return cand, result
 
+    def _rescued(self, key: int, out: list[LoopCandidate], budget: int,
+                 poses: Array | None) -> list[LoopCandidate]:
+        """`out` (query `key`'s checks, in order, none accepted) with its first `budget`
+        rescuable checks accepted (`GeometricCheckConfig.free_space_fallback`): fits
+        every test passes once the scans' model judges their free space, the check's
+        own (`LoopVerification.rescuable`) or that of the nearer keyframe it moved to
+        (`LoopVerification.rescue`), skipping one at a place already rescued (within
+        `place_separation`, one frame).  Only for a query with no place the keyframe
+        model passes, so a rescue never displaces one."""
+        out = list(out)
+        taken: list[int] = []
+        for i, c in enumerate(out):
+            if len(taken) >= budget:
+                break
+            v = c.verification
+            if v is None or not (v.rescuable or v.rescue is not None):
+                continue
+            match, w = (c.match, v) if v.rescuable else (v.rescue_at, v.rescue)
+            if poses is not None and any(
+                    self._frames[t] == self._frames[match]
+                    and self._distance(poses, t, match) <= self.config.place_separation
+                    for t in taken):
+                continue
+            w = dataclasses.replace(w, accepted=True, reason=RESCUED)
+            distance = (c.predicted_distance if match == c.match else float("nan")
+                        if poses is None or self._frames[match] != self._frames[key]
+                        else self._distance(poses, match, key))
+            out[i] = dataclasses.replace(
+                c, match=match, accepted=True, reason=RESCUED, relative=w.relative,
+                covariance=w.covariance, verification=w, predicted_distance=distance)
+            taken.append(match)
+        return out
 
-def _rescuable(c: LoopCandidate) -> bool:
-    """`c`'s check refused it for its free space under the keyframe model alone
-    (`loopclosure.geometric_check.LoopVerification.rescuable`)."""
-    return c.verification is not None and c.verification.rescuable
-
-
-def _rescued(out: list[LoopCandidate], budget: int) -> list[LoopCandidate]:
-    """`out` (a query's checks, none accepted) with its first `budget` rescuable
-    checks accepted (`GeometricCheckConfig.free_space_fallback`): fits every test
-    passes once the scans' model judges their free space.  Only for a query with no
-    place the keyframe model passes, so they never displace one."""
-    out = list(out)
-    for i in [i for i, c in enumerate(out) if _rescuable(c)][:max(budget, 0)]:
-        v = dataclasses.replace(out[i].verification, accepted=True,
-                                reason="accepted (free space by its scans)")
-        out[i] = dataclasses.replace(out[i], accepted=True, reason=v.reason, verification=v)
-    return out

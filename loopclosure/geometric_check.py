@@ -370,6 +370,10 @@ class LoopVerification:
         rescuable: refused for its free space under the keyframe model (1) alone,
             while the scans' model passes it and every other test holds
             (`GeometricCheckConfig.free_space_fallback`).
+        rescue, rescue_at: a check that found the query beyond the revisit radius
+            and moved to the keyframe `rescue_at` nearer where it fits (the loop
+            detector's nearer-place check) keeps its own verdict, and there the
+            rescuable verdict of that nearer check (None, -1: none).
     """
 
     accepted: bool
@@ -391,6 +395,8 @@ class LoopVerification:
     pinned_length: float = float("nan")
     cross_hold: float = float("nan")
     rescuable: bool = False
+    rescue: LoopVerification | None = None
+    rescue_at: int = -1
 
 
 def slide_anisotropy(slid_hits: ArrayLike, cross_hits: ArrayLike) -> float:

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from loopclosure.candidate_checks import _rescued
+import numpy as np
+
+from loopclosure.candidate_checks import RESCUED
 from loopclosure.loop_candidate import LoopCandidate
 from tests.test_circle_fallback import _apart, _calls, _match, _three, _verdict
 
@@ -28,7 +30,7 @@ def test_a_rescuable_fit_is_accepted_only_when_no_place_passes(monkeypatch) -> N
     _calls(monkeypatch, {(0, False): fail, (1, False): _rescuable(), (2, False): fail})
     out = _three(0).verify_places(3, [_match(k, 0.0) for k in range(3)], _apart())
     assert [c.accepted for c in out] == [False, True, False]
-    assert out[1].reason == out[1].verification.reason == "accepted (free space by its scans)"
+    assert out[1].reason == out[1].verification.reason == RESCUED
     assert out[1].verification.accepted
 
 
@@ -58,10 +60,40 @@ def test_the_whole_circle_comes_first_and_its_rescuable_fit_counts(monkeypatch) 
     assert [c.accepted for c in out] == [True, False]
 
 
-def test_no_rescue_when_another_search_accepted_a_place() -> None:
+def test_rescues_skip_non_rescuable_checks_and_stop_at_the_budget() -> None:
+    det = _three(0)
     c = LoopCandidate.checked(3, 1, "appearance", _rescuable())
-    other = LoopCandidate.checked(3, 2, "appearance", _verdict(False, "registration failed"))
-    assert [x.accepted for x in _rescued([other, c], 1)] == [False, True]
-    assert [x.accepted for x in _rescued([c, c], 0)] == [False, False]
-    assert [x.accepted for x in _rescued([c, other, c, c], 2)] == [True, False, True, False]
+    d = LoopCandidate.checked(3, 2, "appearance", _rescuable())
+    other = LoopCandidate.checked(3, 0, "appearance", _verdict(False, "registration failed"))
+    assert [x.accepted for x in det._rescued(3, [other, c], 1, _apart())] == [False, True]
+    assert [x.accepted for x in det._rescued(3, [c, d], 0, _apart())] == [False, False]
+    assert [x.accepted for x in det._rescued(3, [c, other, d], 1, _apart())] == [True, False,
+                                                                                  False]
+    # Two rescues at one place (keyframes 1 and 2 within place_separation): one.
+    near = _apart()
+    near[2] = near[1] + [0.2, 0.0, 0.0]
+    assert [x.accepted for x in det._rescued(3, [c, d], 2, near)] == [True, False]
     assert not c.accepted  # the input is not changed
+
+
+def _far(relative) -> object:
+    v = _verdict(False, "not a revisit (10.0 m apart)")
+    return dataclasses.replace(v, relative=np.asarray(relative, float))
+
+
+def test_a_nearer_place_only_the_scans_model_passes_is_kept_aside(monkeypatch) -> None:
+    fail = _verdict(False, "registration failed")
+    # Place 0's fit puts the query 10 m away, at keyframe 1: its check there is
+    # rescuable.  The query's verdict at 0 stays the default's; the rescue takes 1.
+    _calls(monkeypatch, {(0, False): _far([10.0, 0.0, 0.0]), (1, False): _rescuable(),
+                         (2, False): fail})
+    out = _three(0).verify_places(3, [_match(0, 0.0), _match(2, 0.0)], _apart())
+    assert [(c.match, c.accepted, c.reason) for c in out] == [(1, True, RESCUED),
+                                                             (2, False, fail.reason)]
+    assert out[0].predicted_distance == 20.0 and out[0].fused_score == 0.9
+    # Place 2 passes the keyframe model: place 0 keeps its default verdict.
+    _calls(monkeypatch, {(0, False): _far([10.0, 0.0, 0.0]), (1, False): _rescuable(),
+                         (2, False): _verdict(True, "accepted")})
+    out = _three(0).verify_places(3, [_match(0, 0.0), _match(2, 0.0)], _apart())
+    assert [(c.match, c.accepted) for c in out] == [(0, False), (2, True)]
+    assert out[0].reason.startswith("not a revisit")
