@@ -8,8 +8,10 @@ hypotheses and a centroid-aligned translation (`_check_global`), moved to a near
 keyframe when the fit finds the query there (`_nearer_place`), judged again on longer
 submaps when a corridor leaves it degenerate (`loopclosure.longer_check`), and, when no
 place of the query is accepted, over the whole circle of headings (`_circle_fallback`);
-the places accepted for one query must agree (`_verify_free`).  Each check is
-`loopclosure.geometric_check.verify`.
+the places accepted for one query must agree (`_verify_free`).  With
+``check.free_space_fallback`` a fit only the scans' free space passes is accepted
+only for a query no place of which passes the keyframe model (`_rescued`).  Each
+check is `loopclosure.geometric_check.verify`.
 """
 
 from __future__ import annotations
