@@ -282,6 +282,11 @@ class CandidateChecks(KeyframeStore):
         if result.reason.startswith(NOT_A_REVISIT) and poses is not None:
             cand, result = self._nearer_place(key, cand, result, query_points, poses,
                                               allowed)
+        elif result.rescuable_far and poses is not None:  # the move only as a rescue
+            near, second = self._nearer_place(key, cand, result, query_points, poses,
+                                              allowed)
+            result = (second if near == cand
+                      else dataclasses.replace(result, rescue=second, rescue_at=near))
         distance = (float("nan") if poses is None or self._frames[cand] != self._frames[key]
                     else self._distance(poses, cand, key))
         return LoopCandidate.checked(
@@ -340,7 +345,7 @@ class CandidateChecks(KeyframeStore):
                 break
             v = c.verification
             if v is None or not (v.rescuable or v.rescue is not None):
-                continue
+                continue  # (`rescue` accepted by (1) or rescuable: a move (5) let happen)
             match, w = (c.match, v) if v.rescuable else (v.rescue_at, v.rescue)
             if poses is not None and any(
                     self._frames[t] == self._frames[match]

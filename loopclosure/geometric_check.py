@@ -370,10 +370,14 @@ class LoopVerification:
         rescuable: refused for its free space under the keyframe model (1) alone,
             while the scans' model passes it and every other test holds
             (`GeometricCheckConfig.free_space_fallback`).
-        rescue, rescue_at: a check that found the query beyond the revisit radius
-            and moved to the keyframe `rescue_at` nearer where it fits (the loop
-            detector's nearer-place check) keeps its own verdict, and there the
-            rescuable verdict of that nearer check (None, -1: none).
+        rescuable_far: as `rescuable`, but the fit lies beyond the revisit radius
+            (`NOT_A_REVISIT` would follow): the loop detector may find the query at a
+            nearer keyframe from it.
+        rescue, rescue_at: a check whose fit lies beyond the revisit radius and whose
+            move to the keyframe `rescue_at` nearer where it fits (the loop detector's
+            nearer-place check) passes only by the scans' model, that move's or its
+            own, keeps its own verdict, and here the nearer check's verdict (None,
+            -1: none).
     """
 
     accepted: bool
@@ -395,6 +399,7 @@ class LoopVerification:
     pinned_length: float = float("nan")
     cross_hold: float = float("nan")
     rescuable: bool = False
+    rescuable_far: bool = False
     rescue: LoopVerification | None = None
     rescue_at: int = -1
 
@@ -604,6 +609,7 @@ def _verify_correlative(
     elif max_distance is not None and np.hypot(best.pose[0], best.pose[1]) > max_distance:
         reason = f"{NOT_A_REVISIT} ({np.hypot(best.pose[0], best.pose[1]):.1f} m apart)"
     rescuable = held_back and reason == "accepted"
+    rescuable_far = held_back and reason.startswith(NOT_A_REVISIT)
     if held_back and not matched < cfg.min_matched_length and best.ok:
         reason = (f"inconsistent free space ({multi.keyframe[0].consistency:.2f} < "
                   f"{cfg.free_space_either})" + ("; rescuable" if rescuable else ""))
@@ -622,7 +628,7 @@ def _verify_correlative(
         pinned_length=pinned,
         cross_hold=(float(np.max(multi.cross_hits)) / free.hits
                     if len(multi.cross_hits) and free.hits else float("nan")),
-        rescuable=rescuable,
+        rescuable=rescuable, rescuable_far=rescuable_far,
     )
 
 

@@ -137,6 +137,15 @@ def test_the_fallback_holds_back_a_fit_only_the_scans_model_passes() -> None:
     assert not held.accepted and held.rescuable
     assert held.reason.startswith("inconsistent free space (0.83 <")
     np.testing.assert_array_equal(held.relative, passed.relative)
+    # Beyond the revisit radius: refused as (1) refuses it, rescuable from afar.
+    far = verify(q_blind, blind, headings=[truth[2]],
+                 max_distance=float(np.hypot(*held.relative[:2])) - 0.05,
+                 config=GeometricCheckConfig(free_space_origins="scans",
+                                             free_space_confirm=True, min_consistency=0.95,
+                                             free_space_either=above,
+                                             free_space_fallback=True))
+    assert far.reason == held.reason.removesuffix("; rescuable")
+    assert far.rescuable_far and not far.rescuable and not held.rescuable_far
     # (1) passes it at a lower bar: an acceptance, nothing to rescue.
     both = check(base.consistency - 0.01, True)
     assert both.accepted and not both.rescuable

@@ -97,3 +97,23 @@ def test_a_nearer_place_only_the_scans_model_passes_is_kept_aside(monkeypatch) -
     out = _three(0).verify_places(3, [_match(0, 0.0), _match(2, 0.0)], _apart())
     assert [(c.match, c.accepted) for c in out] == [(0, False), (2, True)]
     assert out[0].reason.startswith("not a revisit")
+
+
+def test_a_move_only_the_scans_model_allows_is_a_rescue(monkeypatch) -> None:
+    # Place 0's fit fails (1) but passes the scans' model, 10 m away at keyframe 1:
+    # the default refuses it for its free space and never moves; the move's check at
+    # 1 passes (1), and counts only as a rescue.
+    held = dataclasses.replace(_verdict(False, "inconsistent free space (0.91 < 0.92)"),
+                               relative=np.array([10.0, 0.0, 0.0]), rescuable_far=True)
+    fail = _verdict(False, "registration failed")
+    calls = _calls(monkeypatch, {(0, False): held, (1, False): _verdict(True, "accepted"),
+                                 (2, False): fail})
+    out = _three(0).verify_places(3, [_match(0, 0.0), _match(2, 0.0)], _apart())
+    assert calls == [(0, False), (1, False), (2, False)]
+    assert [(c.match, c.accepted, c.reason) for c in out] == [(1, True, RESCUED),
+                                                             (2, False, fail.reason)]
+    _calls(monkeypatch, {(0, False): held, (1, False): _verdict(True, "accepted"),
+                         (2, False): _verdict(True, "accepted")})
+    out = _three(0).verify_places(3, [_match(0, 0.0), _match(2, 0.0)], _apart())
+    assert [(c.match, c.accepted, c.reason) for c in out] == [(0, False, held.reason),
+                                                             (2, True, "accepted")]
