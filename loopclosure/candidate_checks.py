@@ -361,4 +361,3 @@ class CandidateChecks(KeyframeStore):
                 covariance=w.covariance, verification=w, predicted_distance=distance)
             taken.append(match)
         return out
-
