@@ -115,6 +115,36 @@ class KeyframeSelector:
         return new
 
     @property
+    def last_row(self) -> tuple[float, float, float, float, float]:
+        """The newest scan's row: its stamp [s], the id of the keyframe before it (-1
+        before the first) and its pose relative to that keyframe ``(x, y, theta)`` [m,
+        m, rad] (`scan_offset`)."""
+        return tuple(float(v) for v in self._scans.data[-1])  # type: ignore[return-value]
+
+    def adopt(self, row: ArrayLike, keyframe: Keyframe | None) -> Keyframe | None:
+        """Account for one scan as another selector of the same input did (`push` in
+        another process): its `last_row` and the keyframe it made of the scan (None: no
+        keyframe), with no odometry work here.  The keyframe shares the previous
+        keyframe's bearings array when equal, as `push` would.  A selector is fed by
+        `push` or by `adopt`, not both: the odometry chained since the last keyframe is
+        not kept here.  Returns the keyframe.
+
+        Raises:
+            ValueError: `keyframe` is not the next one (its id is not the count so far).
+        """
+        if keyframe is not None:
+            if keyframe.id != len(self.keyframes):
+                raise ValueError(f"keyframe {keyframe.id} adopted after "
+                                 f"{len(self.keyframes)} keyframes")
+            last = self.keyframes[-1] if self.keyframes else None
+            scan = _share_angles(keyframe.scan, last)
+            if scan is not keyframe.scan:  # a copy: the given keyframe is left as it is
+                keyframe = dataclasses.replace(keyframe, scan=scan)
+            self.keyframes.append(keyframe)
+        self._scans.append(row)
+        return keyframe
+
+    @property
     def scan_stamps(self) -> Array:
         """``(N,)`` stamp of every scan pushed so far [s], in source order (a view)."""
         return self._scans.data[:, 0]

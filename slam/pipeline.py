@@ -232,7 +232,7 @@ class Mapper:
             warm_up_isolated()  # load the kernels here: the forked worker inherits them
             steps = map_in_worker(self._worker_step, scans, self._worker_stats)
         else:
-            steps = ((scan, (*self._odometry_step(scan), None, None, 0.0, None))
+            steps = ((scan, (*self._odometry_step(scan), None, None, 0.0, None, None))
                      for scan in scans)
         try:
             for n, (scan, step) in enumerate(steps, 1):
@@ -269,7 +269,7 @@ class Mapper:
 
     def _worker_step(self, scan: Scan, ahead: int) -> tuple[
         OdometryEstimate, float, KeyframePlace | None, list[PlaceMatch] | None, float,
-        tuple[int, Array] | None,
+        tuple[int, Array] | None, tuple[tuple[float, ...], Keyframe | None],
     ]:
         """In the front end's worker (`slam.front_end_worker`), a fork of this mapper:
         the odometry of `scan` and, when it makes a keyframe, that keyframe's place
@@ -280,11 +280,14 @@ class Mapper:
         mapper otherwise asks for itself): the work goes to whichever process waits.
         The keyframe's submap, when its description made it (a sensor narrower than a
         full circle), goes along with its version: the mapper's `detect` of the
-        keyframe asks for that very submap (no newer keyframe exists there yet)."""
+        keyframe asks for that very submap (no newer keyframe exists there yet).  The
+        keyframe selector's row of the scan and the keyframe it made go along too: the
+        mapper adopts them instead of selecting again (`KeyframeSelector.adopt`)."""
         estimate, seconds = self._odometry_step(scan)
         keyframe = self.keyframes.push(scan, estimate)
+        selected = (self.keyframes.last_row, keyframe)
         if keyframe is None:
-            return estimate, seconds, None, None, 0.0, None
+            return estimate, seconds, None, None, 0.0, None, selected
         start = time.perf_counter()
         key, session = self._base + keyframe.id, int(self._saved is not None)
         place = self.detector.describe_keyframe(key, keyframe.stamp, keyframe.scan,
@@ -293,18 +296,20 @@ class Mapper:
                                    place=place)
         matches = self.detector.appearance_matches(key) if ahead >= LEAD else None
         return (estimate, seconds, place, matches, time.perf_counter() - start,
-                self._submaps.get(key))
+                self._submaps.get(key), selected)
 
     def _after_odometry(
         self, scan: Scan | PointCloud, estimate: OdometryEstimate, seconds: float,
         place: KeyframePlace | None = None, matches: list[PlaceMatch] | None = None,
-        place_seconds: float = 0.0, submap: tuple[int, Array] | None = None, *,
+        place_seconds: float = 0.0, submap: tuple[int, Array] | None = None,
+        selected: tuple[tuple[float, ...], Keyframe | None] | None = None, *,
         from_worker: bool = False,
     ) -> None:
         """Keyframing and (for keyframes) loop closure of a scan the front end placed;
         `place`, `matches` and `submap` are the keyframe's place description, the place
         database's matches of it and its submap ``(version, points)`` when the worker
-        made them (`from_worker`)."""
+        made them (`from_worker`), `selected` the worker's keyframe selection of the
+        scan (its selector's row and keyframe, adopted here; None: selected here)."""
         self.timings["odometry"] += seconds
         self.timings["loop_detection"] += place_seconds
         if from_worker:  # of loop_detection, the seconds the worker spent [s]
@@ -315,7 +320,8 @@ class Mapper:
         if isinstance(scan, PointCloud):
             scan = _planar_scan(scan)
         start = time.perf_counter()
-        keyframe = self.keyframes.push(scan, estimate)
+        keyframe = (self.keyframes.push(scan, estimate) if selected is None
+                    else self.keyframes.adopt(*selected))
         self.timings["keyframes"] += time.perf_counter() - start
         if self.config.refine_scans:
             self._keep_points(scan, keyframe is not None)

@@ -126,3 +126,43 @@ def test_keyframes_share_equal_bearings_and_keep_different_ones() -> None:
     assert len(kfs) == 4
     assert kfs[1].scan.angles is kfs[0].scan.angles and kfs[2].scan.angles is kfs[0].scan.angles
     assert kfs[3].scan.angles is other.angles
+
+
+def test_a_selector_adopting_anothers_selection_holds_the_same_rows_and_keyframes() -> None:
+    # 0.1 m steps: keyframes at scans 0, 3, 6 (>= 0.29 m); each scan with its own copy of
+    # the bearings, as scans that crossed a pipe in separate messages have.
+    poses = np.column_stack([0.1 * np.arange(7), np.zeros(7), np.zeros(7)])
+    config = KeyframeConfig(distance=0.29, rotation_deg=90, max_interval=0)
+    pushed, adopted = KeyframeSelector(config), KeyframeSelector(config)
+    prev = poses[0]
+    for i, p in enumerate(poses):
+        scan = Scan(float(i), np.full(90, 3.0), ANGLES.copy(), 10.0, 0.0, None, i)
+        made = pushed.push(scan, _estimate(float(i), i, p, prev))
+        row = pushed.last_row
+        assert row[0] == float(i) and row[1] == [0, 0, 0, 1, 1, 1, 2][i]
+        assert row[2] == pytest.approx([0, 0.1, 0.2, 0, 0.1, 0.2, 0][i], abs=1e-12)
+        got = adopted.adopt(row, made)
+        assert (got is None) == (made is None) and (got is None or got.id == made.id)
+        prev = p
+    np.testing.assert_array_equal(adopted.scan_stamps, pushed.scan_stamps)
+    np.testing.assert_array_equal(adopted.scan_keyframe, [0, 0, 0, 1, 1, 1, 2])
+    np.testing.assert_array_equal(adopted.scan_offset, pushed.scan_offset)
+    assert [k.scan_index for k in adopted.keyframes] == [0, 3, 6]
+    for a, b in zip(adopted.keyframes, pushed.keyframes, strict=True):
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.delta, b.delta)
+        np.testing.assert_array_equal(a.covariance, b.covariance)
+    first = adopted.keyframes[0].scan.angles  # equal bearings shared, as `push` does
+    assert all(k.scan.angles is first for k in adopted.keyframes)
+    poses_k = {k.id: k.odom_pose for k in pushed.keyframes}
+    np.testing.assert_array_equal(scan_poses_from_keyframes(adopted, poses_k),
+                                  scan_poses_from_keyframes(pushed, poses_k))
+
+
+def test_adopting_a_keyframe_out_of_order_is_refused() -> None:
+    poses = np.column_stack([0.1 * np.arange(4), np.zeros(4), np.zeros(4)])
+    pushed = _drive(poses, KeyframeConfig(distance=0.29, rotation_deg=90, max_interval=0))
+    sel = KeyframeSelector()
+    with pytest.raises(ValueError, match="keyframe 1 adopted after 0"):
+        sel.adopt(pushed.last_row, pushed.keyframes[1])
+    assert len(sel.scan_stamps) == 0 and not sel.keyframes
