@@ -150,6 +150,9 @@ DEFER_MODES = ("off", "candidate", "all", "bounded", "both")
 # any loops) that is cheapest on the graph to solve (`slam.warm_starts.WarmStarts`);
 # False: each from the run's own solution.
 WARM_STARTS = True
+# `incremental_tls`'s `regroup` when not given: re-decide an early admitted loop against a
+# later group of rejected loops that contradicts it (`slam.regroup`).
+REGROUP = False
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -330,6 +333,7 @@ def incremental_tls(
     defer: str = "off",
     undo: bool = False,
     confirm: bool = False,
+    regroup: bool | None = None,
 ) -> Admission:
     """TLS solution by time-ordered admission over an odometry ladder, then `refine_tls`.
 
@@ -394,6 +398,11 @@ def incremental_tls(
     `confirm`: every pass turns back an admission by the innovation gate whose actual
     cost (the accepted prefix's error less its error re-solved without the loop) is above
     ``c`` (`AdmissionPass.confirm`); off by default.
+
+    `regroup` (None: `REGROUP`): before the bar search, the chosen run's admitted loops
+    that a later group of rejected, mutually agreeing loops contradicts are re-decided
+    against that group (`slam.regroup.regroup`: the group in, they out, kept only when
+    the stated `tls_cost` drops).
     """
     if not ladder:
         raise UserError("the odometry ladder needs at least one factor")
@@ -482,6 +491,12 @@ def incremental_tls(
         if (run.defer and defer in ("all", "candidate") and admission.tls_cost < best.tls_cost
                 and admission.weights.sum() > best.weights.sum()):
             best, decided, source = admission, graph_of, run
+    if REGROUP if regroup is None else regroup:
+        from slam.regroup import regroup as redecide  # it builds on this module
+
+        regrouped = redecide(graph, best, values, probability=probability, solver=solver,
+                             factors=stated)
+        best = regrouped.admission
     if tries:
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,

@@ -1,0 +1,117 @@
+"""The regroup search (`slam.regroup`) on one cell: its hypotheses and the outcome.
+
+Run from the repository root::
+
+    python benchmarks/robust_regroup.py input_M3500a_g2o.g2o --scale 0.1 [--seed 0]
+        [--policy random] [--ratio 50] [--cache DIR] [--runs off,on] [--cap SECONDS]
+    python benchmarks/robust_regroup.py G ... --save-stage FILE   # the admission, off
+    python benchmarks/robust_regroup.py G ... --stage FILE        # regroup on it alone
+
+Default mode: `slam.optimize.optimize` as `eval robustness` runs it (``gnc``,
+incremental, from the odometry chain) once per entry of `--runs`, with
+`slam.consistency.REGROUP` off or on, in one process; per run the CPU seconds, the
+solver label, the regroup hypotheses tested (group, contradicted loops, drop of the
+TLS objective, kept) and the cell's outcome (`benchmarks.robust_cell.cell_outcome`:
+ATE against the clean optimum [m], false loops obeyed (consistent with the clean
+graph), true loops rejected, stated TLS objective less the clean optimum's).  An "on"
+run in which no hypothesis is tested is the "off" run bit for bit.
+
+`--save-stage`: `slam.consistency.incremental_tls` as `optimize` calls it (regroup
+off), its poses and weights stored; `--stage`: `slam.regroup.regroup` on a stored
+admission, printed as above, with the outcome before and after.
+"""
+
+from __future__ import annotations
+
+import pickle
+import sys
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.robust_cell import CpuCapped, cell_outcome, cell_parser, cpu_cap, read_cell
+from slam import consistency, regroup
+from slam.admission import Admission
+from slam.consistency import incremental_tls, tls_cost
+from slam.offer_back import choose_and_offer_back
+from slam.optimize import initial_guess, optimize
+from slam.pose_graph import poses_from_values
+
+
+def show(name: str, cell, poses) -> None:  # type: ignore[no-untyped-def]
+    """One line: the outcome of `poses` on `cell` (`read_cell`'s tuple)."""
+    out = cell_outcome(*cell, poses)
+    print(f"{name}: ATE {out.ate:.3g} m, {len(out.false_obeyed)} F ({out.consistent}), "
+          f"{out.true_rejected} T, gap {out.gap:+.2f}", flush=True)
+
+
+def show_trials(trials) -> None:  # type: ignore[no-untyped-def]
+    """The hypotheses `slam.regroup.regroup` tested."""
+    for group, against, drop, kept in trials:
+        print(f"  group of {len(group)} ({group[0]}..), contradicted {against}, "
+              f"drop {drop:+.2f}, {'kept' if kept else 'not kept'}", flush=True)
+
+
+def main() -> None:
+    parser = cell_parser(__doc__.split("\n")[0])
+    parser.add_argument("--runs", default="off,on")
+    parser.add_argument("--cap", type=float, default=0.0, help="CPU seconds per run (0: none)")
+    parser.add_argument("--save-stage", type=Path, default=None)
+    parser.add_argument("--stage", type=Path, default=None)
+    args = parser.parse_args()
+    cell = read_cell(args)
+    corrupted = cell[2]
+    chain = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    if args.save_stage is not None:
+        cpu = time.process_time()
+        adm = incremental_tls(corrupted, chain, choose=partial(choose_and_offer_back, factor=[]),
+                              undo=True, confirm=True, regroup=False)
+        print(f"admission: {time.process_time() - cpu:.1f} s CPU, {adm.gate}", flush=True)
+        poses = poses_from_values(adm.values, corrupted.dim)
+        args.save_stage.write_bytes(pickle.dumps((poses, adm.weights, adm.gate)))
+        show("admission", cell, poses)
+        return
+    if args.stage is not None:
+        data = pickle.loads(args.stage.read_bytes())
+        poses, weights, gate = data[0], data[1], data[-1]
+        values = corrupted.gtsam_values(poses)
+        adm = Admission(values, np.asarray(weights, float), tls_cost(corrupted, values), 0, gate)
+        show("before", cell, poses)
+        cpu = time.process_time()
+        out = regroup.regroup(corrupted, adm, chain)
+        print(f"regroup: {time.process_time() - cpu:.1f} s CPU", flush=True)
+        show_trials(out.trials)
+        show("after", cell, poses_from_values(out.admission.values, corrupted.dim))
+        return
+    original = regroup.regroup
+    trials: list = []
+
+    def recorded(*a, **k):  # type: ignore[no-untyped-def]
+        result = original(*a, **k)
+        trials.extend(result.trials)
+        return result
+
+    regroup.regroup = recorded
+    for run in args.runs.split(","):
+        consistency.REGROUP = run == "on"
+        trials.clear()
+        cpu = time.process_time()
+        try:
+            with cpu_cap(args.cap):
+                result = optimize(corrupted, "none", "gnc", init="odometry",
+                                  gnc_start="incremental")
+        except CpuCapped:
+            print(f"{run}: over {args.cap:.0f} s CPU", flush=True)
+            continue
+        print(f"{run}: {time.process_time() - cpu:.1f} s CPU, {result.solver}, "
+              f"{len(trials)} hypotheses", flush=True)
+        show_trials(trials)
+        show(run, cell, result.poses)
+
+
+if __name__ == "__main__":
+    main()
