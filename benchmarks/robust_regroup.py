@@ -52,7 +52,8 @@ def show(name: str, cell, poses) -> None:  # type: ignore[no-untyped-def]
 def show_trials(trials) -> None:  # type: ignore[no-untyped-def]
     """The hypotheses `slam.regroup.regroup` tested."""
     for group, against, drop, kept in trials:
-        print(f"  group of {len(group)} ({group[0]}..), contradicted {against}, "
+        print(f"  return of {len(group)} loops ({group[0]}..), {len(against)} suspects out "
+              f"({against[:8]}..), "
               f"drop {drop:+.2f}, {'kept' if kept else 'not kept'}", flush=True)
 
 
