@@ -25,7 +25,10 @@ a ring of R, `union_vector`; ``union_count`` viewpoints), ``vp_radius=R`` (offse
 viewpoints of `loopclosure.viewpoints`, ``union_count`` of them, on the stored side,
 ``vp_mode=0``, the query's, 1, or both, 2; ``vp_margin`` multiplies their
 distances; ``vp_min_area=A`` leaves out a viewpoint whose polygon's area is below A
-times the keyframe's own polygon's).  Printed per variant: recall@1/10/50, recall@10
+times the keyframe's own polygon's; ``vp_mode=3``: no minimum, every keyframe's own
+vector replaced by the mean of it, weight ``vp_self`` (1), and its viewpoints'
+(`smoothed`, unit length unless ``vp_unit=0``; ``vp_wide=1``: the wide view's too,
+from viewpoints of its wide map)).  Printed per variant: recall@1/10/50, recall@10
 per bin of distance, heading difference and overlap, the recall of each view's K best together (2K
 places, as the loop detector verifies), and of other orders of the two views
 (`combined_orders`); for the default, the misses (no true place among the first 10)
@@ -293,6 +296,24 @@ def viewpoint_stack(data: dict, config: PipelineConfig, matcher: PairHistogramMa
     return np.array(vecs).reshape(-1, matcher.config.dim), np.array(owner, np.intp)
 
 
+def smoothed(own: dict, keys: np.ndarray, views: tuple[np.ndarray, np.ndarray],
+             self_weight: float = 1.0, unit: bool = True) -> dict[int, np.ndarray]:
+    """Every keyframe's own vector replaced by the weighted mean of it (weight
+    `self_weight`) and its viewpoints' vectors (`viewpoint_stack`, weight 1 each),
+    rescaled to unit length when `unit`: one vector per keyframe that varies less
+    with the viewpoint's translation."""
+    vecs, owner = views
+    out = {}
+    for row, k in enumerate(keys.tolist()):
+        if k not in own:
+            continue
+        mine = vecs[owner == row]
+        v = (self_weight * own[k] + mine.sum(axis=0)) / (self_weight + len(mine))
+        n = np.linalg.norm(v)
+        out[k] = v / n if unit and n > 0 else v
+    return out
+
+
 def wide_matrix(wide: dict) -> tuple[np.ndarray, np.ndarray | None]:
     """The wide view's keys (sorted) and their vectors stacked row by row (None: none)."""
     wide_keys = np.array(sorted(wide), np.intp)
@@ -438,7 +459,8 @@ def main() -> None:
         kv = dict(item.split("=") for item in rest.split(",") if item)
         variants[name] = {k: float(x) if k in ("cloud_radius", "union_radius", "union_count",
                                            "combo_weight", "vp_radius", "vp_mode",
-                                           "vp_margin", "vp_min_area") else
+                                           "vp_margin", "vp_min_area", "vp_self", "vp_unit",
+                                           "vp_wide") else
                           type(getattr(PairHistogramConfig(), k))(float(x) if "." in x
                                                                   else int(x))
                           for k, x in kv.items()}
@@ -456,9 +478,12 @@ def main() -> None:
             combo = over.pop("combo_weight", None)
             count = int(over.pop("union_count", 4))
             vp = over.pop("vp_radius", None)
-            vp_mode = {0: "stored", 1: "query", 2: "both"}[int(over.pop("vp_mode", 0))]
+            vp_mode = {0: "stored", 1: "query", 2: "both", 3: "smooth"}[int(over.pop("vp_mode", 0))]
             margin = float(over.pop("vp_margin", 1.0))
             min_area = float(over.pop("vp_min_area", 0.0))
+            vp_self = float(over.pop("vp_self", 1.0))
+            vp_unit = bool(over.pop("vp_unit", 1.0))
+            vp_wide = bool(over.pop("vp_wide", 0.0))
             matcher = PairHistogramMatcher(replace(PairHistogramConfig(), **over))
             t = time.perf_counter()
             views = None
@@ -483,6 +508,15 @@ def main() -> None:
                            for k, v in own_s.items()}
                     wide = {k: np.concatenate([v, combo * wide.get(k, z)])
                             for k, v in wide_s.items()}
+            if vp is not None and vp_mode == "smooth":
+                own = smoothed(own, data["keys"], views, vp_self, vp_unit)
+                if vp_wide:
+                    wkeys = np.array(sorted(wide), np.intp)
+                    wdata = dict(keys=wkeys, submaps=data["wide_maps"], own=data["wide"])
+                    wide = smoothed(wide, wkeys, viewpoint_stack(wdata, config, matcher, vp,
+                                                                 count, min_area),
+                                    vp_self, vp_unit)
+                views = None
             r = ranks(data, own, wide, views, vp_mode if vp is not None else "stored", margin)
             report(f"{vname} ({time.perf_counter() - t:.0f} s)", data, r)
             if vname == "default":
