@@ -69,6 +69,11 @@ SCREEN_FRACTION = 0.5
 # solved in the same turn (it cannot be the costliest under the same margin); False: every
 # loop not cleared is solved, in admission order.
 SCREEN_SKIP = True
+# A round whose nonlinear check turns loops back keeps, as the pass's iSAM2 prefix, the
+# leave-one-out copy that already solved the prefix without them (the copy of the same
+# iSAM2 with the same factors taken out: the same estimate, bit for bit) instead of
+# taking them out of the prefix and solving it again (False: solved again).
+ADOPT_LEAVE_ONE_OUT = True
 
 
 @dataclass(slots=True)
@@ -317,6 +322,9 @@ class AdmissionPass:
         self.screen = confirm == "screen"  # ... after the linearised screen (`_unconfirmed`)
         self.refused = 0  # step-2 admissions the nonlinear check turned back
         self._held = False  # the last admission stopped the iSAM2 prefix converging
+        # (loops turned back, the iSAM2 copy that solved the prefix without them or None)
+        self._adoptable: tuple[tuple[int, ...], IsamPrefix | None] | None = None
+        self._loo_isam: IsamPrefix | None = None  # see `_solved_without`
         self._block = block
         self.loop_start = np.array([min(self.position[lp.i], self.position[lp.j])
                                     for lp in graph.loops], dtype=int)
@@ -582,6 +590,7 @@ class AdmissionPass:
         unit, accepted, left = self.unit, accepted.copy(), [int(q) for q in admitted]
         out: list[int] = []
         solutions: dict[int, gtsam.Values] = {}
+        self._adoptable = None
         while left:
             kept = _with(fixed, unit, pending[accepted])
             total = kept.error(current)
@@ -591,6 +600,7 @@ class AdmissionPass:
             if len(left) > 1:
                 rho = self._screened(kept, current, pending[left]) if self.screen else None
                 costs, solutions = [-np.inf] * len(left), {}
+                copies: dict[int, IsamPrefix] = {}  # converged leave-one-out iSAM2 copies
                 found = -np.inf  # the largest actual cost above ``c`` solved this turn
                 for n in _screen_order(rho, len(left), SCREEN_SKIP):
                     q = left[n]
@@ -611,13 +621,19 @@ class AdmissionPass:
                                                              pending[[*out, q]])
                     except RuntimeError:  # a failed solve: the admission stands
                         continue
+                    if self._loo_isam is not None:
+                        copies[q] = self._loo_isam
                     if costs[n] > self._c:
                         found = max(found, costs[n])
+            else:
+                copies = {}
             worst = int(np.argmax(costs))
             if not costs[worst] > self._c:
                 break
             q = left.pop(worst)
             out.append(q)
+            # the prefix without every loop of `out`, solved by a copy of the pass's iSAM2
+            self._adoptable = (tuple(int(k) for k in pending[out]), copies.get(q))
             accepted[q] = False
             if left and q in solutions:
                 current = solutions[q]
@@ -656,7 +672,9 @@ class AdmissionPass:
         self, without: gtsam.NonlinearFactorGraph, current: gtsam.Values,
         start: gtsam.Values, removed: NDArray[np.int64],
     ) -> tuple[float, gtsam.Values]:
-        """`_minimum` and the solution it is the error at."""
+        """`_minimum` and the solution it is the error at; `_loo_isam` is then the
+        converged iSAM2 copy that solved it (None: a batch solve did)."""
+        self._loo_isam = None
         if self._isam is not None:
             trial = self._isam.copy()
             trial.remove(int(k) for k in removed)
@@ -665,6 +683,7 @@ class AdmissionPass:
             except RuntimeError:  # gtsam IndeterminateLinearSystemException
                 estimate = None
             if estimate is not None and trial.converged:
+                self._loo_isam = trial
                 return float(without.error(estimate)), estimate
         x0 = start if without.error(start) < without.error(current) else current
         solved = self._solve(without, x0)
@@ -680,10 +699,16 @@ class AdmissionPass:
         had stopped its updates converging (`held`), a new iSAM2 is built from `factors`
         at `current`, the prefix's solution before they were admitted.  Batch solves
         from `current` when there is no iSAM2 prefix or its updates stop converging."""
+        adoptable, self._adoptable = self._adoptable, None
         if held:
             self._isam = IsamPrefix.of(factors, current)
         elif self._isam is None:
             return self._solve(factors, current), None
+        elif (ADOPT_LEAVE_ONE_OUT and adoptable is not None and adoptable[1] is not None
+              and adoptable[0] == tuple(int(k) for k in removed)):
+            # what the lines below would compute: the same removals from the same iSAM2
+            self._isam = adoptable[1]
+            return self._isam.estimate, self._isam
         else:
             self._isam.remove(int(k) for k in removed)
         current, self._isam = isam_or_batch(self._isam, self._solve, factors, current)

@@ -48,6 +48,11 @@ LOOKAHEAD = 2  # loop-bearing blocks after a kept hypothesis before it is compar
 # Hypotheses solved by a copy of the pass's iSAM2 prefix (loops taken out by their tags)
 # instead of batch solves of the whole prefix (False: batch solves).
 BY_ISAM = True
+# A block's hypotheses that take out the same loops share their first iSAM2 solve (the
+# prefix of the loops kept): while no hypothesis of the block has been kept, every one
+# re-decides the same recent admissions, so that solve repeats on an identical copy of
+# the pass's iSAM2 (False: each hypothesis solves it again).
+SHARE_FIRST_SOLVE = True
 
 
 def with_loops(
@@ -102,6 +107,7 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
         if len(support) >= UNDO_SUPPORT and len(support) > len(cluster):
             hypotheses.setdefault(tuple(support), len(support) - len(cluster))
     ranked = sorted(hypotheses.items(), key=lambda h: -h[1])[:UNDO_TRIES]
+    shared = _SharedSolve()
     for support_key, _ in ranked:
         support = np.array(support_key, dtype=np.int64)
         if (run.weights[support] > 0.5).any():  # an earlier hypothesis admitted it
@@ -123,8 +129,7 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
         run.tried += 1
         try:
             if trial is not None:
-                values, trial = _isam_solved(run, trial, with_loops(run._base, run.unit, keep),
-                                             run.current)
+                values, trial = shared.solved(run, trial, keep)
             else:
                 values = run._solve(with_loops(run._base, run.unit, keep), run.current)
             first, values, trial = plain_rounds(run, support, keep, values, prefix, trial)
@@ -147,6 +152,7 @@ def test_hypotheses(run: AdmissionPass, arrived: NDArray[np.int64], prefix: list
         run._fixed = with_loops(run._base, run.unit, np.flatnonzero(weights > 0.5))
         run.current = values
         run.undone += 1
+        shared = _SharedSolve()  # the pass's prefix changed: nothing to share from here
         if run.gate == "stated" and run.calibrated_step is None:
             # a calibrated pass resumed after this block would not have tested it
             run.calibrated_step = run._step
@@ -174,6 +180,38 @@ def _trial_prefix(run: AdmissionPass, out: NDArray[np.int64]) -> IsamPrefix | No
     trial = run._isam.copy()
     trial.remove(int(k) for k in out)
     return trial
+
+
+class _SharedSolve:
+    """The first solve of a block's undo hypotheses (`test_hypotheses`), kept for the next
+    hypothesis that takes out the same loops from the same iSAM2 prefix (`SHARE_FIRST_SOLVE`).
+
+    Only a converged iSAM2 solve is kept (a batch fallback is solved again); a later
+    hypothesis gets the kept estimate and a copy of the solved iSAM2, which continues
+    bit for bit as the original would (`IsamPrefix.copy`).  The caller makes a new one
+    whenever the pass's prefix changes (a hypothesis kept)."""
+
+    def __init__(self) -> None:
+        self._keep: NDArray[np.int64] | None = None
+        self._values: gtsam.Values | None = None
+        self._isam: IsamPrefix | None = None
+        self.hits = 0
+
+    def solved(
+        self, run: AdmissionPass, trial: IsamPrefix, keep: NDArray[np.int64]
+    ) -> tuple[gtsam.Values, IsamPrefix | None]:
+        """The prefix of the admitted loops `keep` solved by `trial` (a copy of the pass's
+        iSAM2 with every other admitted loop taken out) from the pass's solution, or the
+        kept result of an earlier hypothesis of the block with the same `keep`."""
+        if (SHARE_FIRST_SOLVE and self._isam is not None and self._keep is not None
+                and np.array_equal(self._keep, keep)):
+            self.hits += 1
+            return gtsam.Values(self._values), self._isam.copy()
+        values, solved = _isam_solved(run, trial, with_loops(run._base, run.unit, keep),
+                                      run.current)
+        if SHARE_FIRST_SOLVE and solved is not None:
+            self._keep, self._values, self._isam = keep.copy(), gtsam.Values(values), solved.copy()
+        return values, solved
 
 
 def _isam_solved(

@@ -87,6 +87,11 @@ class IsamPrefix:
         other.converged = self.converged
         return other
 
+    @property
+    def estimate(self) -> gtsam.Values:
+        """The estimate of the last `solve` (empty before the first)."""
+        return self._estimate
+
     def add(self, factor: gtsam.NonlinearFactor, tag: object = None) -> None:
         """Hand `factor` over at the next `solve`; a `tag` (hashable, unique) lets
         `remove` take it out later."""

@@ -183,3 +183,37 @@ def test_the_screen_skips_a_loop_that_cannot_be_the_costliest(
     # skipping: the false loop first (largest rho), then the near loop's rho is below
     # half its cost; without: both solved, in admission order
     assert solves == ([false] if skip else [near, false])
+
+
+def test_a_turned_back_loop_leaves_the_leave_one_out_copy_as_the_prefix(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`ADOPT_LEAVE_ONE_OUT`: the false loop of `_square` admitted with the true one and
+    turned back by the exact check; `_turned_back` then makes no iSAM2 solve and leaves
+    the prefix at what taking the false loop out of the pass's iSAM2 and solving gives
+    (what it does with the option off), bit for bit."""
+    from slam.isam_prefix import IsamPrefix
+
+    graph, true, false = _square()
+    values = graph.gtsam_values(initial_guess(graph, "odometry"))
+    calls: list[int] = []
+    solve = IsamPrefix.solve
+    monkeypatch.setattr(IsamPrefix, "solve", lambda self: calls.append(1) or solve(self))
+    results = []
+    for adopt in (True, False):
+        monkeypatch.setattr(admission, "ADOPT_LEAVE_ONE_OUT", adopt)
+        run = AdmissionPass(graph, values, block=10, barred=[true, false], confirm=True)
+        run.advance()  # the odometry prefix, kept by iSAM2
+        pending = np.array([true, false])
+        start = run.current
+        solved, _ = run._prefix_solve(with_loops(run._base, run.unit, pending), start, pending)
+        back = run._unconfirmed(run._base, pending, np.ones(2, dtype=bool), np.arange(2),
+                                solved, run._base.error(start), start)
+        np.testing.assert_array_equal(back, [1])
+        calls.clear()
+        result, isam = run._turned_back(with_loops(run._base, run.unit, pending[:1]), start,
+                                        pending[back])
+        assert len(calls) == (0 if adopt else 1)
+        assert isam is run._isam and isam.holds([true]) and not isam.holds([false])
+        results.append([result.atPose2(k).matrix() for k in graph.keys])
+    np.testing.assert_array_equal(results[0], results[1])

@@ -8,6 +8,7 @@ import pytest
 import slam.admission_undo as admission_undo
 from data.errors import UserError
 from slam.admission import AdmissionPass
+from slam.admission_undo import with_loops
 from slam.optimize import initial_guess
 from slam.pose_graph import PoseGraph
 from tests.test_deferral import LAP, loose_lap
@@ -146,3 +147,45 @@ def test_hypotheses_solved_on_the_isam2_prefix_decide_as_the_batch_solves(
     positions = np.array([by_isam.current.atPose2(k).translation() for k in graph.keys])
     expected = np.array([batch.current.atPose2(k).translation() for k in graph.keys])
     assert np.abs(positions - expected).max() < 1e-3
+
+
+def _poses(values) -> np.ndarray:  # type: ignore[no-untyped-def]
+    return np.array([values.atPose2(k).matrix() for k in values.keys()])
+
+
+def test_hypotheses_that_take_out_the_same_loops_share_their_first_solve() -> None:
+    """`_SharedSolve`: the second request with the same kept loops costs no iSAM2 solve,
+    returns the first's estimate bit for bit and an independent copy of its iSAM2 that
+    goes on as a fresh solve's would (bit for bit); other kept loops are solved."""
+    from slam.admission_undo import _isam_solved, _SharedSolve, _trial_prefix
+
+    graph, _ = loose_lap(TRUE_LOOPS, False)
+    run = _pass(graph, undo=False)
+    admitted = np.flatnonzero(run.weights > 0.5)
+    keep, out = admitted[:-3], admitted[-3:]
+    shared = _SharedSolve()
+    first, first_isam = shared.solved(run, _trial_prefix(run, out), keep)
+    again, again_isam = shared.solved(run, _trial_prefix(run, out), keep)
+    assert shared.hits == 1 and again_isam is not first_isam
+    np.testing.assert_array_equal(_poses(again), _poses(first))
+    fresh, fresh_isam = _isam_solved(run, _trial_prefix(run, out),
+                                     with_loops(run._base, run.unit, keep), run.current)
+    np.testing.assert_array_equal(_poses(fresh), _poses(first))
+    for isam in (again_isam, fresh_isam):  # the next round of the hypothesis on each
+        isam.add(run.unit[out[0]], int(out[0]))
+    np.testing.assert_array_equal(_poses(again_isam.solve()), _poses(fresh_isam.solve()))
+    shared.solved(run, _trial_prefix(run, admitted[-2:]), admitted[:-2])
+    assert shared.hits == 1  # another kept set: solved
+
+
+def test_sharing_the_first_solve_changes_no_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The undo pass of the early false return, with and without `SHARE_FIRST_SOLVE`:
+    the same loops and the same solution, bit for bit."""
+    graph, _ = _false_return_a_block_early()
+    monkeypatch.setattr(admission_undo, "SHARE_FIRST_SOLVE", False)
+    plain = _pass(graph, undo=True)
+    monkeypatch.setattr(admission_undo, "SHARE_FIRST_SOLVE", True)
+    shared = _pass(graph, undo=True)
+    assert shared.undone == plain.undone >= 1
+    np.testing.assert_array_equal(shared.weights, plain.weights)
+    np.testing.assert_array_equal(_poses(shared.current), _poses(plain.current))
