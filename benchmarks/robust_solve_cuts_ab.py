@@ -12,9 +12,10 @@ odometry chain), each ``default`` or settings joined by ``+``: ``share-off`` (an
 hypothesis solves its first prefix again, `slam.admission_undo.SHARE_FIRST_SOLVE`
 False), ``adopt-off`` (a loop turned back by the nonlinear check is taken out of the
 pass's iSAM2 and solved again rather than adopting its leave-one-out copy,
-`slam.admission.ADOPT_LEAVE_ONE_OUT` False), ``snap-N`` (`slam.admission.SNAPSHOTS = N`),
+`slam.admission.ADOPT_LEAVE_ONE_OUT` False), ``fork-off`` (no snapshot kept where the calibrated pass forks,
+`slam.admission.FORK_SNAPSHOT` False), ``snap-N`` (`slam.admission.SNAPSHOTS = N`),
 ``relin-X`` (`slam.isam_prefix.RELINEARIZE = X`); ``old`` is
-``share-off+adopt-off+snap-2`` (the code before these cuts).  One line per run: ATE
+``share-off+adopt-off+fork-off+snap-2`` (the code before these cuts).  One line per run: ATE
 against the outlier-free optimum [m], false loops obeyed (of them consistent with the
 outlier-free graph), true loops rejected, CPU seconds (``time.process_time``), iSAM2
 prefix solves (`IsamPrefix.solve` calls) and batch solves (`StickySolver` solves, memo
@@ -40,9 +41,9 @@ from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
 from benchmarks.robust_confirm_ab import _head, versus
 from slam.optimize import optimize
 
-NAMES = ("share", "adopt", "snapshots", "relinearize")
+NAMES = ("share", "adopt", "fork", "snapshots", "relinearize")
 DEFAULTS = (admission_undo.SHARE_FIRST_SOLVE, admission.ADOPT_LEAVE_ONE_OUT,
-            admission.SNAPSHOTS, isam_prefix.RELINEARIZE)
+            admission.FORK_SNAPSHOT, admission.SNAPSHOTS, isam_prefix.RELINEARIZE)
 COUNTS = {"isam": 0, "batch": 0}
 _solve = isam_prefix.IsamPrefix.solve
 _inner = least_squares.StickySolver._solve
@@ -61,11 +62,13 @@ def _counted_inner(self, factors, values):  # type: ignore[no-untyped-def]
 def settings(run: str) -> dict[str, object]:
     """The module settings of a run (`NAMES` -> value)."""
     chosen = dict(zip(NAMES, DEFAULTS, strict=True))
-    for part in run.replace("old", "share-off+adopt-off+snap-2").split("+"):
+    for part in run.replace("old", "share-off+adopt-off+fork-off+snap-2").split("+"):
         if part == "share-off":
             chosen["share"] = False
         elif part == "adopt-off":
             chosen["adopt"] = False
+        elif part == "fork-off":
+            chosen["fork"] = False
         elif part.startswith("snap-"):
             chosen["snapshots"] = int(part[len("snap-"):])
         elif part.startswith("relin-"):
@@ -78,6 +81,7 @@ def settings(run: str) -> dict[str, object]:
 def apply(chosen: dict[str, object]) -> None:
     admission_undo.SHARE_FIRST_SOLVE = chosen["share"]
     admission.ADOPT_LEAVE_ONE_OUT = chosen["adopt"]
+    admission.FORK_SNAPSHOT = chosen["fork"]
     admission.SNAPSHOTS = chosen["snapshots"]
     isam_prefix.RELINEARIZE = chosen["relinearize"]
 

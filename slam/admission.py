@@ -60,6 +60,11 @@ GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
 SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
+# A recorded stated pass also keeps the snapshot before the block that sets its
+# `calibrated_step` (a snapshot is taken before every block until then and dropped after
+# it), so the calibrated pass forks exactly there instead of re-deciding the blocks since
+# the evenly spaced snapshot before it (False: evenly spaced snapshots only).
+FORK_SNAPSHOT = True
 CONFIRM_MODES = ("exact", "screen")  # `AdmissionPass`'s confirm (True is "exact")
 # The screen (`confirm="screen"`) clears an admitted loop without its leave-one-out solve
 # when its linearised leave-one-out cost is at most this fraction of ``c``.
@@ -268,7 +273,8 @@ class AdmissionPass:
     (`prefix_cost`).  Arguments as `admit_incrementally`.
 
     `record`: keep `SNAPSHOTS` snapshots of the state before evenly spaced blocks (while
-    the prefix has not folded), from which `resumed` starts a pass that differs from
+    the prefix has not folded; with `FORK_SNAPSHOT` also the one before the block that
+    sets `calibrated_step`), from which `resumed` starts a pass that differs from
     this one only from a given block on: one more barred loop
     (`slam.consistency.bar_search`: every block before the barred loop's is decided as
     here) or the calibrated gate (`calibrated_step`: a stated pass tracks the first block
@@ -355,6 +361,7 @@ class AdmissionPass:
         `slam.consistency.incremental_tls` keeps several passes until it chooses among
         them); only for a pass that will not `advance` again."""
         self._rival = None
+        self._adoptable = self._loo_isam = None
         if self._isam is not None:
             self._isam = None
             self._released = True
@@ -364,12 +371,18 @@ class AdmissionPass:
         `blocks` more blocks."""
         n = 0
         while not self.done and (blocks is None or n < blocks):
-            if (self.snapshots is not None and not self.folded and self._rival is None
-                    and self._step % self._stride == 0
-                    and (not self.snapshots or self.snapshots[-1].step < self._step)):
-                self.snapshots.append(self._snapshot())
+            fork = None  # the snapshot before this block, kept if it sets `calibrated_step`
+            if self.snapshots is not None and not self.folded and self._rival is None:
+                if (self._step % self._stride == 0
+                        and (not self.snapshots or self.snapshots[-1].step < self._step)):
+                    self.snapshots.append(self._snapshot())
+                elif (FORK_SNAPSHOT and self.gate == "stated" and self.calibrated_step is None
+                      and (not self.snapshots or self.snapshots[-1].step < self._step)):
+                    fork = self._snapshot()
             rival = self._rival  # a look-ahead's rival adds the same block (`settle`)
             self._add_block(self._ends[self._step])
+            if fork is not None and self.calibrated_step == self._step:
+                self.snapshots.append(fork)
             if rival is not None:
                 rival._add_block(self._ends[self._step])
                 rival._step += 1
@@ -639,6 +652,7 @@ class AdmissionPass:
                 current = solutions[q]
             elif left:
                 current = self._solve(_with(fixed, unit, pending[accepted]), current)
+        self._loo_isam = None  # (memory: `_adoptable` keeps the copy `_turned_back` takes)
         return np.array(out, dtype=np.int64)
 
     def _screened(

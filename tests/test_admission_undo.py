@@ -177,15 +177,3 @@ def test_hypotheses_that_take_out_the_same_loops_share_their_first_solve() -> No
     shared.solved(run, _trial_prefix(run, admitted[-2:]), admitted[:-2])
     assert shared.hits == 1  # another kept set: solved
 
-
-def test_sharing_the_first_solve_changes_no_pass(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The undo pass of the early false return, with and without `SHARE_FIRST_SOLVE`:
-    the same loops and the same solution, bit for bit."""
-    graph, _ = _false_return_a_block_early()
-    monkeypatch.setattr(admission_undo, "SHARE_FIRST_SOLVE", False)
-    plain = _pass(graph, undo=True)
-    monkeypatch.setattr(admission_undo, "SHARE_FIRST_SOLVE", True)
-    shared = _pass(graph, undo=True)
-    assert shared.undone == plain.undone >= 1
-    np.testing.assert_array_equal(shared.weights, plain.weights)
-    np.testing.assert_array_equal(_poses(shared.current), _poses(plain.current))

@@ -175,3 +175,33 @@ def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_les
     assert fork.last == 19
     fork.advance()
     _same_pass(fork, fresh)
+
+
+@pytest.mark.parametrize("fork", [True, False])
+def test_the_stated_pass_keeps_the_snapshot_where_the_calibrated_pass_forks(
+    monkeypatch: pytest.MonkeyPatch, fork: bool,
+) -> None:
+    """`FORK_SNAPSHOT`: with one evenly spaced snapshot (before block 0) the stated pass
+    also keeps the one before block 2, where the calibrated gate first admits less, and
+    the calibrated pass resumed from it starts there (pose 19 added) and ends as a new
+    calibrated pass, bit for bit; without it the fork re-decides from block 0."""
+    from slam.consistency import AdmissionPass
+    from slam.variance_components import with_information_scaled
+
+    monkeypatch.setattr("slam.admission.SNAPSHOTS", 1)
+    monkeypatch.setattr("slam.admission.FORK_SNAPSHOT", fork)
+    graph, _ = _square_graph(noise=0.02, laps=3)
+    corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,
+                                      np.random.default_rng(1), "local")
+    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
+    solve = StickySolver()
+    stated = AdmissionPass(corrupted, values, block=10, solver=solve, record=True)
+    stated.advance()
+    assert stated.calibrated_step == 2
+    assert [snap.step for snap in stated.snapshots] == ([0, 2] if fork else [0])
+    resumed = stated.resumed(stated.calibrated_step, gate="calibrated")
+    assert resumed.last == (19 if fork else -1)
+    resumed.advance()
+    fresh = AdmissionPass(corrupted, values, block=10, solver=solve, gate="calibrated")
+    fresh.advance()
+    _same_pass(resumed, fresh)
