@@ -12,9 +12,9 @@ odometry chain), each ``default`` or settings joined by ``+``: ``share-off`` (an
 hypothesis solves its first prefix again, `slam.admission_undo.SHARE_FIRST_SOLVE`
 False), ``adopt-off`` (a loop turned back by the nonlinear check is taken out of the
 pass's iSAM2 and solved again rather than adopting its leave-one-out copy,
-`slam.admission.ADOPT_LEAVE_ONE_OUT` False), ``fork-off`` (no snapshot kept where the calibrated pass forks,
-`slam.admission.FORK_SNAPSHOT` False), ``snap-N`` (`slam.admission.SNAPSHOTS = N`),
-``relin-X`` (`slam.isam_prefix.RELINEARIZE = X`); ``old`` is
+`slam.admission.ADOPT_LEAVE_ONE_OUT` False), ``fork-off`` (no snapshot kept where the
+calibrated pass forks, `slam.admission.FORK_SNAPSHOT` False), ``snap-N``
+(`slam.admission.SNAPSHOTS = N`), ``relin-X`` (`slam.isam_prefix.RELINEARIZE = X`); ``old`` is
 ``share-off+adopt-off+fork-off+snap-2`` (the code before these cuts).  One line per run: ATE
 against the outlier-free optimum [m], false loops obeyed (of them consistent with the
 outlier-free graph), true loops rejected, CPU seconds (``time.process_time``), iSAM2
