@@ -59,7 +59,7 @@ Array = NDArray[np.float64]
 GATES = ("stated", "calibrated")
 MIN_REDUNDANCY_LOOPS = 10  # the calibrated gate needs this many loops' worth of redundancy
 PREFIX_SOLVERS = ("auto", "batch", "isam2")  # `admit_incrementally`'s prefix_solver
-SNAPSHOTS = 8  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
+SNAPSHOTS = 2  # at most this many snapshots of a recorded `AdmissionPass` (each an iSAM2 copy)
 # A recorded stated pass also keeps the snapshot before the block that sets its
 # `calibrated_step` (a snapshot is taken before every block until then and dropped after
 # it), so the calibrated pass forks exactly there instead of re-deciding the blocks since
