@@ -87,6 +87,7 @@ def optimize(
     fast_path: bool = True,
     swap: bool = False,
     defer: str = "off",
+    regroup: bool | None = None,
     undo: bool = True,
     screen: bool = False,
     confirm: bool | str = True,
@@ -126,6 +127,10 @@ def optimize(
     ``"bounded"`` (waits one loop-bearing block for the consensus of the loops that
     arrive, then the plain gate decides), ``"both"`` (each rung without and with it, the
     choice among all), ``"all"`` and ``"candidate"`` as there.
+    `regroup` (None: `slam.consistency.REGROUP`, off): before its bar search the incremental
+    admission re-decides early lone admitted loops against a later return of rejected,
+    mutually agreeing loops that contradicts them, kept only when the TLS objective drops
+    (`slam.regroup`).
     `undo` (on by default): the incremental admission's passes undo earlier admissions
     that a later block's loops contradict when the TLS objective of the decided part says
     so, and compare each kept hypothesis again with the pass without it after the next
@@ -179,7 +184,7 @@ def optimize(
             admission = incremental_tls(
                 graph, values, probability=gnc_probability, ladder=odometry_ladder,
                 choose=partial(choose_and_offer_back, factor=factor) if calibrated else None,
-                defer=defer, undo=undo, confirm=confirm,
+                defer=defer, regroup=regroup, undo=undo, confirm=confirm,
             )
             if swap and len(graph.loops):
                 swapped = swap_search(graph, admission, values, probability=gnc_probability,

@@ -90,3 +90,21 @@ def test_incremental_tls_with_regroup_never_ends_dearer() -> None:
     off = incremental_tls(graph, chain, regroup=False, tries=0)
     on = incremental_tls(graph, chain, regroup=True, tries=0)
     assert on.tls_cost <= off.tls_cost + 1e-9
+
+
+def test_optimize_hands_regroup_to_the_incremental_admission(monkeypatch) -> None:
+    import slam.optimize as optimize_module
+
+    graph, _bad, _group, _ = _wrong_admission()
+    seen: list[object] = []
+    real = optimize_module.incremental_tls
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs.get("regroup"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(optimize_module, "incremental_tls", recording)
+    for choice in (True, False, None):
+        optimize_module.optimize(graph, method="gnc", gnc_start="incremental", init="odometry",
+                                 fast_path=False, regroup=choice)
+    assert seen == [True, False, None]
