@@ -96,7 +96,8 @@ Modules: the innovation test and `greedy_admission` are `slam.innovation` (margi
 covariances from `slam.selected_inverse`), one pass (steps 1-3, `AdmissionPass`,
 `admit_incrementally`, `tls_cost`) is `slam.admission`, its iSAM2 prefix
 `slam.isam_prefix`; this module holds the searches over passes (`incremental_tls`,
-`bar_search`), `refine_tls` and `polish`, and re-exports the names it always exported.
+`bar_search`) and `polish` (`refine_tls` is `slam.tls_refine`), and re-exports the
+names it always exported.
 
 Requirements: the smallest pose id is an anchor and every later pose is reached by
 odometry from an earlier one (the odometry spine of a mapper or a g2o file);
@@ -128,7 +129,9 @@ from slam.pose_graph import (
     PoseGraph,
     RobustKernel,
 )
-from slam.warm_starts import WarmStarts, solve_from
+from slam.regroup import regroup as redecide
+from slam.tls_refine import refine_tls, stated_with_loops
+from slam.warm_starts import WarmStarts
 
 __all__ = [
     "BAR_TRIES", "DEFER_MODES", "LM_BUDGET", "ODOMETRY_LADDER", "POLISH_TOLERANCE",
@@ -168,54 +171,6 @@ def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
     except RuntimeError:  # gtsam IndeterminateLinearSystemException
         return True
     return False
-
-
-def refine_tls(
-    graph: PoseGraph,
-    values: gtsam.Values,
-    weights: Array,
-    *,
-    probability: float = 0.99,
-    max_rounds: int = 30,
-    solver: StickySolver | None = None,
-    barred: Sequence[int] = (),
-    solved: bool = False,
-    factors: StatedFactors | None = None,
-    starts: WarmStarts | None = None,
-) -> tuple[gtsam.Values, Array]:
-    """Re-decide every loop by the TLS residual rule on the whole graph until stable.
-
-    Solve with the loops of weight 1, set ``w_k = [e_k <= c]``, repeat (iteratively
-    re-weighted least squares of the TLS loss from a start inside its basin).  Loops
-    in `barred` keep weight 0.  `solved`: `values` already solve the graph with
-    `weights` (an `admit_incrementally` result), so the first solve is skipped.
-    `factors`: as in `tls_cost`.  `starts`: each solve starts from the nearest solution
-    held there (`WarmStarts.start`: least error on the graph to solve, the current
-    solution on ties) and holds its own (and `values`, when `solved`).
-    """
-    solve = solver or StickySolver()
-    base, loop_index = factors or graph.factor_graph(RobustKernel("none"))
-    c = tls_threshold(graph.dim, probability)
-    n_fixed = base.size() - len(loop_index)
-    w = np.asarray(weights, dtype=float).copy()
-    w[list(barred)] = 0.0
-    result = values
-    if solved and starts is not None:
-        starts.hold(values)
-    for n in range(max_rounds):
-        if not (solved and n == 0):
-            kept = gtsam.NonlinearFactorGraph()
-            for k in range(n_fixed):
-                kept.add(base.at(k))
-            for k in np.flatnonzero(w > 0.5):
-                kept.add(base.at(loop_index[k]))
-            result = solve_from(starts, solve, kept, result)
-        new = np.array([base.at(k).error(result) <= c for k in loop_index], dtype=float)
-        new[list(barred)] = 0.0
-        if np.array_equal(new, w):
-            break
-        w = new
-    return result, w
 
 
 def bar_search(
@@ -492,7 +447,6 @@ def incremental_tls(
                 and admission.weights.sum() > best.weights.sum()):
             best, decided, source = admission, graph_of, run
     if REGROUP if regroup is None else regroup:
-        from slam.regroup import regroup as redecide  # it builds on this module
 
         regrouped = redecide(graph, best, values, probability=probability, solver=solver,
                              factors=stated)
@@ -533,17 +487,6 @@ def polish(
     params.setAbsoluteErrorTol(0.0)
     params.setLinearSolverType("MULTIFRONTAL_QR")
     return gtsam.DoglegOptimizer(kept, values, params).optimize()
-
-
-def stated_with_loops(factors: StatedFactors, weights: Array) -> gtsam.NonlinearFactorGraph:
-    """The stated graph `factors` with only the loops of ``weights > 0.5``."""
-    base, loop_index = factors
-    kept = gtsam.NonlinearFactorGraph()
-    for k in range(base.size() - len(loop_index)):
-        kept.add(base.at(k))
-    for k in np.flatnonzero(np.asarray(weights) > 0.5):
-        kept.add(base.at(loop_index[k]))
-    return kept
 
 
 def _odometry_scaled(graph: PoseGraph, factor: float) -> PoseGraph:

@@ -46,17 +46,12 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from slam.consistency import (
-    Admission,
-    StatedFactors,
-    refine_tls,
-    stated_with_loops,
-    tls_cost,
-)
+from slam.admission import Admission, StatedFactors, tls_cost
 from slam.group_recheck import GROUP_WINDOW, loop_groups
 from slam.least_squares import StickySolver
 from slam.pairwise_consistency import LoopCycles, loop_cycles
 from slam.pose_graph import PoseGraph, RobustKernel, chi2_quantile
+from slam.tls_refine import refine_tls, stated_with_loops
 
 Array = NDArray[np.float64]
 MIN_GROUP = 3  # rejected loops a group needs to count
