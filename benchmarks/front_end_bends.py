@@ -84,7 +84,7 @@ def turn_scale(front: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", default="/work/shared/data")
+    ap.add_argument("--data", default="../shared/data")
     ap.add_argument("--logs", default="intel-corrected")
     ap.add_argument("--spans", default="10:30,541:562", help="FIRST:LAST keyframes")
     ap.add_argument("--true-odometry", action="store_true")

@@ -81,7 +81,7 @@ def counted(module, sets):  # type: ignore[no-untyped-def]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", required=True)
-    parser.add_argument("--data", default="/work/shared/data")
+    parser.add_argument("--data", default="../shared/data")
     parser.add_argument("--log", default="carmen-corrected/freiburg-101-corrected.log.gz")
     parser.add_argument("--every", type=int, default=10)
     parser.add_argument("--repeat", type=int, default=5)

@@ -64,7 +64,7 @@ def run(module, counts, table, n_dummy, cost):  # type: ignore[no-untyped-def]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", required=True)
-    parser.add_argument("--data", default="/work/shared/data")
+    parser.add_argument("--data", default="../shared/data")
     parser.add_argument("--shapes", type=int, default=40)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
