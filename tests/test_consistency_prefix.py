@@ -152,14 +152,13 @@ def test_a_resumed_pass_equals_a_new_one_with_the_loop_barred() -> None:
     _same_pass(again, source)
 
 
-def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_less(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def _stated_pass_on_loose_odometry():
+    """A 3-lap square with odometry stated 100 times looser than it is (the calibrated
+    gate far lower than the stated one) and 50% local false loops; its recorded stated
+    pass, advanced to the end. Returns (graph, start, solver, pass)."""
     from slam.consistency import AdmissionPass
     from slam.variance_components import with_information_scaled
 
-    monkeypatch.setattr("slam.admission.SNAPSHOTS", 12)  # a snapshot before every block
-    # Odometry stated 100 times looser than it is: the calibrated gate is far lower.
     graph, _ = _square_graph(noise=0.02, laps=3)
     corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,
                                       np.random.default_rng(1), "local")
@@ -167,6 +166,16 @@ def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_les
     solve = StickySolver()
     stated = AdmissionPass(corrupted, values, block=10, solver=solve, record=True)
     stated.advance()
+    return corrupted, values, solve, stated
+
+
+def test_the_calibrated_pass_forks_from_the_stated_one_where_it_first_admits_less(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from slam.consistency import AdmissionPass
+
+    monkeypatch.setattr("slam.admission.SNAPSHOTS", 12)  # a snapshot before every block
+    corrupted, values, solve, stated = _stated_pass_on_loose_odometry()
     fresh = AdmissionPass(corrupted, values, block=10, solver=solve, gate="calibrated")
     fresh.advance()
     assert stated.calibrated_step == 2  # blocks 0 and 1 are decided alike
@@ -186,17 +195,10 @@ def test_the_stated_pass_keeps_the_snapshot_where_the_calibrated_pass_forks(
     the calibrated pass resumed from it starts there (pose 19 added) and ends as a new
     calibrated pass, bit for bit; without it the fork re-decides from block 0."""
     from slam.consistency import AdmissionPass
-    from slam.variance_components import with_information_scaled
 
     monkeypatch.setattr("slam.admission.SNAPSHOTS", 1)
     monkeypatch.setattr("slam.admission.FORK_SNAPSHOT", fork)
-    graph, _ = _square_graph(noise=0.02, laps=3)
-    corrupted, _ = inject_false_loops(with_information_scaled(graph, 0.01), 0.5,
-                                      np.random.default_rng(1), "local")
-    values = corrupted.gtsam_values(initial_guess(corrupted, "odometry"))
-    solve = StickySolver()
-    stated = AdmissionPass(corrupted, values, block=10, solver=solve, record=True)
-    stated.advance()
+    corrupted, values, solve, stated = _stated_pass_on_loose_odometry()
     assert stated.calibrated_step == 2
     assert [snap.step for snap in stated.snapshots] == ([0, 2] if fork else [0])
     resumed = stated.resumed(stated.calibrated_step, gate="calibrated")
