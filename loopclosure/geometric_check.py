@@ -120,6 +120,7 @@ from numpy.typing import ArrayLike, NDArray
 from data import se2
 from data.errors import UserError
 from loopclosure.free_space import SCAN_FREE_SPACE, Consistency
+from loopclosure.free_space_rule import expand_free_space_rule, free_space_rule_of
 from loopclosure.multi_start import initial_guesses, overlap_scores, register_multi
 from loopclosure.prior_free import PriorFreeConfig, match_prior_free
 from loopclosure.registration import (
@@ -232,6 +233,15 @@ class GeometricCheckConfig:
             keyframe model serves keeps exactly its places, its fits and its fused
             score: the scans' model adds places, it never replaces one.  Off (the
             default): either model's pass is an acceptance.
+        free_space_rule: one switch for the five keys above that move together
+            (`free_space_origins`, `free_space_confirm`, `min_consistency`,
+            `free_space_either`, `free_space_fallback`;
+            `loopclosure.free_space_rule`): ``"keys"`` (the default), each key as
+            given; ``"fallback"``, the scans' model adds places only where the
+            keyframe model (1) serves none.  Expanded when the config is made (the
+            config then holds the rule's values and ``"keys"``): a key left at its
+            default takes the rule's value, a key set otherwise is a UserError naming
+            it.  `resolved_free_space_rule` says which rule the keys hold.
         plausible_runner_up: the correlative check's ambiguity test ignores a runner-up
             that the free space rules out (`implausible_runner_up`).
         search: the correlative search's parameters.
@@ -306,6 +316,7 @@ class GeometricCheckConfig:
     free_space_confirm: bool = False
     free_space_either: float = 0.0
     free_space_fallback: bool = False
+    free_space_rule: str = "keys"
     plausible_runner_up: bool = True
     search: PriorFreeConfig = field(default_factory=PriorFreeConfig)
     covariance_floor: tuple[float, float, float] = (0.02, 0.02, 0.5)
@@ -320,6 +331,7 @@ class GeometricCheckConfig:
     compiled_icp: bool = True
 
     def __post_init__(self) -> None:
+        expand_free_space_rule(self)
         if self.method not in ("correlative", "icp"):
             raise UserError(f"loops.check.method must be correlative or icp, got {self.method!r}")
         if self.free_space_origins not in ("keyframe", "scans"):
@@ -334,6 +346,12 @@ class GeometricCheckConfig:
         if not self.free_space_return_window >= 0:
             raise UserError("loops.check.free_space_return_window must be at least 0, got "
                             f"{self.free_space_return_window!r}")
+
+    @property
+    def resolved_free_space_rule(self) -> str:
+        """The rule the free-space keys hold (`loopclosure.free_space_rule`):
+        ``"fallback"``, ``"default"`` (every key at its default) or ``"keys"``."""
+        return free_space_rule_of(self)
 
 
 @dataclass(slots=True)

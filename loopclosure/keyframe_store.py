@@ -17,7 +17,10 @@ scan given to `add_keyframe`, float32) and the host tells it, through the
 ``submap_origins`` callback (`set_submap_origins`), which keyframes' scans make up
 a submap and where their sensors lie in its frame.  The free space then travels
 with the submap: on the registration target (``derived[SCAN_FREE_SPACE]``) and on
-the query's points (`loopclosure.free_space.SubmapPoints`).
+the query's points (`loopclosure.free_space.SubmapPoints`).  Without the callback
+the scans' model is unavailable: the submaps travel as plain points and the check
+keeps the keyframe model (1), as for any pair lacking the scans' free space
+(`loopclosure.geometric_check.GeometricCheckConfig.free_space_origins`).
 """
 
 from __future__ import annotations
@@ -122,19 +125,28 @@ class KeyframeStore:
         self._targets.clear()  # their free space changes
 
     @property
-    def _per_scan(self) -> bool:
+    def _keeps_scans(self) -> bool:
+        """Each keyframe's free ranges are kept (the option on)."""
         return self.config.check.free_space_origins == "scans"
+
+    @property
+    def _per_scan(self) -> bool:
+        """The submaps carry their scans' free space: the option on and the host's
+        ``submap_origins`` callback given (else the keyframe model (1) alone)."""
+        return self._keeps_scans and self._submap_origins is not None
 
     def submap_free_space(self, key: int, last: int | None = None) -> ScanFreeSpace:
         """The free space of ``submap(key)``'s scans, each about its own sensor
         (`loopclosure.free_space` (1'), `key`'s sensor frame), from the scans of keys
         up to `last` only when given (a submap as it was when `last` was the newest).
 
+        The checks ask for it only when the callback is given (`_per_scan`).
+
         Raises:
             UserError: no ``submap_origins`` callback, or not kept (the option off).
         """
         self._check_key(key)
-        if self._submap_origins is None or not self._per_scan:
+        if self._submap_origins is None or not self._keeps_scans:
             raise UserError(
                 'check.free_space_origins = "scans" needs the host\'s submap_origins '
                 "callback: detector.set_submap_origins(lambda key: (keys, poses))")
@@ -187,7 +199,7 @@ class KeyframeStore:
                 and float(stamp) == self._stamps[-1]):
             self._clock = False  # repeated stamps (e.g. all 0): time says nothing
         self._table.append(float(stamp), int(session), place.descriptors is not None)
-        if self._per_scan:
+        if self._keeps_scans:  # the callback may come later
             self._scan_ranges.append(RangeImage(
                 scan.points(), self.config.check.search.free_bins).ranges.astype(np.float32))
         self._place_scans.append(place.place_scan)
