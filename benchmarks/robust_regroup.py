@@ -49,8 +49,11 @@ def show(name: str, cell, poses) -> None:  # type: ignore[no-untyped-def]
           f"{out.true_rejected} T, gap {out.gap:+.2f}", flush=True)
 
 
-def show_trials(trials) -> None:  # type: ignore[no-untyped-def]
-    """The hypotheses `slam.regroup.regroup` tested."""
+def show_trials(trials, screened=()) -> None:  # type: ignore[no-untyped-def]
+    """The hypotheses `slam.regroup.regroup` tested, then those its screen skipped."""
+    for group, against, drop in screened:
+        print(f"  screened out: return of {len(group)} loops ({group[0]}..), {len(against)} "
+              f"suspects, predicted drop {drop:+.2f}", flush=True)
     for group, against, drop, kept in trials:
         print(f"  return of {len(group)} loops ({group[0]}..), {len(against)} suspects out "
               f"({against[:8]}..), "
@@ -85,21 +88,24 @@ def main() -> None:
         cpu = time.process_time()
         out = regroup.regroup(corrupted, adm, chain)
         print(f"regroup: {time.process_time() - cpu:.1f} s CPU", flush=True)
-        show_trials(out.trials)
+        show_trials(out.trials, out.screened)
         show("after", cell, poses_from_values(out.admission.values, corrupted.dim))
         return
     original = regroup.regroup
     trials: list = []
+    screened: list = []
 
     def recorded(*a, **k):  # type: ignore[no-untyped-def]
         result = original(*a, **k)
         trials.extend(result.trials)
+        screened.extend(result.screened)
         return result
 
     regroup.regroup = recorded
     for run in args.runs.split(","):
         consistency.REGROUP = run == "on"
         trials.clear()
+        screened.clear()
         cpu = time.process_time()
         try:
             with cpu_cap(args.cap):
@@ -109,8 +115,8 @@ def main() -> None:
             print(f"{run}: over {args.cap:.0f} s CPU", flush=True)
             continue
         print(f"{run}: {time.process_time() - cpu:.1f} s CPU, {result.solver}, "
-              f"{len(trials)} hypotheses", flush=True)
-        show_trials(trials)
+              f"{len(trials)} hypotheses, {len(screened)} screened out", flush=True)
+        show_trials(trials, screened)
         show(run, cell, result.poses)
 
 

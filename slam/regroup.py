@@ -25,7 +25,11 @@ loop that locked them out is typically *lone*: no other admitted loop lies withi
    stated graph solved from the current solution and from the odometry chain (the lower
    stated error kept), then every loop re-decided by the residual rule from there
    (`slam.consistency.refine_tls`: a suspect that the new map satisfies comes back);
-5. a hypothesis replaces the admission only when the stated TLS objective
+5. a hypothesis is screened first (`predicted_cost`): one Gauss-Newton step of its
+   stated graph from the current solution; when neither the step's quadratic model nor
+   the TLS objective at the step's end lies below the current objective, it is skipped
+   unsolved (a return of false loops pulls against the whole map and the step shows it);
+6. a hypothesis replaces the admission only when the stated TLS objective
    (`slam.consistency.tls_cost`, ``sum min(e_k, c)`` over every loop at the solution) is
    lower: the search never raises the objective.  After a kept one the returns are
    found again from the new decisions.
@@ -33,8 +37,9 @@ loop that locked them out is typically *lone*: no other admitted loop lies withi
 A return without suspects is tried as well: its loops, forced in, can move a map that
 false loops had bent into a basin where the residual rule alone does not re-admit them.
 
-Cost: the grouping only, when no agreeing group of rejected loops exists; per hypothesis two
-solves and `refine_tls`'s rounds.  2D only (the pairwise test); 3D admissions are
+Cost: the grouping only, when no agreeing group of rejected loops exists; per hypothesis
+one linear solve (the screen), and for one that passes it two solves and `refine_tls`'s
+rounds.  2D only (the pairwise test); 3D admissions are
 returned unchanged.
 """
 
@@ -48,6 +53,7 @@ from numpy.typing import NDArray
 
 from slam.admission import Admission, StatedFactors, tls_cost
 from slam.group_recheck import GROUP_WINDOW, loop_groups
+from slam.innovation import tls_threshold
 from slam.least_squares import StickySolver
 from slam.pairwise_consistency import LoopCycles, loop_cycles
 from slam.pose_graph import PoseGraph, RobustKernel, chi2_quantile
@@ -64,10 +70,12 @@ class Regroup:
     """Outcome of `regroup`: the admission (replaced when a hypothesis was kept), and per
     hypothesis tested the loops it admitted and the suspects it took out (indices into
     `graph.loops`), the drop of the TLS objective (negative: a rise) and whether it was
-    kept."""
+    kept; per hypothesis the screen skipped (`predicted_cost`), its loops, suspects and
+    predicted drop (negative: a rise)."""
 
     admission: Admission
     trials: list[tuple[list[int], list[int], float, bool]] = field(default_factory=list)
+    screened: list[tuple[list[int], list[int], float]] = field(default_factory=list)
 
 
 def agrees(cycles: LoopCycles, group: NDArray[np.int64], probability: float = 0.99) -> bool:
@@ -133,6 +141,27 @@ def hypotheses(graph: PoseGraph, weights: Array, cycles: LoopCycles, *,
     return out
 
 
+def predicted_cost(graph: PoseGraph, values: gtsam.Values, weights: Array,
+                   factors: StatedFactors, probability: float = 0.99) -> float:
+    """Screen of a hypothesis (decisions `weights`) from `values`: one Gauss-Newton step
+    ``dx = argmin 0.5 |A dx - b|^2`` of the stated graph with the loops of weight 1 (``A``,
+    ``b``: whitened Jacobian and residual at `values`); the lower of the model's minimum
+    plus ``c`` per loop of weight 0 (an upper bound of the TLS objective where the
+    quadratic model holds) and the TLS objective (`tls_cost`) at `values` retracted by
+    ``dx``.  Gtsam error units (half squared Mahalanobis).  The step is eliminated by QR
+    (stiff odometry breaks Cholesky there); ``-inf`` when even QR finds it indeterminate."""
+    kept = stated_with_loops(factors, weights)
+    linear = kept.linearize(values)
+    try:
+        delta = linear.optimize(gtsam.EliminateQR)
+    except RuntimeError:  # indeterminate even by QR: no prediction, the hypothesis is solved
+        return float("-inf")
+    c = tls_threshold(graph.dim, probability)
+    model = linear.error(delta) + c * float(np.sum(np.asarray(weights) < 0.5))
+    stepped = tls_cost(graph, values.retract(delta), probability, factors)
+    return float(min(model, stepped))
+
+
 def regroup(
     graph: PoseGraph,
     admission: Admission,
@@ -144,10 +173,13 @@ def regroup(
     min_group: int = MIN_GROUP,
     near: int = NEAR,
     max_trials: int = MAX_TRIALS,
+    screen: bool = True,
 ) -> Regroup:
     """The module docstring's search on `admission` (a solution of `graph` with its
     weights and stated `tls_cost`); `chain`: the odometry chain (the second start of a
-    hypothesis' solve).  Returns the admission unchanged for a 3D graph."""
+    hypothesis' solve); `screen`: skip the hypotheses `predicted_cost` finds unable to
+    lower the objective (step 5), recorded in `Regroup.screened` with their predicted
+    drop.  Returns the admission unchanged for a 3D graph."""
     out = Regroup(admission)
     if graph.dim != 2 or not len(graph.loops):
         return out
@@ -171,6 +203,12 @@ def regroup(
             w = best.weights.copy()
             w[suspects] = 0.0
             w[run] = 1.0
+            if screen:
+                predicted = predicted_cost(graph, best.values, w, stated, probability)
+                if predicted >= best.tls_cost:
+                    out.screened.append(([int(k) for k in run], [int(k) for k in suspects],
+                                         best.tls_cost - predicted))
+                    continue
             kept = stated_with_loops(stated, w)
             here, there = solve(kept, best.values), solve(kept, chain)
             start = there if kept.error(there) < kept.error(here) else here

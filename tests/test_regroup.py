@@ -4,12 +4,22 @@ loop that contradicts it."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from slam.consistency import Admission, incremental_tls, refine_tls, tls_cost
 from slam.least_squares import StickySolver
 from slam.optimize import initial_guess
 from slam.pairwise_consistency import loop_cycles
-from slam.regroup import agrees, hypotheses, lone_loops, regroup, rejected_groups, returns
+from slam.pose_graph import RobustKernel
+from slam.regroup import (
+    agrees,
+    hypotheses,
+    lone_loops,
+    predicted_cost,
+    regroup,
+    rejected_groups,
+    returns,
+)
 from tests.test_robust_swap import _wrong_admission
 
 
@@ -79,7 +89,7 @@ def test_a_hypothesis_that_raises_the_objective_is_not_kept(monkeypatch) -> None
         return original(g, values, *rest) + (0.0 if values is admission.values else 1e6)
 
     monkeypatch.setattr(module, "tls_cost", dearer)
-    out = regroup(graph, admission, chain)
+    out = regroup(graph, admission, chain, screen=False)
     assert len(out.trials) == 1 and not out.trials[0][3] and out.trials[0][2] < 0
     assert out.admission is admission
 
@@ -108,3 +118,47 @@ def test_optimize_hands_regroup_to_the_incremental_admission(monkeypatch) -> Non
         optimize_module.optimize(graph, method="gnc", gnc_start="incremental", init="odometry",
                                  fast_path=False, regroup=choice)
     assert seen == [True, False, None]
+
+
+def _right_admission():  # type: ignore[no-untyped-def]
+    graph, bad, group, _ = _wrong_admission()
+    weights = np.ones(len(graph.loops))
+    weights[bad] = 0.0
+    chain = graph.gtsam_values(initial_guess(graph, "odometry"))
+    values, weights = refine_tls(graph, chain, weights, barred=[bad])
+    return graph, bad, group, Admission(values, weights, tls_cost(graph, values), 0, "stated")
+
+
+def test_predicted_cost_at_the_hypothesis_optimum_is_its_objective() -> None:
+    # At the solution of the stated graph of the right decisions the Gauss-Newton step is
+    # zero: the model's minimum is the stated error plus c for the one rejected loop, which
+    # is the TLS objective (the admitted loops are below c, the false one above it).
+    graph, bad, _group, right = _right_admission()
+    factors = graph.factor_graph(RobustKernel("none"))
+    assert predicted_cost(graph, right.values, right.weights, factors) == pytest.approx(
+        right.tls_cost, rel=1e-6)
+    # Forcing the false loop in pulls against every true loop: predicted dearer.
+    forced = right.weights.copy()
+    forced[bad] = 1.0
+    assert predicted_cost(graph, right.values, forced, factors) > right.tls_cost + 10.0
+
+
+def test_predicted_cost_sees_the_drop_of_the_true_hypothesis() -> None:
+    graph, bad, group, admission = _wrong_admission()
+    factors = graph.factor_graph(RobustKernel("none"))
+    weights = admission.weights.copy()
+    weights[bad], weights[group] = 0.0, 1.0
+    assert predicted_cost(graph, admission.values, weights, factors) < admission.tls_cost - 10.0
+
+
+def test_a_screened_hypothesis_is_not_solved(monkeypatch) -> None:
+    graph, bad, group, admission = _wrong_admission()
+    chain = graph.gtsam_values(initial_guess(graph, "odometry"))
+    from slam import regroup as module
+
+    monkeypatch.setattr(module, "predicted_cost", lambda *a, **k: admission.tls_cost + 1.0)
+    monkeypatch.setattr(module, "refine_tls", None)  # a solve would fail
+    out = regroup(graph, admission, chain)
+    assert out.trials == [] and out.admission is admission
+    (tried, against, drop), = out.screened
+    assert sorted(tried) == group and against == [bad] and drop == pytest.approx(-1.0)
