@@ -102,6 +102,7 @@ def main() -> None:
         return result
 
     regroup.regroup = recorded
+    consistency.redecide = recorded  # the name incremental_tls calls
     for run in args.runs.split(","):
         consistency.REGROUP = run == "on"
         trials.clear()

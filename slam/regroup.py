@@ -26,9 +26,10 @@ loop that locked them out is typically *lone*: no other admitted loop lies withi
    stated error kept), then every loop re-decided by the residual rule from there
    (`slam.consistency.refine_tls`: a suspect that the new map satisfies comes back);
 5. a hypothesis is screened first (`predicted_cost`): one Gauss-Newton step of its
-   stated graph from the current solution; when neither the step's quadratic model nor
-   the TLS objective at the step's end lies below the current objective, it is skipped
-   unsolved (a return of false loops pulls against the whole map and the step shows it);
+   stated graph from the current solution, and the TLS objective of the linearised graph
+   there (every loop capped at ``c``); when that is not below the current objective the
+   hypothesis is skipped unsolved (a return of false loops pulls against the whole map,
+   and the step shows it);
 6. a hypothesis replaces the admission only when the stated TLS objective
    (`slam.consistency.tls_cost`, ``sum min(e_k, c)`` over every loop at the solution) is
    lower: the search never raises the objective.  After a kept one the returns are
@@ -143,23 +144,33 @@ def hypotheses(graph: PoseGraph, weights: Array, cycles: LoopCycles, *,
 
 def predicted_cost(graph: PoseGraph, values: gtsam.Values, weights: Array,
                    factors: StatedFactors, probability: float = 0.99) -> float:
-    """Screen of a hypothesis (decisions `weights`) from `values`: one Gauss-Newton step
-    ``dx = argmin 0.5 |A dx - b|^2`` of the stated graph with the loops of weight 1 (``A``,
-    ``b``: whitened Jacobian and residual at `values`); the lower of the model's minimum
-    plus ``c`` per loop of weight 0 (an upper bound of the TLS objective where the
-    quadratic model holds) and the TLS objective (`tls_cost`) at `values` retracted by
-    ``dx``.  Gtsam error units (half squared Mahalanobis).  The step is eliminated by QR
-    (stiff odometry breaks Cholesky there); ``-inf`` when even QR finds it indeterminate."""
-    kept = stated_with_loops(factors, weights)
-    linear = kept.linearize(values)
+    """Screen of a hypothesis (decisions `weights`) from `values`: the TLS objective of the
+    stated graph linearised at `values` after one Gauss-Newton step of the hypothesis.
+
+    ``dx = argmin 0.5 |A_w dx - b_w|^2`` over the odometry, the prior and the loops of
+    weight 1 (``A``, ``b``: whitened Jacobian and residual at `values`); the prediction
+    is ``sum_f 0.5 |A_f dx - b_f|^2`` over the odometry and prior plus
+    ``sum_k min(0.5 |A_k dx - b_k|^2, c)`` over every loop (the hypothesis' suspects
+    included: the residual rule re-admits those the new map satisfies).  At a solution
+    of the hypothesis' stated graph (``dx = 0``) it is `tls_cost`.  Gtsam error units
+    (half squared Mahalanobis); ``-inf`` when the step is indeterminate.  The step is
+    eliminated by QR (stiff odometry breaks Cholesky)."""
+    base, loop_index = factors
+    linear = base.linearize(values)
+    n_fixed = base.size() - len(loop_index)
+    step = gtsam.GaussianFactorGraph()
+    for k in range(n_fixed):
+        step.push_back(linear.at(k))
+    for k in np.flatnonzero(np.asarray(weights) > 0.5):
+        step.push_back(linear.at(loop_index[k]))
     try:
-        delta = linear.optimize(gtsam.EliminateQR)
+        delta = step.optimize(gtsam.EliminateQR)
     except RuntimeError:  # indeterminate even by QR: no prediction, the hypothesis is solved
         return float("-inf")
     c = tls_threshold(graph.dim, probability)
-    model = linear.error(delta) + c * float(np.sum(np.asarray(weights) < 0.5))
-    stepped = tls_cost(graph, values.retract(delta), probability, factors)
-    return float(min(model, stepped))
+    fixed = sum(linear.at(k).error(delta) for k in range(n_fixed))
+    loops = sum(min(linear.at(k).error(delta), c) for k in loop_index)
+    return float(fixed + loops)
 
 
 def regroup(
