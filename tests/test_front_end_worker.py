@@ -19,6 +19,12 @@ def _square(x: int, ahead: int) -> int:
     return x * x
 
 
+def _box_run(laps: float):
+    """A simulated box world seen by a 180-degree, 181-beam laser, `laps` laps."""
+    return simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
+                        motion=MotionConfig(laps=laps))
+
+
 def test_results_come_back_in_input_order_across_batches() -> None:
     items = range(3 * BATCH + 5)
     stats: dict[str, float] = {}
@@ -50,8 +56,7 @@ def test_closing_early_stops_the_worker() -> None:
 
 
 def test_mapper_with_the_front_end_in_a_worker_maps_identically() -> None:
-    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
-                       motion=MotionConfig(laps=1.0))
+    run = _box_run(laps=1.0)
     results = [Mapper(PipelineConfig(odometry="icp2d", front_end_worker=w)).run(run.scans)
                for w in (False, True)]
     assert len(results[1].scan_poses) == len(run.scans)
@@ -83,8 +88,7 @@ def test_ahead_counts_the_results_sent_and_not_yet_taken() -> None:
 
 
 def test_mapping_scan_by_scan_needs_no_worker() -> None:
-    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
-                       motion=MotionConfig(laps=0.3))
+    run = _box_run(laps=0.3)
     by_scan = Mapper(PipelineConfig(odometry="icp2d"))
     for scan in run.scans:
         by_scan.process(scan)
@@ -95,8 +99,7 @@ def test_mapping_scan_by_scan_needs_no_worker() -> None:
 
 
 def test_a_keyframes_submap_from_the_worker_is_the_one_the_mapper_builds() -> None:
-    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
-                       motion=MotionConfig(laps=0.3))
+    run = _box_run(laps=0.3)
     worker, mapper = (Mapper(PipelineConfig(odometry="icp2d")) for _ in range(2))
     sent = []
     for scan in run.scans:  # the worker's steps, here, then the mapper's
@@ -117,8 +120,7 @@ def test_a_keyframes_submap_from_the_worker_is_the_one_the_mapper_builds() -> No
 
 
 def test_an_outdated_submap_from_the_worker_is_not_adopted() -> None:
-    run = simulate_run("box", seed=3, fov_deg=180.0, beams=181, max_range=12.0,
-                       motion=MotionConfig(laps=0.3))
+    run = _box_run(laps=0.3)
     mapper = Mapper(PipelineConfig(odometry="icp2d"))
     for scan in run.scans:
         mapper.process(scan)
