@@ -25,9 +25,10 @@ from data.lazy_exports import lazy_exports
 
 if TYPE_CHECKING:
     from slam.config import BackendConfig, PipelineConfig, SubmapConfig
+    from slam.mapping_result import LoopEvent, MappingResult
     from slam.occupancy_map import MapConfig, OccupancyGrid, build_occupancy_grid
     from slam.optimization_result import OptimizationResult
-    from slam.pipeline import LoopEvent, Mapper, MappingResult
+    from slam.pipeline import Mapper
     from slam.pose_graph import PoseGraph, RobustKernel
     from slam.results import write_results
     from slam.session_file import SavedMap, SessionInfo, read_saved_map, write_saved_map
@@ -45,9 +46,9 @@ _HOMES = {
     "build_occupancy_grid": "slam.occupancy_map",
     "IncrementalSmoother": "slam.smoothers",
     "OptimizationResult": "slam.optimization_result",
-    "LoopEvent": "slam.pipeline",
+    "LoopEvent": "slam.mapping_result",
     "Mapper": "slam.pipeline",
-    "MappingResult": "slam.pipeline",
+    "MappingResult": "slam.mapping_result",
     "PoseGraph": "slam.pose_graph",
     "RobustKernel": "slam.pose_graph",
     "write_results": "slam.results",

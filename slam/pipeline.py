@@ -29,21 +29,27 @@ keyframe's pose is its odometry pose and is held fixed).  All poses are planar
 ``(x, y, theta)`` of the sensor.
 
 Submaps: a keyframe's local map is the union of the points of keyframes
-``k - n .. k + n`` (those that exist), placed by their odometry poses relative to
-``k`` (odometry is locally accurate), voxel-downsampled, in k's sensor frame.  A
-new keyframe's place is described from its trailing submap (``k - n .. k``).  The
-loop detector pulls them through `Mapper.submap`; their version
-(`Mapper.submap_version`: the newest keyframe they include) tells it when a cached
-registration target is out of date.  The place database's wide view of a keyframe is
-described from the same union over a longer trailing stretch,
-``k - loops.wide_keyframes .. k`` (`Mapper.trailing_map`).
+``k - n .. k + n`` placed by their odometry poses relative to ``k``, in k's sensor
+frame; a new keyframe's place is described from its trailing submap (``k - n .. k``).
+The loop detector pulls them through `Mapper.submap`, `Mapper.submap_version` and
+`Mapper.trailing_map` (`slam.submap_cache`).
+
+This module is the mapper's front door and its table of contents (`Mapper`, whose
+methods read as the stages above); the stages' own jobs are modules of their own
+(`LoopEvent` and `MappingResult` are re-exported here):
+
+* `slam.mapping_result`: `LoopEvent` and `MappingResult`, what a run produced.
+* `slam.submap_cache`: the keyframes' submaps (cached, versioned) and trailing maps.
+* `slam.drift`: the drift covariance since the last loop closure (the search gate).
+* `slam.session_join`: the joint graph of a saved map and the session joined to it.
+* `slam.final_pass`: the final batch GNC.
+* `slam.planar_scan`: a point cloud as a planar scan.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,20 +58,21 @@ from data import se2
 from data.errors import UserError
 from data.types import PointCloud, Scan
 from loopclosure.keyframe_store import KeyframePlace
-from loopclosure.loop_candidate import LoopCandidate
 from loopclosure.loop_detector import LoopClosureDetector
 from loopclosure.place_match import PlaceMatch
 from slam.config import PipelineConfig
-from slam.consistency import has_odometry_spine
+from slam.drift import _propagate_drift, _rotate_covariance
+from slam.final_pass import final_gnc
 from slam.front_end_worker import LEAD, map_in_worker, worker_available
 from slam.kernel_warm_up import warm_up_isolated
 from slam.keyframes import GrowingRows, Keyframe, KeyframeSelector, scan_poses_from_keyframes
+from slam.mapping_result import LoopEvent, MappingResult
 from slam.memory import release_free_memory
 from slam.odometry import OdometryEstimate, make_odometry
-from slam.optimize import optimize
-from slam.pose_graph import PoseGraph
+from slam.planar_scan import _planar_scan
 from slam.refine_scans import refine_scan_poses
-from slam.session_file import SavedMap, SessionInfo
+from slam.session_file import SavedMap
+from slam.session_join import fill_joint_graph
 from slam.session_result import complete_sessions
 from slam.sessions import (
     PendingLoop,
@@ -75,66 +82,13 @@ from slam.sessions import (
     session_spans,
 )
 from slam.smoothers import IncrementalSmoother
+from slam.submap_cache import SubmapCache
+
+__all__ = ["LoopEvent", "Mapper", "MappingResult", "Progress"]
 
 Array = NDArray[np.float64]
 Progress = Callable[[int, int, int], None]
 """Called after every scan with (scans, keyframes, accepted loops)."""
-
-
-@dataclass(slots=True)
-class LoopEvent:
-    """A loop-closure candidate as the pipeline saw it (for loops.csv and metrics)."""
-
-    candidate: LoopCandidate
-    stamp_query: float
-    stamp_match: float
-    factor: int | None = None  # index in the graph's loops when accepted
-    rejected_by_gnc: bool = False
-
-
-@dataclass
-class MappingResult:
-    """What a run produced (before it is written to files).
-
-    Attributes:
-        scan_stamps: ``(N,)`` stamp of every scan, in source order.
-        scan_poses: ``(N, 3)`` optimised sensor pose of every scan (map frame).
-        odometry_poses: ``(N, 3)`` front-end pose of every scan (before loop closure).
-        keyframes: the keyframes (poses in `keyframe_poses`).
-        keyframe_poses: id -> optimised pose.
-        loops: every candidate tried.
-        smoother: the back end (its graph holds every constraint).
-        timings: seconds per stage (with the front end's worker,
-            ``loop_detection_in_worker`` is the part of ``loop_detection`` measured in
-            the worker: place descriptions and the matches it made while ahead).
-        interrupted: the run was stopped before the end of its input.
-        sessions: every session of the map, oldest first (one without ``--map``).
-        saved_map: the run as a saved map (``session.npz``; of an interrupted run too:
-            what was mapped).
-        loop_outliers: indices of the graph's loops the final optimisation rejected.
-        worker_peak_rss_mb: peak resident memory of the front end's worker process
-            [MB] (`slam.front_end_worker`; 0 without one).
-    """
-
-    scan_stamps: Array
-    scan_poses: Array
-    odometry_poses: Array
-    keyframes: list[Keyframe]
-    keyframe_poses: dict[int, Array]
-    loops: list[LoopEvent]
-    smoother: IncrementalSmoother
-    timings: dict[str, float]
-    interrupted: bool = False
-    odometry_status: dict[str, int] = field(default_factory=dict)
-    sessions: list[SessionInfo] = field(default_factory=list)
-    saved_map: SavedMap | None = None
-    loop_outliers: set[int] = field(default_factory=set)
-    worker_peak_rss_mb: float = 0.0
-
-    @property
-    def accepted_loops(self) -> list[LoopEvent]:
-        """Loops added to the graph and kept by the final optimisation."""
-        return [e for e in self.loops if e.candidate.accepted and not e.rejected_by_gnc]
 
 
 class Mapper:
@@ -177,8 +131,7 @@ class Mapper:
         # Covariance of the newest keyframe's pose relative to the last loop closure,
         # in the map frame (see `_propagate_drift`).
         self._drift = np.zeros((3, 3))
-        self._submaps: dict[int, tuple[int, Array]] = {}
-        self._incomplete: set[int] = set()  # keys of `_submaps` below version key + n
+        self._submap_cache = SubmapCache(cfg, self._keyframe, self._span)
         self._floor = np.diag(
             np.array([cfg.backend.odometry_floor[0], cfg.backend.odometry_floor[1],
                       np.radians(cfg.backend.odometry_floor[2])]) ** 2
@@ -431,7 +384,7 @@ class Mapper:
         self._accepted_tally = (len(self.loops), count, self._joined)
         return count
 
-    # -- sessions ---------------------------------------------------------------------
+    # -- sessions (`slam.sessions`, `slam.session_join`) ------------------------------
 
     def _try_join(self, kf: Keyframe) -> None:
         """Join the new session when enough pending loops agree (`slam.sessions`): one
@@ -447,22 +400,7 @@ class Mapper:
             self._estimate[first.match], first.relative, self._estimate[first.query]
         )
         joint = self._new_smoother()
-        for k in range(base):
-            joint.add_pose(k, saved["kf_pose"][k])
-        for (i, j), z, info in zip(saved["odom_ij"], saved["odom_z"], saved["odom_info"],
-                                   strict=True):
-            joint.add_odometry(int(i), int(j), z, info)
-        for (i, j), z, info in zip(saved["loop_ij"], saved["loop_z"], saved["loop_info"],
-                                   strict=True):
-            joint.add_loop(int(i), int(j), z, info)
-        offset = len(saved["loop_ij"])
-        graph = self.smoother.graph
-        for key in sorted(graph.initial):
-            joint.add_pose(key, se2.compose(t, self._estimate[key]))
-        for c in graph.odometry:
-            joint.add_odometry(c.i, c.j, c.measurement, c.information)
-        for c in graph.loops:
-            joint.add_loop(c.i, c.j, c.measurement, c.information)
+        offset = fill_joint_graph(joint, saved, base, self.smoother.graph, self._estimate, t)
         for e in self.loops:
             if e.factor is not None:
                 e.factor += offset
@@ -520,86 +458,40 @@ class Mapper:
             return self._old_spans[int(self._saved["kf_session"][key])]
         return self._base, self._base + len(self.keyframes.keyframes) - 1
 
-    # -- submaps ----------------------------------------------------------------------
+    # -- submaps (`slam.submap_cache`) ------------------------------------------------
 
     def submap_version(self, key: int) -> int:
-        """Version of `submap(key)`: the newest keyframe it includes (it grows until
-        ``key + n`` exists, then never changes)."""
-        return min(key + self.config.submap_neighbours(), self._span(key)[1])
+        """Version of `submap(key)`: the newest keyframe it includes."""
+        return self._submap_cache.version(key)
 
     def submap(self, key: int) -> Array:
-        """Local map of keyframe `key` in its sensor frame (module docstring), cached;
-        only keyframes of its own session take part."""
-        n = self.config.submap_neighbours()
-        lo = self._span(key)[0]
-        hi = self.submap_version(key)
-        cached = self._submaps.get(key)
-        if cached is not None and cached[0] == hi:
-            return cached[1]
-        pts = self._local_points(key, max(lo, key - n), hi)
-        self._cache_submap(key, hi, pts)
-        return pts
-
-    def _adopt_submap(self, key: int, version: int, points: Array) -> None:
-        """`submap(key)` as the front end's worker built it (version, points in
-        `key`'s sensor frame [m]), cached here when it is the version this process
-        would build now (the worker's keyframes are the mapper's)."""
-        if version == self.submap_version(key) and key not in self._submaps:
-            self._cache_submap(key, version, points)
-
-    def _cache_submap(self, key: int, version: int, points: Array) -> None:
-        """`points` as `submap(key)` of `version`, and the incomplete submaps far
-        behind `key` dropped."""
-        n = self.config.submap_neighbours()
-        self._submaps[key] = (version, points)
-        if version < key + n:
-            self._incomplete.add(key)
-        else:
-            self._incomplete.discard(key)
-        # Incomplete submaps (of keys near a session's end when cached) far behind
-        # the asked one are dropped: they would be rebuilt anyway.  Only the
-        # incomplete ones are scanned, not every cached submap.
-        stale = key - 4 * n - self.config.loops.exclude_recent
-        for old in [k for k in self._incomplete if k < stale]:
-            del self._submaps[old]
-            self._incomplete.discard(old)
+        """Local map of keyframe `key` in its sensor frame [m] (module docstring), cached."""
+        return self._submap_cache.submap(key)
 
     def submap_origins(self, key: int) -> tuple[Array, Array]:
         """The keys `submap(key)` merges and their front-end sensor poses in `key`'s
-        sensor frame (``(k,)``, ``(k, 3)`` [m, rad]): where each of its scans was seen
-        from (the loop detector's ``check.free_space_origins = "scans"``)."""
-        first = max(self._span(key)[0], key - self.config.submap_neighbours())
-        keys = np.arange(first, self.submap_version(key) + 1)
-        inverse = se2.inverse(self._keyframe(key).odom_pose)
-        poses = [se2.compose(inverse, self._keyframe(j).odom_pose) for j in keys]
-        return keys, np.asarray(poses, dtype=float).reshape(-1, 3)
+        sensor frame (``(k,)``, ``(k, 3)`` [m, rad])."""
+        return self._submap_cache.origins(key)
 
     def trailing_map(self, key: int, n: int) -> Array:
         """Keyframes ``key - n .. key`` of `key`'s session, in `key`'s sensor frame [m],
-        cropped and voxelised as a submap: the map the robot built on its way to `key`
-        (the loop detector's wide view)."""
-        return self._local_points(key, max(self._span(key)[0], key - n), key)
+        cropped and voxelised as a submap (the loop detector's wide view)."""
+        return self._submap_cache.trailing_map(key, n)
 
     def _local_points(self, key: int, first: int, last: int) -> Array:
-        """Keyframes ``first .. last`` in `key`'s sensor frame (front-end poses), points
-        beyond ``submap.max_range`` dropped, voxelised by ``submap.voxel`` [m] (the
-        compiled `loopclosure.registration.voxel_downsample`)."""
-        inverse = se2.inverse(self._keyframe(key).odom_pose)  # between(centre, .) each
-        parts = [_transform(se2.compose(inverse, kf.odom_pose), kf.points)
-                 for kf in map(self._keyframe, range(first, last + 1))]
-        pts = np.vstack(parts) if parts else np.zeros((0, 2))
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= self.config.submap.max_range]
-        from loopclosure.fast_icp import voxel_downsample_fast  # numba loads on first use
+        """Keyframes ``first .. last`` in `key`'s sensor frame [m], cropped and voxelised."""
+        return self._submap_cache.local_points(key, first, last)
 
-        return voxel_downsample_fast(pts, self.config.submap.voxel)
+    def _adopt_submap(self, key: int, version: int, points: Array) -> None:
+        """`submap(key)` as the front end's worker built it, cached when current."""
+        self._submap_cache.adopt(key, version, points)
 
-    # -- the end ----------------------------------------------------------------------
+    @property
+    def _submaps(self) -> dict[int, tuple[int, Array]]:
+        """The cached submaps: key -> (version, points)."""
+        return self._submap_cache.submaps
 
-    def _final_start(self, graph: PoseGraph) -> str:
-        """`BackendConfig.final_start`, except that a graph without an odometry spine
-        (sessions joined by loops alone) is decided by the warm GNC."""
-        start = self.config.backend.final_start
-        return "given" if start == "incremental" and not has_odometry_spine(graph) else start
+    # -- the end (`slam.final_pass`, `slam.mapping_result`) ---------------------------
 
     def _release_incremental_solver(self) -> None:
         """Before the final batch GNC, which re-solves the whole graph from the poses
@@ -617,8 +509,7 @@ class Mapper:
         start = time.perf_counter()
         # The submaps and their registration targets are caches (rebuilt on demand):
         # not resident under the final optimisation's transients.
-        self._submaps.clear()
-        self._incomplete.clear()
+        self._submap_cache.clear()
         self.detector.release_caches()
         graph = self.smoother.graph
         known = len(self._estimate)  # a run stopped by Ctrl-C may hold a newer pose
@@ -626,18 +517,7 @@ class Mapper:
         rejected: set[int] = set()
         if graph.loops and self.config.backend.final_gnc and not interrupted:
             self._release_incremental_solver()
-            result = optimize(
-                graph, method="gnc", initial=poses,
-                gnc_probability=self.config.backend.gnc_probability,
-                gnc_start=self._final_start(graph),
-                confirm="screen" if self.config.backend.admission_check == "screen" else True,
-            )
-            poses = result.poses
-            rejected = set(result.loop_outliers)
-            release_free_memory()  # the optimisation's transients, before the outputs
-            for event in self.loops:
-                if event.factor is not None and event.factor in rejected:
-                    event.rejected_by_gnc = True
+            poses, rejected = final_gnc(graph, poses, self.config.backend, self.loops)
         for p in self._pending:  # the sessions were never joined
             p.event.candidate.accepted = False
             p.event.candidate.reason = "session not joined (too few consistent loops)"
@@ -673,50 +553,3 @@ class Mapper:
         )
         return complete_sessions(self, result, poses)
 
-
-def _transform(pose: Array, points: Array) -> Array:
-    """`data.se2.transform_points` of a ``(3,)`` float pose and ``(N, 2)`` float points
-    (the same operations, without its conversions: a submap transforms a few dozen
-    keyframes)."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return points @ np.array([[c, -s], [s, c]]).T + pose[:2]
-
-
-def _rotate_covariance(cov: Array, theta: float) -> Array:
-    """A ``(x, y, theta)`` covariance given in a frame at heading `theta`, in the map frame."""
-    c, s = np.cos(theta), np.sin(theta)
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return rot @ cov @ rot.T
-
-
-def _propagate_drift(drift: Array, pose: Array, delta: Array, cov: Array) -> Array:
-    """First-order covariance of ``pose (+) delta`` in the map frame.
-
-    `drift` is the covariance of `pose` (map frame, x y theta), `cov` that of `delta`
-    (body frame of `pose`).  This is the uncertainty a search gate needs: how far the
-    pose may have drifted since the last loop closure, without the cost of iSAM2
-    marginals (which also measure drift from the *first* pose, and so grow without
-    bound on a long run even where the map is locally consistent).
-    """
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    dx, dy = delta[0], delta[1]
-    jac_pose = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy],
-                         [0.0, 0.0, 1.0]])
-    return jac_pose @ drift @ jac_pose.T + _rotate_covariance(cov, pose[2])
-
-
-def _planar_scan(cloud: PointCloud) -> Scan:
-    """A point cloud flattened into a 360-degree planar scan for keyframing and places.
-
-    Points within 0.3 m of the sensor's height, binned by bearing (1 degree), nearest
-    per bin; bins without points read as no return.
-    """
-    pts = cloud.points[np.abs(cloud.points[:, 2]) < 0.3]
-    bins = 360
-    angles = np.linspace(-np.pi, np.pi, bins, endpoint=False)
-    ranges = np.full(bins, 100.0)
-    if len(pts):
-        r = np.hypot(pts[:, 0], pts[:, 1])
-        b = ((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * bins).astype(int) % bins
-        np.minimum.at(ranges, b, r)
-    return Scan(cloud.stamp, ranges, angles, 100.0, 0.0, None, cloud.index)

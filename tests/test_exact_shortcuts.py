@@ -12,8 +12,8 @@ from data.types import Scan
 from loopclosure.fast_icp import beam_points_fast, voxel_downsample_fast
 from slam.odometry.icp2d import Icp2dConfig, Icp2dOdometry
 from slam.outputs import LoopRecord, write_loops_csv
-from slam.pipeline import _transform
 from slam.pose_graph import PoseGraph, RobustKernel
+from slam.submap_cache import _transform
 from tests.helpers import load_benchmark
 
 

@@ -165,7 +165,7 @@ def test_real_intel_slice_loops_beat_odometry_on_the_relations() -> None:
 
 
 def test_drift_propagation_matches_a_hand_computed_case() -> None:
-    from slam.pipeline import _propagate_drift
+    from slam.drift import _propagate_drift
 
     # Heading uncertainty 0.01 rad^2 before a 2 m step straight ahead (heading 0):
     # the lever arm adds 2^2 * 0.01 = 0.04 m^2 across the motion (y), none along it.
