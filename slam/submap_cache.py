@@ -7,7 +7,9 @@ voxel-downsampled, in k's sensor frame [m] (``n``:
 `PipelineConfig.submap_neighbours`).  Its version is the newest keyframe it includes:
 it grows until ``k + n`` exists, then never changes, so the loop detector knows when
 a cached registration target is out of date.  A trailing map is the same union over
-``k - n .. k`` (the map the robot built on its way to ``k``).
+``k - n .. k`` (the map the robot built on its way to ``k``): a new keyframe's place
+is described from its trailing submap, and the place database's wide view of it from
+a longer trailing stretch, ``k - loops.wide_keyframes .. k``.
 
 `SubmapCache` answers these for `slam.pipeline.Mapper`, which hands the loop
 detector its `submap`, `version`, `origins` and `trailing_map`.  It sees the
