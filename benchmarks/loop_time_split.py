@@ -51,7 +51,7 @@ STAGES = [
     ("slam.pipeline", "Mapper", "_add_keyframe", "add_keyframe (all of it)"),
     ("slam.pipeline", "Mapper", "_update", "graph update"),
     ("slam.pipeline", "Mapper", "finish", "finish (final pass)"),
-    ("slam.pipeline", "Mapper", "_local_points", "submap points"),
+    ("slam.submap_cache", "SubmapCache", "local_points", "submap points"),
     ("slam.odometry.icp2d", "Icp2dOdometry", "process", "front end"),
     ("slam.keyframes", "KeyframeSelector", "push", "keyframe selection"),
     ("loopclosure.keyframe_store", "KeyframeStore", "_describe_wide", "describe wide view"),

@@ -5,7 +5,8 @@ Metrics: `retrieval`, `loop_metrics`, `trajectory_error`, `relations_metric`,
 
 - ``bench places``: `places_benchmark` (runner), `places_methods`, `places_matrix`,
   `places_paper`, `places_report`, on the sets of `place_datasets`;
-- ``bench stripes``: `stripes_benchmark` (runner), `stripes_objects`,
+- ``bench stripes``: `stripes_benchmark` (runner), `stripes_config`, `stripes_methods`,
+  `stripes_tasks`, `stripes_ranking`, `stripes_result`, `stripes_paper`, `stripes_objects`,
   `stripes_retrieval`, `stripes_report`; ``bench landmarks``: `landmarks_benchmark`;
 - ``bench slam``: `slam_benchmark` (runner), `slam_input`, `slam_methods`,
   `slam_reference`, `loop_verdicts`, `slam_report`;
