@@ -279,6 +279,33 @@ def test_icp2d_odometry_glitch_and_kidnap(run) -> None:
     assert np.hypot(err[0], err[1]) < 0.05
 
 
+def test_icp2d_kidnap_noise_odometry(run) -> None:
+    """``kidnap_noise="odometry"``: a kidnapped increment keeps the odometry model's
+    covariance of that increment times `fallback_inflation` (by hand from the model's
+    formula) instead of ``kidnap_sigma``; poses and increments are the fixed rule's."""
+    scans = list(run.scans[:40]) + [dataclasses.replace(s) for s in run.scans[200:206]]
+    a, b = Icp2dOdometry(), Icp2dOdometry(Icp2dConfig(kidnap_noise="odometry"))
+    ea, eb = [a.process(s) for s in scans], [b.process(s) for s in scans]
+    assert ea[40].extra["kidnap"] is True and eb[40].extra["kidnap"] is True
+    for x, y in zip(ea, eb, strict=True):
+        np.testing.assert_array_equal(x.pose, y.pose)
+        np.testing.assert_array_equal(x.delta, y.delta)
+    np.testing.assert_allclose(np.sqrt(np.diag(ea[40].covariance)), [10.0, 10.0, np.pi])
+    u = se2.between(run.scans[39].odom, run.scans[200].odom)
+    d, t = np.hypot(u[0], u[1]), abs(se2.wrap_angle(u[2]))
+    n = Icp2dConfig().odometry_noise
+    want = 10.0 * np.diag([
+        n.along_per_m**2 * d + n.along_per_rad**2 * t + n.min_sigma_xy**2,
+        n.lateral_per_m**2 * d + n.lateral_per_rad**2 * t + n.min_sigma_xy**2,
+        n.rot_per_m**2 * d + n.rot_per_rad**2 * t + n.min_sigma_theta**2])
+    np.testing.assert_allclose(eb[40].covariance, want, rtol=1e-12)
+    assert d > 1.0 and want[0, 0] < 1.0  # a metres-long jump, far below 10 m sigma
+    for k in range(41, len(scans)):  # registered scans: identical covariances
+        np.testing.assert_array_equal(ea[k].covariance, eb[k].covariance)
+    with pytest.raises(UserError, match="kidnap_noise"):
+        Icp2dConfig(kidnap_noise="loose")
+
+
 def test_icp2d_on_an_intel_slice() -> None:
     """First 600 scans of Intel: the relations inside beat wheel odometry by far."""
     from data.carmen import CarmenLog

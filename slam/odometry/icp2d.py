@@ -87,7 +87,14 @@ Graceful handling (status of `OdometryEstimate`)
   (``extra["kidnap"] = False``).  Otherwise the robot was carried away
   (``extra["kidnap"] = True``): the pose follows the odometry, the covariance is
   ``diag(kidnap_sigma^2)`` (the increment is as good as unknown) and the map
-  restarts from this scan.
+  restarts from this scan.  With ``kidnap_noise="odometry"`` the covariance is
+  instead the odometry's own model of that increment times `fallback_inflation`
+  (as for a ``failed`` registration): the map restarts all the same, but the
+  increment keeps the weight the odometry deserves.  A "jump" is judged against the
+  recent steps, so on a log of one scan per metre an ordinary 1 m step after turns
+  on the spot is one; given ``kidnap_sigma`` it is a free joint of the pose graph
+  where any loop closing a cycle through it bends the trajectory (the whole
+  discrepancy of the cycle goes into that one increment).
 
 Every estimate carries ``extra``: points, map_points, keyframe (a map keyframe was
 added), and after ICP inlier_ratio, rms, iterations, degeneracy, converged, search
@@ -213,7 +220,11 @@ class Icp2dConfig:
         jump_history: number of recent increments (and fitness values) of the medians.
         jump_fitness_ratio: a match after a jump needs this fraction of the median
             recent fitness.
-        kidnap_sigma: standard deviations of a kidnapped increment (x, y, theta).
+        kidnap_sigma: standard deviations of a kidnapped increment (x [m], y [m],
+            theta [rad]) with ``kidnap_noise="fixed"``.
+        kidnap_noise: covariance of a kidnapped increment: ``"fixed"``,
+            ``diag(kidnap_sigma^2)``; or ``"odometry"``, `odometry_noise` of the
+            odometry increment times `fallback_inflation` (module docstring).
         search: run a multi-hypothesis search when the prediction registers badly.
         search_below_fitness: ICP fitness below this also triggers the search.
         search_headings: heading hypotheses of the search (besides prediction and
@@ -279,6 +290,7 @@ class Icp2dConfig:
     jump_history: int = 20
     jump_fitness_ratio: float = 0.75
     kidnap_sigma: tuple[float, float, float] = (10.0, 10.0, np.pi)
+    kidnap_noise: str = "fixed"
     search: bool = True
     search_below_fitness: float = 0.3
     search_headings: int = 4
@@ -321,6 +333,9 @@ class Icp2dConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise UserError(f"icp2d {name} must be positive, got {value}")
+        if self.kidnap_noise not in ("fixed", "odometry"):
+            raise UserError(f"icp2d kidnap_noise must be fixed or odometry, "
+                            f"got {self.kidnap_noise!r}")
         if self.covariance_inflation not in ("none", "inliers"):
             raise UserError(f"icp2d covariance_inflation must be none or inliers, "
                             f"got {self.covariance_inflation!r}")
@@ -474,7 +489,7 @@ class Icp2dOdometry:
             extra["odometry_step"] = u.copy()
         if len(points) < cfg.min_points or self._grid is None:
             if jump:
-                return self._kidnap(scan, pred, u, points, extra, t0)
+                return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
             # No usable scan, or no map yet (every earlier scan was empty): predict.
             cov = u_cov * cfg.fallback_inflation
             enough = len(points) >= cfg.min_points
@@ -506,10 +521,10 @@ class Icp2dOdometry:
             usual = float(statistics.median(self._recent_fitness))
             if res.fitness < cfg.jump_fitness_ratio * usual:
                 extra["rejected_fitness"] = res.fitness
-                return self._kidnap(scan, pred, u, points, extra, t0)
+                return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
         if not self._good(res):
             if jump:
-                return self._kidnap(scan, pred, u, points, extra, t0)
+                return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
             cov = u_cov * cfg.fallback_inflation
             self._accept(pred, u, points, extra)
             return self._estimate(scan, pred, u, cov, res.fitness, "failed", t0, extra)
@@ -707,9 +722,13 @@ class Icp2dOdometry:
                     and res.rms <= cfg.max_rms)
 
     def _kidnap(
-        self, scan: Scan, pred: Array, u: Array, points: Array, extra: dict[str, Any], t0: float
+        self, scan: Scan, pred: Array, u: Array, u_cov: Array, points: Array,
+        extra: dict[str, Any], t0: float,
     ) -> OdometryEstimate:
-        """The odometry jumped and the map does not confirm any motion: restart the map."""
+        """The odometry jumped and the map does not confirm any motion: restart the map.
+
+        `u_cov` is the odometry model's covariance of the increment `u`; the estimate's
+        covariance is set by `kidnap_noise` (module docstring)."""
         cfg = self.config
         extra["kidnap"] = True
         self._track.clear()
@@ -719,7 +738,10 @@ class Icp2dOdometry:
         self._grid = None
         self._accept(pred, u, points, extra, force_keyframe=len(points) >= cfg.min_points)
         self._velocity = np.zeros(3)
-        cov = np.diag(np.square(cfg.kidnap_sigma))
+        if cfg.kidnap_noise == "odometry":
+            cov = u_cov * cfg.fallback_inflation
+        else:
+            cov = np.diag(np.square(cfg.kidnap_sigma))
         return self._estimate(scan, pred, u, cov, 0.0, "odometry_jump", t0, extra)
 
     def _accept(
