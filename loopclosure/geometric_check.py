@@ -57,7 +57,8 @@ ratio, and so a fitness, of at most that guess's ``B``.  When the best ``B`` is
 below what the check accepts, ``max(fitness threshold, inlier threshold)``, no
 ICP runs: "no fit within reach".  The bound costs one nearest-neighbour pass per
 guess; the ICP it saves, dozens.  With the compiled ICP the two screens share that
-pass (`loopclosure.fast_icp.overlap_screen`).
+pass, which stops as soon as both bars are reached (`loopclosure.prior_screen`: the
+sums only grow, so the verdict is known then).
 Headings are in the plugin's one convention (`loopclosure.headings`): the heading of
 the query in the candidate's frame.
 
@@ -713,27 +714,31 @@ def verify(
     min_fitness = cfg.min_fitness_gated if gated else cfg.min_fitness
     min_inliers = cfg.min_inlier_ratio_gated if gated else cfg.min_inlier_ratio
     gate = cfg.icp.max_correspondence_distance
+    needed = max(min_fitness, min_inliers)
     overlap = bound = np.inf  # no screen
     if cfg.compiled_icp:
         from loopclosure import fast_icp
+        from loopclosure.prior_screen import screen_passes
 
-        # Both screens in one compiled pass on the grid ICP runs on; the candidate's
-        # KD-tree is needed only when ICP runs (its prescreen of the guesses).
+        # Both screens in one compiled pass on the grid ICP runs on, stopped once both
+        # pass (`loopclosure.prior_screen`: the verdict is known then); the
+        # candidate's KD-tree is needed only when ICP runs (its prescreen of the
+        # guesses).
         if grid is None:
             assert candidate is not None
             grid = fast_icp.GridTarget.from_target(candidate, fast_icp.TARGET_GRID_CELL)
         if prior is not None and (cfg.min_prior_overlap > 0 or cfg.bound_reach > 0):
-            scores, bounds = fast_icp.overlap_screen(source, grid, guesses, gate,
-                                                     cfg.bound_reach)
-            overlap = float(scores.max(initial=0.0))
-            bound = float(bounds.max(initial=0.0))
+            passed, overlap, bound = screen_passes(
+                source, grid, guesses, gate, cfg.bound_reach,
+                max(cfg.min_prior_overlap, 0.0), needed if cfg.bound_reach > 0 else 0.0)
+            if passed:
+                overlap = bound = np.inf
     elif prior is not None and cfg.min_prior_overlap > 0:
         assert candidate is not None
         overlap = float(overlap_scores(source, candidate, guesses, gate).max(initial=0.0))
     if prior is not None and cfg.min_prior_overlap > 0 and overlap < cfg.min_prior_overlap:
         return _rejected_early(
             f"no overlap at the prior ({overlap:.3f} < {cfg.min_prior_overlap})", base, cfg)
-    needed = max(min_fitness, min_inliers)
     if prior is not None and cfg.bound_reach > 0 and bound < needed:
         return _rejected_early(
             f"no fit within reach (overlap bound {bound:.3f} < {needed})", base, cfg)

@@ -23,7 +23,14 @@ from collections.abc import Callable
 import numpy as np
 
 from data.types import Scan
-from loopclosure import correlative, fast_icp, fast_points, grid_overlap, icp_kernel
+from loopclosure import (
+    correlative,
+    fast_icp,
+    fast_points,
+    grid_overlap,
+    icp_kernel,
+    prior_screen,
+)
 from loopclosure.kernel_cache import kernels_cold
 from loopclosure.matchers.flirt import FlirtMatcher
 from loopclosure.matchers.pair_histogram import PairHistogramMatcher
@@ -75,6 +82,7 @@ def warm_up() -> None:
     guesses = np.array([[0.2, 0.1, 0.0], [0.2, 0.1, 0.001], [-0.3, 0.0, 0.2]])
     fast_icp.overlap_screen(points[1], grid_check, guesses, 1.0, 0.55)
     fast_icp.overlap_bound(points[1], grid_check, guesses, 0.55)
+    prior_screen.screen_passes(points[1], grid_check, guesses, 1.0, 0.55, 0.15, 0.35)
     fast_icp.register_target(points[1], check, guesses, grid=grid_check)
     # The check with no prior: the correlative search over a likelihood grid.
     grid = correlative.LikelihoodGrid(points[0], 0.1, 0.2)
@@ -105,6 +113,7 @@ def cache_is_cold() -> bool:
     )
 
     kernels = (icp_kernel._register_kernel, grid_overlap._screen_kernel,
+               prior_screen._screen_until_kernel,
                fast_points._voxel_kernel, fast_points._beam_points_kernel,
                flirt_peak_kernel.responses_kernel,
                correlative._correlate, flirt_kernel.flirt_entries,
