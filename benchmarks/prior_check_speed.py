@@ -188,6 +188,68 @@ def speed(path: Path, baseline: str, repeat: int) -> None:
                   f"  {'identical' if same else 'DIFFER'}", flush=True)
 
 
+def split(path: Path, baseline: str | None) -> None:
+    """Where a check's CPU goes (the working tree's `verify`, or revision `baseline`'s,
+    one pass, the mapper's grid cache): per log and verdict, the seconds of the whole
+    checks, of the screens as `loopclosure.fast_icp.overlap_screen` computes them
+    (every point of every guess),
+    and of the ICP runs (`loopclosure.multi_start.register_multi`, the checks that
+    reach it), each timed on its own grid state (the screen first, as `verify` runs
+    it, on a copy of the grid)."""
+    import copy
+
+    from loopclosure.fast_icp import overlap_screen, voxel_downsample_fast
+    from loopclosure.geometric_check import _offset_grid, verify
+    from loopclosure.multi_start import initial_guesses, register_multi
+    from loopclosure.warm_up import warm_up
+    from slam.config import PipelineConfig
+
+    warm_up()
+    with open(path, "rb") as fh:
+        data = pickle.load(fh)
+    targets, records = data["targets"], data["records"]
+    cfg = PipelineConfig().loops.check
+    if baseline is not None:
+        folder = tempfile.mkdtemp()
+        verify = load_revision(baseline, "loopclosure/geometric_check.py", Path(folder)).verify
+    print(f"{'log':<28} {'verdict':<9} {'checks':>6} {'whole s':>8} {'screen s':>8} "
+          f"{'ICP s':>8} {'ICP runs':>8}")
+    for log in dict.fromkeys(r["log"] for r in records):
+        grids = _Grids(targets)
+        sums: dict[str, list[float]] = {}
+        for r in (r for r in records if r["log"] == log):
+            grid = grids.get(r["target"], cfg)
+            before = copy.deepcopy(grid)
+            t0 = time.process_time()
+            v = verify(r["query"], None, prior=r["prior"],
+                       prior_covariance=r["prior_covariance"], offsets=r["offsets"],
+                       max_distance=r["max_distance"], config=cfg, grid=grid)
+            whole = time.process_time() - t0
+            step = cfg.offsets if r["offsets"] is None else r["offsets"]
+            guesses = initial_guesses(r["prior"], None, _offset_grid(step))
+            source = voxel_downsample_fast(r["query"], cfg.source_voxel)
+            t0 = time.process_time()
+            overlap_screen(source, before, guesses, cfg.icp.max_correspondence_distance,
+                           cfg.bound_reach)
+            screen = time.process_time() - t0
+            icp = 0.0
+            kind = _kind(v.reason)
+            if kind != "screened":
+                t0 = time.process_time()
+                register_multi(source, None, guesses, config=cfg.icp, keep=cfg.keep,
+                               compiled=True, grid=before)
+                icp = time.process_time() - t0
+            row = sums.setdefault(kind, [0, 0.0, 0.0, 0.0, 0])
+            row[0] += 1
+            row[1] += whole
+            row[2] += screen
+            row[3] += icp
+            row[4] += v.hypotheses
+        for kind, (n, whole, screen, icp, runs) in sums.items():
+            print(f"{log:<28} {kind:<9} {n:>6} {whole:8.3f} {screen:8.3f} {icp:8.3f} "
+                  f"{runs:>8}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
@@ -198,9 +260,14 @@ def main() -> None:
     s.add_argument("checks", type=Path)
     s.add_argument("--baseline", required=True, help="a revision")
     s.add_argument("--repeat", type=int, default=3)
+    t = sub.add_parser("split")
+    t.add_argument("checks", type=Path)
+    t.add_argument("--baseline", help="a revision whose verify to time (default: the tree's)")
     args = parser.parse_args()
     if args.cmd == "collect":
         collect(args.logs, args.out)
+    elif args.cmd == "split":
+        split(args.checks, args.baseline)
     else:
         speed(args.checks, args.baseline, args.repeat)
 
