@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from loopclosure import correlative, fast_points, grid_overlap, grid_target, icp_kernel
+from loopclosure import (
+    correlative,
+    fast_points,
+    grid_overlap,
+    grid_target,
+    icp_kernel,
+    prior_screen,
+)
 from loopclosure.matchers import flirt_grid_kernel, flirt_kernel, pair_kernel
 from loopclosure.warm_up import cache_is_cold, room_scan, warm_up, warm_up_isolated
 
@@ -26,7 +33,7 @@ def test_warm_up_compiles_every_kernel_the_mapper_calls():
     warm_up()
     kernels = [fast_points._voxel_kernel, grid_target._normals_kernel,
                icp_kernel._register_kernel, grid_overlap._screen_kernel,
-               grid_overlap._bound_kernel,
+               grid_overlap._bound_kernel, prior_screen._screen_until_kernel,
                correlative._correlate, pair_kernel._pair_kernel, flirt_kernel.flirt_entries,
                flirt_kernel.euclidean_distances,
                flirt_grid_kernel.beta_grid_counts]
