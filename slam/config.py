@@ -38,11 +38,16 @@ class SubmapConfig:
             beyond what the geometric check accepts).
         voxel: voxel size of submap points [m].
         max_range: submap points farther than this from the keyframe are dropped [m].
+        stop_at_kidnap: a keyframe after a kidnapped odometry increment (the front end's
+            ``extra["kidnap"]``, an increment it could not register) starts a new
+            segment of submaps and trailing maps, as a session start does: no submap
+            reaches across an increment whose odometry is not scan-matched.
     """
 
     neighbours: int | None = None
     voxel: float = 0.05
     max_range: float = 20.0
+    stop_at_kidnap: bool = False
 
 
 @dataclass(slots=True)

@@ -82,7 +82,7 @@ from slam.sessions import (
     session_spans,
 )
 from slam.smoothers import IncrementalSmoother
-from slam.submap_cache import SubmapCache
+from slam.submap_cache import SubmapCache, segment_span
 
 __all__ = ["LoopEvent", "Mapper", "MappingResult", "Progress"]
 
@@ -142,6 +142,10 @@ class Mapper:
         self._base = 0 if saved is None else saved.n_keyframes
         self._old: list[Keyframe] = [] if saved is None else saved_keyframes(saved)
         self._old_spans = {} if saved is None else session_spans(saved["kf_session"])
+        # First keys of the new session's submap segments (`_span`): its first key and,
+        # with `SubmapConfig.stop_at_kidnap`, every keyframe after a kidnapped increment.
+        self._segment_starts = [self._base]
+        self._kidnapped = False  # a kidnapped increment since the newest keyframe
         self._joined = saved is None
         self._pending: list[PendingLoop] = []
         self._joined_at: int | None = 0 if saved is None else None
@@ -238,6 +242,7 @@ class Mapper:
         mapper adopts them instead of selecting again (`KeyframeSelector.adopt`)."""
         estimate, seconds = self._odometry_step(scan)
         keyframe = self.keyframes.push(scan, estimate)
+        self._note_kidnap(estimate, keyframe)
         selected = (self.keyframes.last_row, keyframe)
         if keyframe is None:
             return estimate, seconds, None, None, 0.0, None, selected
@@ -275,6 +280,7 @@ class Mapper:
         start = time.perf_counter()
         keyframe = (self.keyframes.push(scan, estimate) if selected is None
                     else self.keyframes.adopt(*selected))
+        self._note_kidnap(estimate, keyframe)
         self.timings["keyframes"] += time.perf_counter() - start
         if self.config.refine_scans:
             self._keep_points(scan, keyframe is not None)
@@ -453,10 +459,26 @@ class Mapper:
         return self._old[key] if key < self._base else self.keyframes.keyframes[key - self._base]
 
     def _span(self, key: int) -> tuple[int, int]:
-        """First and last key of `key`'s session so far."""
+        """First and last key so far of `key`'s submap segment: its session, or in the
+        new session with `SubmapConfig.stop_at_kidnap` the stretch between kidnapped
+        increments (`_note_kidnap`)."""
         if key < self._base:
             return self._old_spans[int(self._saved["kf_session"][key])]
-        return self._base, self._base + len(self.keyframes.keyframes) - 1
+        return segment_span(self._segment_starts, key,
+                            self._base + len(self.keyframes.keyframes) - 1)
+
+    def _note_kidnap(self, estimate: OdometryEstimate, keyframe: Keyframe | None) -> None:
+        """With `SubmapConfig.stop_at_kidnap`: a keyframe after a kidnapped increment
+        (the front end's ``extra["kidnap"]``, between it and the keyframe before) starts
+        a submap segment.  Called for every scan, in the mapper and in the front end's
+        worker alike, so both build the same submaps."""
+        if not self.config.submap.stop_at_kidnap:
+            return
+        self._kidnapped = self._kidnapped or bool(estimate.extra.get("kidnap", False))
+        if keyframe is not None:
+            if self._kidnapped and keyframe.id > 0:
+                self._segment_starts.append(self._base + keyframe.id)
+            self._kidnapped = False
 
     # -- submaps (`slam.submap_cache`) ------------------------------------------------
 

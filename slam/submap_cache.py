@@ -14,12 +14,15 @@ a longer trailing stretch, ``k - loops.wide_keyframes .. k``.
 `SubmapCache` answers these for `slam.pipeline.Mapper`, which hands the loop
 detector its `submap`, `version`, `origins` and `trailing_map`.  It sees the
 keyframes through two functions of the mapper: ``keyframe(key)`` (a keyframe of any
-session) and ``span(key)`` (the first and last key of that keyframe's session so far).
+session) and ``span(key)`` (the first and last key so far of that keyframe's segment:
+its session, or with ``submap.stop_at_kidnap`` the stretch of it between kidnapped
+odometry increments, `segment_span`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from bisect import bisect_right
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -123,6 +126,16 @@ class SubmapCache:
         from loopclosure.fast_icp import voxel_downsample_fast  # numba loads on first use
 
         return voxel_downsample_fast(pts, self.config.submap.voxel)
+
+
+def segment_span(starts: Sequence[int], key: int, last: int) -> tuple[int, int]:
+    """First and last key of the segment holding `key`: segments begin at the ascending
+    keys `starts` (``starts[0] <= key``) and each ends before the next one begins, the
+    newest at `last` (the newest key so far)."""
+    i = bisect_right(starts, key) - 1
+    if i < 0:
+        raise ValueError(f"key {key} precedes the first segment start {starts[0]}")
+    return starts[i], (starts[i + 1] - 1 if i + 1 < len(starts) else last)
 
 
 def _transform(pose: Array, points: Array) -> Array:

@@ -6,9 +6,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from slam.config import PipelineConfig, SubmapConfig
-from slam.submap_cache import SubmapCache
+from slam.submap_cache import SubmapCache, segment_span
 
 
 def _cache(poses: list[list[float]], neighbours: int = 1, max_range: float = 50.0):
@@ -80,3 +81,33 @@ def test_incomplete_submaps_far_behind_are_dropped() -> None:
     cache.submap(far)
     assert 0 not in cache.submaps and far in cache.submaps
 
+
+
+def test_segment_span_ends_before_the_next_start() -> None:
+    starts = [0, 3, 7]
+    assert segment_span(starts, 0, 9) == (0, 2)
+    assert segment_span(starts, 2, 9) == (0, 2)
+    assert segment_span(starts, 3, 9) == (3, 6)
+    assert segment_span(starts, 7, 9) == (7, 9)
+    assert segment_span(starts, 9, 9) == (7, 9)
+    assert segment_span([5], 6, 6) == (5, 6)
+    with pytest.raises(ValueError):
+        segment_span([5], 4, 6)
+
+
+def test_a_submap_stops_at_a_segment_start() -> None:
+    # Keyframes 1 m apart along x; a segment starts at key 2 (a kidnapped step between
+    # 1 and 2): with n = 2, 1's submap merges 0 .. 1 only, 2's merges 2 .. 3 only.
+    poses = [[float(k), 0.0, 0.0] for k in range(4)]
+    keyframes = [SimpleNamespace(odom_pose=np.array(p), points=np.array([[0.5, 0.0]]))
+                 for p in poses]
+    config = PipelineConfig(submap=SubmapConfig(neighbours=2, voxel=0.0, max_range=50.0))
+    cache = SubmapCache(config, keyframes.__getitem__,
+                        lambda key: segment_span([0, 2], key, len(keyframes) - 1))
+    assert cache.version(0) == 1 and cache.version(1) == 1 and cache.version(2) == 3
+    np.testing.assert_allclose(cache.submap(1), [[-0.5, 0.0], [0.5, 0.0]])
+    np.testing.assert_allclose(cache.submap(2), [[0.5, 0.0], [1.5, 0.0]])
+    keys, origins = cache.origins(2)
+    np.testing.assert_array_equal(keys, [2, 3])
+    np.testing.assert_allclose(origins[:, 0], [0.0, 1.0])
+    np.testing.assert_allclose(cache.trailing_map(3, 3), [[-0.5, 0.0], [0.5, 0.0]])
