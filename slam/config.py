@@ -40,8 +40,10 @@ class SubmapConfig:
         max_range: submap points farther than this from the keyframe are dropped [m].
         stop_at_kidnap: a keyframe after a kidnapped odometry increment (the front end's
             ``extra["kidnap"]``, an increment it could not register) starts a new
-            segment of submaps and trailing maps, as a session start does: no submap
-            reaches across an increment whose odometry is not scan-matched.
+            segment of submaps, as a session start does: no submap (registration
+            target, free-space origins) reaches across an increment whose odometry
+            is not scan-matched.  Trailing maps (place descriptions, the longer
+            re-check) still span the session.
     """
 
     neighbours: int | None = None

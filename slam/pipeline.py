@@ -131,7 +131,7 @@ class Mapper:
         # Covariance of the newest keyframe's pose relative to the last loop closure,
         # in the map frame (see `_propagate_drift`).
         self._drift = np.zeros((3, 3))
-        self._submap_cache = SubmapCache(cfg, self._keyframe, self._span)
+        self._submap_cache = SubmapCache(cfg, self._keyframe, self._span, self._session_span)
         self._floor = np.diag(
             np.array([cfg.backend.odometry_floor[0], cfg.backend.odometry_floor[1],
                       np.radians(cfg.backend.odometry_floor[2])]) ** 2
@@ -461,11 +461,17 @@ class Mapper:
     def _span(self, key: int) -> tuple[int, int]:
         """First and last key so far of `key`'s submap segment: its session, or in the
         new session with `SubmapConfig.stop_at_kidnap` the stretch between kidnapped
-        increments (`_note_kidnap`)."""
+        increments (`_note_kidnap`).  Trailing maps span the session (`_session_span`)."""
         if key < self._base:
             return self._old_spans[int(self._saved["kf_session"][key])]
         return segment_span(self._segment_starts, key,
                             self._base + len(self.keyframes.keyframes) - 1)
+
+    def _session_span(self, key: int) -> tuple[int, int]:
+        """First and last key so far of `key`'s session (the span of trailing maps)."""
+        if key < self._base:
+            return self._old_spans[int(self._saved["kf_session"][key])]
+        return self._base, self._base + len(self.keyframes.keyframes) - 1
 
     def _note_kidnap(self, estimate: OdometryEstimate, keyframe: Keyframe | None) -> None:
         """With `SubmapConfig.stop_at_kidnap`: a keyframe after a kidnapped increment

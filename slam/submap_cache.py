@@ -13,10 +13,11 @@ a longer trailing stretch, ``k - loops.wide_keyframes .. k``.
 
 `SubmapCache` answers these for `slam.pipeline.Mapper`, which hands the loop
 detector its `submap`, `version`, `origins` and `trailing_map`.  It sees the
-keyframes through two functions of the mapper: ``keyframe(key)`` (a keyframe of any
-session) and ``span(key)`` (the first and last key so far of that keyframe's segment:
-its session, or with ``submap.stop_at_kidnap`` the stretch of it between kidnapped
-odometry increments, `segment_span`).
+keyframes through functions of the mapper: ``keyframe(key)`` (a keyframe of any
+session), ``span(key)`` (the first and last key so far of that keyframe's submap
+segment: its session, or with ``submap.stop_at_kidnap`` the stretch of it between
+kidnapped odometry increments, `segment_span`) and ``trailing_span(key)`` (those of
+its session, for trailing maps; default ``span``).
 """
 
 from __future__ import annotations
@@ -44,10 +45,12 @@ class SubmapCache:
     def __init__(
         self, config: PipelineConfig, keyframe: Callable[[int], Keyframe],
         span: Callable[[int], tuple[int, int]],
+        trailing_span: Callable[[int], tuple[int, int]] | None = None,
     ) -> None:
         self.config = config
         self._keyframe = keyframe
         self._span = span
+        self._trailing_span = span if trailing_span is None else trailing_span
         self.submaps: dict[int, tuple[int, Array]] = {}
         self._incomplete: set[int] = set()  # keys of `submaps` below version key + n
 
@@ -109,10 +112,10 @@ class SubmapCache:
         return keys, np.asarray(poses, dtype=float).reshape(-1, 3)
 
     def trailing_map(self, key: int, n: int) -> Array:
-        """Keyframes ``key - n .. key`` of `key`'s session, in `key`'s sensor frame [m],
-        cropped and voxelised as a submap: the map the robot built on its way to `key`
-        (the loop detector's wide view)."""
-        return self.local_points(key, max(self._span(key)[0], key - n), key)
+        """Keyframes ``key - n .. key`` of `key`'s session (``trailing_span``), in `key`'s
+        sensor frame [m], cropped and voxelised as a submap: the map the robot built on
+        its way to `key` (the loop detector's wide view)."""
+        return self.local_points(key, max(self._trailing_span(key)[0], key - n), key)
 
     def local_points(self, key: int, first: int, last: int) -> Array:
         """Keyframes ``first .. last`` in `key`'s sensor frame (front-end poses), points

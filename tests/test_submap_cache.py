@@ -111,3 +111,10 @@ def test_a_submap_stops_at_a_segment_start() -> None:
     np.testing.assert_array_equal(keys, [2, 3])
     np.testing.assert_allclose(origins[:, 0], [0.0, 1.0])
     np.testing.assert_allclose(cache.trailing_map(3, 3), [[-0.5, 0.0], [0.5, 0.0]])
+    # With the session as the trailing maps' span, 3's trailing map reaches back to 0.
+    whole = SubmapCache(config, keyframes.__getitem__,
+                        lambda key: segment_span([0, 2], key, len(keyframes) - 1),
+                        lambda key: (0, len(keyframes) - 1))
+    np.testing.assert_allclose(whole.trailing_map(3, 3),
+                               [[-2.5, 0.0], [-1.5, 0.0], [-0.5, 0.0], [0.5, 0.0]])
+    assert whole.version(1) == 1 and whole.origins(2)[0].tolist() == [2, 3]

@@ -36,6 +36,7 @@ def test_a_keyframe_after_a_kidnapped_increment_starts_a_segment(stop, spans) ->
     mapper = Mapper(PipelineConfig(submap=SubmapConfig(stop_at_kidnap=stop)))
     _feed(mapper, SCANS)
     assert [mapper._span(k) for k in range(5)] == spans
+    assert [mapper._session_span(k) for k in range(5)] == [(0, 4)] * 5
 
 
 def test_a_kidnap_before_the_first_keyframe_starts_nothing() -> None:
