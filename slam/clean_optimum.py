@@ -13,7 +13,7 @@ import numpy as np
 from slam.consistency import LM_BUDGET, ODOMETRY_LADDER, needs_qr, polish, tls_threshold
 from slam.fast_path_screen import majority_fails, stalled_solve
 from slam.least_squares import StickySolver, solve
-from slam.pose_graph import PoseGraph, RobustKernel
+from slam.pose_graph import Constraint, PoseGraph, RobustKernel
 from slam.segment_recheck import segment_recheck
 from slam.variance_components import with_information_scaled
 
@@ -55,8 +55,7 @@ def _clean_optimum(
     c = tls_threshold(graph.dim, probability)
     result, iterations = values, 0
     for n, factor in enumerate(sorted(ladder, reverse=True)):
-        rung = factors if factor == 1.0 else with_information_scaled(
-            graph, factor).factor_graph(RobustKernel("none"))[0]
+        rung = factors if factor == 1.0 else _rung_factors(graph, factors, loop_index, factor)
         if screen and n == 0 and majority_fails(rung, loop_index, result, c):
             return None
         if stall and n == 0:
@@ -79,3 +78,29 @@ def _clean_optimum(
     if check.removed:
         return None
     return polish((factors, loop_index), weights, result, max_iterations), iterations
+
+
+def _rung_factors(
+    graph: PoseGraph, factors: gtsam.NonlinearFactorGraph, loop_index: list[int],
+    factor: float,
+) -> gtsam.NonlinearFactorGraph:
+    """The factor graph of `graph` with its odometry information multiplied by `factor`:
+    ``with_information_scaled(graph, factor).factor_graph(RobustKernel("none"))[0]``,
+    factor for factor (priors, odometry, loops, in that order), but the priors and
+    the loops, which do not depend on the odometry's scale, are the very factors of
+    `factors` (the stated graph's `PoseGraph.factor_graph`, loops at `loop_index`):
+    only the odometry factors are made anew.  Information in the units of
+    `graph`'s (its inverse covariances in g2o order)."""
+    priors = len(graph.anchor_keys())
+    if list(loop_index) != list(range(priors + len(graph.odometry), factors.size())):
+        # not laid out as `factor_graph` lays a graph out: build it whole
+        return with_information_scaled(graph, factor).factor_graph(RobustKernel("none"))[0]
+    rung = gtsam.NonlinearFactorGraph()
+    for k in range(priors):
+        rung.add(factors.at(k))
+    for c in graph.odometry:
+        rung.add(graph.between_factor(
+            Constraint(c.i, c.j, c.measurement, c.information * factor)))
+    for k in loop_index:
+        rung.add(factors.at(k))
+    return rung

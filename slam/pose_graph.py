@@ -85,6 +85,9 @@ class RobustKernel:
         return gtsam.noiseModel.Robust.Create(estimator, gaussian)
 
 
+_GAUSSIAN = RobustKernel("none")
+
+
 def _g2o_to_gtsam_information(information: Array) -> Array:
     """6x6 information from g2o order (t, r) to gtsam Pose3 order (r, t)."""
     perm = [3, 4, 5, 0, 1, 2]
@@ -199,8 +202,15 @@ class PoseGraph:
         self, c: Constraint, kernel: RobustKernel | None = None
     ) -> gtsam.NonlinearFactor:
         """The gtsam factor of constraint `c` (Gaussian, or robust with `kernel`)."""
+        if self.dim == 2 and (kernel is None or kernel.name == "none"):
+            # the planar Gaussian factor, built directly (the final pass makes tens of
+            # thousands): the same gtsam calls on the same numbers as below
+            m = c.measurement
+            return gtsam.BetweenFactorPose2(
+                c.i, c.j, gtsam.Pose2(float(m[0]), float(m[1]), float(m[2])),
+                gtsam.noiseModel.Gaussian.Information(np.asarray(c.information, dtype=float)))
         info = c.information if self.dim == 2 else _g2o_to_gtsam_information(c.information)
-        noise = (kernel or RobustKernel("none")).noise(info)
+        noise = (kernel or _GAUSSIAN).noise(info)
         if self.dim == 2:
             return gtsam.BetweenFactorPose2(c.i, c.j, to_gtsam_pose(c.measurement, 2), noise)
         return gtsam.BetweenFactorPose3(c.i, c.j, to_gtsam_pose(c.measurement, 3), noise)
@@ -227,7 +237,7 @@ class PoseGraph:
         immutable (the same factor object serves every graph that holds it).  A
         constraint whose measurement or information was replaced gets a new factor;
         the cache is pruned of constraints no longer in the graph when it doubles."""
-        kernel = kernel or RobustKernel("none")
+        kernel = kernel or _GAUSSIAN
         key = (id(c), kernel)
         entry = self._factors.get(key)
         if (entry is not None and entry[0] is c and entry[1] is c.measurement

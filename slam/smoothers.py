@@ -116,6 +116,9 @@ class IncrementalSmoother(Smoother):
         relinearize_threshold: iSAM2 relinearisation threshold (tangent units).
         extra_iterations: further ``update()`` calls without new factors after a loop
             closure, so iSAM2's single Gauss-Newton step converges on large corrections.
+            They stop at the first that relinearises no variable: such a call leaves
+            the linearisation point and the Bayes tree as they were, so the next one
+            would check the same delta against the same threshold and do nothing too.
 
     Factorisation: Cholesky, the fast one.  When it gives up on an ill-conditioned
     system (gtsam's "indeterminate linear system": e.g. an odometry step whose
@@ -141,9 +144,14 @@ class IncrementalSmoother(Smoother):
         self._loop_pending = False
         self._extra_iterations = extra_iterations
         self._estimate: gtsam.Values | None = None
+        # Keys of `_estimate`, ascending (what ``_estimate.keys()`` lists), and the keys
+        # added since the last `update` (in `_new_values`).
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._new_keys: list[int] = []
 
     def _on_pose(self, key: int, guess: Array) -> None:
         self._new_values.insert(key, to_gtsam_pose(guess, self.dim))
+        self._new_keys.append(key)
         if not self._anchored:
             self._new_factors.add(self.graph.prior_factor(key, guess))
             self._anchored = True
@@ -183,11 +191,14 @@ class IncrementalSmoother(Smoother):
             self._restart_with_qr()
         if self._loop_pending:
             for _ in range(self._extra_iterations):
-                self._isam.update()
+                if not self._isam.update().getVariablesRelinearized():
+                    break  # nothing moved: a further call would do nothing (class doc)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._loop_pending = False
         self._estimate = self._isam.calculateEstimate()
+        self._keys = _merged_keys(self._keys, self._new_keys)
+        self._new_keys = []
 
     def estimate(self) -> dict[int, Array]:
         if self._estimate is None:
@@ -197,8 +208,20 @@ class IncrementalSmoother(Smoother):
     def estimate_rows(self) -> tuple[NDArray[np.int64], Array]:
         if self._estimate is None or self.dim != 2:
             return super().estimate_rows()
-        keys = np.asarray(self._estimate.keys(), dtype=np.int64)  # ascending
-        return keys, gtsam.utilities.extractPose2(self._estimate)  # rows in key order
+        # `_keys` is ``_estimate.keys()`` (ascending) without converting gtsam's list
+        return self._keys.copy(), gtsam.utilities.extractPose2(self._estimate)  # key order
 
     def marginal_covariance(self, key: int) -> Array:
         return np.asarray(self._isam.marginalCovariance(key))
+
+
+def _merged_keys(keys: NDArray[np.int64], new: list[int]) -> NDArray[np.int64]:
+    """The ascending keys of an estimate after `new` keys (none of them in `keys`, in
+    any order) joined the ascending `keys`; appended as they are when they come in
+    increasing order after the last, as a mapper adds its poses."""
+    if not new:
+        return keys
+    added = np.asarray(new, dtype=np.int64)
+    if (len(keys) == 0 or added[0] > keys[-1]) and np.all(added[1:] > added[:-1]):
+        return np.concatenate([keys, added])
+    return np.sort(np.concatenate([keys, added]))
