@@ -14,7 +14,7 @@ are compared), then R times each, alternately.  It prints per log and code the
 median CPU seconds of the run's process (user + system, from
 ``resource.getrusage(RUSAGE_CHILDREN)``) and the median ``loop_detection`` seconds
 of its ``summary.json``, their ratios (baseline / now: above 1 is faster now), and
-whether ``loops.csv`` and ``trajectory.tum`` are byte-identical between the two
+whether ``loops.csv``, ``trajectory.tum`` and ``graph.g2o`` are byte-identical between the two
 codes.  By default the front end runs in this process too (``--set
 front_end_worker=false``), so the CPU time is the whole pipeline's and does not
 depend on how the two processes overlap; ``--worker`` keeps the forked worker
@@ -64,8 +64,11 @@ def checkout(rev: str, folder: Path) -> Path:
 
 
 def identical(a: Path, b: Path) -> str:
-    """Which of the two runs' loop and trajectory files agree byte for byte."""
+    """Which of the two runs' loop, trajectory and graph files agree byte for byte
+    (``graph.g2o`` when both runs wrote one)."""
     names = ["loops.csv", "trajectory.tum"]
+    if (a / "graph.g2o").exists() and (b / "graph.g2o").exists():
+        names.append("graph.g2o")
     return ", ".join(f"{n} {'identical' if filecmp.cmp(a / n, b / n, shallow=False) else 'DIFFER'}"
                      for n in names)
 
