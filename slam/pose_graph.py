@@ -28,6 +28,7 @@ their plain Gaussian noise and decides which are outliers.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import gtsam
@@ -305,10 +306,30 @@ def relative_pose(a: Array, b: Array, dim: int) -> Array:
 def whitened_residual(c: Constraint, poses: dict[int, Array], dim: int) -> float:
     """Mahalanobis distance sqrt(e^T I e) of constraint `c` under `poses`."""
     if dim == 2:
-        est = se2.between(poses[c.i], poses[c.j])
-        e = se2.between(c.measurement, est)
+        a, b, m = poses[c.i], poses[c.j], c.measurement
+        if np.shape(a) == np.shape(b) == np.shape(m) == (3,):  # a mapper's poses
+            e = np.array(_between_floats(m, _between_floats(a, b)))
+        else:
+            e = se2.between(m, se2.between(a, b))
         return float(np.sqrt(max(e @ c.information @ e, 0.0)))
     err = gtsam.Pose3(c.measurement).between(gtsam.Pose3(np.linalg.inv(poses[c.i]) @ poses[c.j]))
     log = gtsam.Pose3.Logmap(err)  # (rx, ry, rz, x, y, z)
     e = np.concatenate([log[3:], log[:3]])
     return float(np.sqrt(max(e @ c.information @ e, 0.0)))
+
+
+def _between_floats(a: Array | list[float], b: Array | list[float]) -> list[float]:
+    """`data.se2.between` of two ``(3,)`` poses (metres, radians) as a list of floats:
+    the very operations of its single-pose path, in the same order, without making
+    the arrays in between."""
+    ax, ay, at = a.tolist() if isinstance(a, np.ndarray) else a
+    bx, by, bt = b.tolist() if isinstance(b, np.ndarray) else b
+    c, s = math.cos(at), math.sin(at)
+    ix, iy, it = -c * ax - s * ay, s * ax - c * ay, _wrap(-at)
+    c, s = math.cos(it), math.sin(it)
+    return [ix + c * bx - s * by, iy + s * bx + c * by, _wrap(it + bt)]
+
+
+def _wrap(theta: float) -> float:
+    """An angle (radians) wrapped to ``[-pi, pi)``, as `data.se2` wraps a float."""
+    return (theta + math.pi) % (2.0 * math.pi) - math.pi

@@ -1,7 +1,7 @@
 """The back end's shortcuts give what the long way gives, bit for bit: iSAM2's extra
 iterations stopped once one relinearises nothing, the estimate's keys kept by the
 smoother, the planar Gaussian factor built directly, the fast path's odometry rungs
-sharing the stated graph's prior and loop factors."""
+sharing the stated graph's prior and loop factors, a loop's whitened residual in floats."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from data import se2
 from slam.clean_optimum import _rung_factors
-from slam.pose_graph import Constraint, PoseGraph, RobustKernel
+from slam.pose_graph import Constraint, PoseGraph, RobustKernel, whitened_residual
 from slam.smoothers import IncrementalSmoother, _merged_keys
 from slam.variance_components import with_information_scaled
 
@@ -131,3 +131,20 @@ def test_rung_factors_are_the_scaled_graphs_factors() -> None:
         assert np.isclose(rung.at(1).error(values), scale * factors.at(1).error(values))
     # the loops are the stated graph's own factors
     assert rung.at(loop_index[0]).error(values) == factors.at(loop_index[0]).error(values)
+
+
+def test_whitened_residual_of_floats_is_the_array_one() -> None:
+    rng = np.random.default_rng(5)
+    info = np.array([[50.0, 3.0, 1.0], [3.0, 60.0, 2.0], [1.0, 2.0, 900.0]])
+    for n in range(300):
+        a, b, m = rng.normal(0, 20, 3), rng.normal(0, 20, 3), rng.normal(0, 2, 3)
+        if n % 3 == 0:  # headings on the wrap: -pi and pi
+            a[2], b[2] = np.pi, -np.pi
+        c = Constraint(0, 1, m, info)
+        e = se2.between(m, se2.between(a, b))
+        expected = float(np.sqrt(max(e @ info @ e, 0.0)))
+        assert whitened_residual(c, {0: a, 1: b}, 2) == expected
+    # by hand: the measurement is the poses' relative pose, up to 0.1 m along x
+    c = Constraint(0, 1, np.array([1.0, 0.0, 0.0]), np.diag([100.0, 100.0, 100.0]))
+    poses = {0: np.array([2.0, 1.0, np.pi / 2]), 1: np.array([2.0, 2.1, np.pi / 2])}
+    assert np.isclose(whitened_residual(c, poses, 2), 1.0)  # 0.1 m * sqrt(100)
