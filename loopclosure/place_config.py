@@ -40,7 +40,7 @@ PREFILTER_STAGES = ("fft", "ring", "pairs", NEAR_FFT, NEAR_PAIRS)
 
 FUSION_MODES = ("logistic", "rank", "verifier", "prefilter", "auto")
 
-VIEWPOINT_ORDERS = ("min", "interleave")
+VIEWPOINT_ORDERS = ("min", "interleave", "rerank")
 """How a query's viewpoints rank the stored keyframes (`PlaceDatabaseConfig`)."""
 
 VOTE_MODES = ("off", "fuse")
@@ -186,6 +186,16 @@ class PlaceDatabaseConfig:
             (`PlaceDatabase.prefilter_lists`), so the own descriptions' best places
             keep their ranks among the first and each side's viewpoints' best fill
             the places between them.
+            ``"rerank"``: the own descriptions alone screen the database, and only
+            the ``viewpoint_pool`` smallest p are ranked again by the viewpoints,
+            each query description's p rescaled by its ``viewpoint_rank``-th
+            smallest over that pool (`loopclosure.place_views.rank_normalised`), so
+            a description close to many places (a generic view) takes no places
+            from the own description's best.
+        viewpoint_pool: rows a ``"rerank"`` query ranks again by its viewpoints
+            (at least the shortlist's).
+        viewpoint_rank: the rank of the smallest p a ``"rerank"`` query
+            normalises each of its descriptions by (0: no normalisation).
         vote: ``"off"`` (default) or ``"fuse"``: a keypoint-pair vote
             (`loopclosure.place_vote`) picks candidates too: the first ``vote_split``
             of the prefilter's K are kept and the rest of the K are the vote's best
@@ -231,6 +241,8 @@ class PlaceDatabaseConfig:
     viewpoint_scores: bool = False
     stored_viewpoints: bool = True
     viewpoint_order: str = "min"
+    viewpoint_pool: int = 128
+    viewpoint_rank: int = 30
     vote: str = "off"
     vote_split: int = 5
     vote_step: float = 0.2
@@ -244,6 +256,8 @@ class PlaceDatabaseConfig:
                 f"place database: viewpoint_order must be one of "
                 f"{', '.join(VIEWPOINT_ORDERS)}, got {self.viewpoint_order!r}"
             )
+        if self.viewpoint_pool < 1 or self.viewpoint_rank < 0:
+            raise UserError("place database: need viewpoint_pool >= 1 and viewpoint_rank >= 0")
         if self.vote not in VOTE_MODES:
             raise UserError(f"place database: vote must be one of {', '.join(VOTE_MODES)}, "
                             f"got {self.vote!r}")

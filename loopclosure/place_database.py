@@ -337,10 +337,16 @@ class PlaceDatabase:
         the query's viewpoints) the smallest of it and the query's viewpoints' p to
         the stored own descriptions, then (with stored viewpoints) the smallest of
         it and the query's own description's p to the stored viewpoints
-        (`loopclosure.place_shortlist.rank_interleave` orders them)."""
+        (`loopclosure.place_shortlist.rank_interleave` orders them); with
+        ``viewpoint_order="rerank"`` ``[p]`` of the own descriptions with the pool
+        of `rows` ranked again by the viewpoints (`PrefilterIndex.reranked_all`)."""
         q = self._query_descriptors(query)
         self._refresh_scales()
         rows = np.arange(len(self)) if rows is None else rows
+        if self._prefilter.pooled(q):
+            own = self._prefilter.own_distances(q, rows_mask(rows, len(self)), len(self),
+                                                self._scales)
+            return [self._prefilter.reranked_all(q, own, self._scales)[rows]]
         lists, p, _ = self._prefilter.exact_lists(q, rows, self._scales)
         return lists if self._prefilter.interleaved(q) else [p]
 
@@ -496,7 +502,7 @@ class PlaceDatabase:
         k = self.config.top_k
         last = self._last_stored
         if (last is None or last[0] != key or last[1] != self._scales_at
-                or self._prefilter.interleaved(q)
+                or self._prefilter.interleaved(q) or self._prefilter.pooled(q)
                 or not np.isin(last[2], rows, assume_unique=True).all()):
             short = self._shortlist(q, rows_mask(rows, len(self)), k, False)
             known: dict[int, PlaceMatch] = {}

@@ -15,7 +15,9 @@ pass over M x D float32 values per stage) and `exact_lists` (float64, a few rows
 from the vectors' differences).  A row's p is its smallest over its own
 description and its offset viewpoints, and over the query's viewpoints with
 ``query_viewpoints``; with ``viewpoint_order="interleave"`` these are kept as
-separate lists (`loopclosure.place_shortlist.rank_interleave` orders them).
+separate lists (`loopclosure.place_shortlist.rank_interleave` orders them); with
+``viewpoint_order="rerank"`` the own descriptions alone screen the database and the
+viewpoints rank only the pool of its smallest p again (`reranked`).
 `shortlist` picks the rows a query chooses its candidates from: the n smallest
 screened p, recomputed exactly and re-sorted (`loopclosure.place_shortlist`).
 """
@@ -36,6 +38,7 @@ from loopclosure.place_views import (
     VIEWPOINTS,
     ViewpointRows,
     prefilter_vector,
+    rank_normalised,
     screen_sets,
     viewpoint_sets,
     with_viewpoints,
@@ -97,6 +100,72 @@ class PrefilterIndex:
         return self.config.viewpoint_order == "interleave" and (
             len(self.views) > 0
             or (self.config.query_viewpoints and q.get(VIEWPOINTS) is not None))
+
+    def pooled(self, q: Descriptors) -> bool:
+        """Whether query `q` ranks its pool again by viewpoints
+        (``viewpoint_order="rerank"``, and viewpoints on either side)."""
+        return self.config.viewpoint_order == "rerank" and (
+            len(self.views) > 0
+            or (self.config.query_viewpoints and q.get(VIEWPOINTS) is not None))
+
+    def own_distances(self, q: Descriptors, mask: NDArray[np.bool_] | None, m: int,
+                      scales: Array) -> Array:
+        """p of the two own descriptions to each of the `m` stored keyframes (inf
+        outside `mask`): float32 screened values, or exact ones when the mask
+        holds under a quarter of the rows."""
+        sets = self.query_vectors(q)[:1]
+        if mask is not None and mask.sum() * 4 < m:
+            rows = np.flatnonzero(mask)
+            out = np.full(m, np.inf)
+            raw = {s: self.stores[s].exact_distances(v, rows) for s, v in sets[0].items()}
+            out[rows] = self.combine(raw, scales)
+            return out
+        out = screen_sets(self.stores, sets, self.factors(scales)).astype(np.float64)
+        if mask is not None:
+            out[~mask] = np.inf
+        return out
+
+    def reranked(self, q: Descriptors, pool: NDArray[np.intp], scales: Array,
+                 scored: bool = False) -> tuple[Array, dict[str, Array]]:
+        """Exact p and raw stage distances of the `pool` rows ranked again by the
+        viewpoints (``viewpoint_order="rerank"``): per query description (own,
+        then its viewpoints with ``query_viewpoints``) the smallest p over each
+        row's own description and stored viewpoints, combined by
+        `loopclosure.place_views.rank_normalised` over the pool (rank
+        ``viewpoint_rank``).  The raw distances are the two own descriptions'
+        when `scored` and not ``viewpoint_scores``, else those of the pair that
+        gave p (unscaled)."""
+        def combine(raw: Mapping[str, ArrayLike]) -> Any:
+            return self.combine(raw, scales)
+
+        pool = np.asarray(pool, np.intp)
+        per, raws = [], []
+        own_raw: dict[str, Array] = {}
+        for i, vectors in enumerate(self.query_vectors(q)):
+            raw = {s: self.stores[s].exact_distances(v, pool) for s, v in vectors.items()}
+            if i == 0:
+                own_raw = raw
+            cur = (combine(raw), raw)
+            if len(self.views):
+                cur = with_viewpoints(cur, self.views.exact(vectors, pool, combine))
+            per.append(cur[0])
+            raws.append(cur[1])
+        p, which = rank_normalised(np.vstack(per), self.config.viewpoint_rank)
+        if scored and not self.config.viewpoint_scores:
+            return p, own_raw
+        cols = np.arange(len(pool))
+        return p, {s: np.vstack([r[s] for r in raws])[which, cols] for s in self.stages}
+
+    def reranked_all(self, q: Descriptors, own: Array, scales: Array) -> Array:
+        """``(M,)`` the order a ``"rerank"`` query ranks by: `own` (p of the own
+        descriptions, inf: not allowed) with the pool's rows (the
+        ``viewpoint_pool`` smallest) replaced by their `reranked` p.  A pool row's
+        p is at most its own p, so the pool stays ahead of every other row."""
+        pool = smallest_k(own, min(self.config.viewpoint_pool,
+                                   int(np.isfinite(own).sum())))
+        out = np.array(own, float)
+        out[pool] = self.reranked(q, pool, scales)[0]
+        return out
 
     def screen(self, q: Descriptors, m: int, scales: Array) -> NDArray[np.float32]:
         """Float32 combined prefilter distance of every one of the `m` stored keyframes.
@@ -184,6 +253,9 @@ class PrefilterIndex:
         if self.interleaved(q):
             return self._interleaved_shortlist(q, mask, n, m, scales, keep_prefilter,
                                                similarity)
+        if self.pooled(q):
+            return self._reranked_shortlist(q, mask, n, m, scales, keep_prefilter,
+                                            similarity)
         if mask is not None and mask.sum() * 4 < m:
             rows = np.flatnonzero(mask)
             part, _ = self.exact(q, rows, scales)
@@ -202,6 +274,25 @@ class PrefilterIndex:
         c = similarity(pick[order]) if similarity is not None else None
         return Shortlist(pick[order], pre[order], {s: d[order] for s, d in raw.items()},
                          c, combined)
+
+    def _reranked_shortlist(self, q: Descriptors, mask: NDArray[np.bool_] | None, n: int,
+                            m: int, scales: Array, keep_prefilter: bool,
+                            similarity: Callable[[NDArray[np.intp]], Array] | None
+                            ) -> Shortlist:
+        """`shortlist` of a ``"rerank"`` query: the own descriptions' ``max(n,
+        viewpoint_pool)`` smallest p ranked again (`reranked`), the first `n`."""
+        own = self.own_distances(q, mask, m, scales)
+        size = min(max(n, self.config.viewpoint_pool), int(np.isfinite(own).sum()))
+        pool = smallest_k(own, size)
+        pre, raw = self.reranked(q, pool, scales, scored=True)
+        order = np.lexsort((pool, pre))[:n]
+        pick = pool[order]
+        c = similarity(pick) if similarity is not None else None
+        every = None
+        if keep_prefilter:
+            every = own
+            every[pool] = pre
+        return Shortlist(pick, pre[order], {s: d[order] for s, d in raw.items()}, c, every)
 
     def _interleaved_shortlist(self, q: Descriptors, mask: NDArray[np.bool_] | None, n: int,
                                m: int, scales: Array, keep_prefilter: bool,

@@ -171,6 +171,40 @@ def screen_sets(stores: Mapping[str, VectorStore], queries: list[Mapping[str, Ar
     return combined if combined.ndim == 1 else combined.min(axis=0)
 
 
+def rank_normalised(p: ArrayLike, rank: int) -> tuple[Array, NDArray[np.intp]]:
+    """Combine the prefilter distances of several query descriptions over a pool.
+
+    ``p`` is ``(A, n)``: row a holds p_a(j) of query description a (row 0 the own
+    description, then its offset viewpoints) to each of n stored keyframes, each
+    already the smallest over that keyframe's own description and viewpoints.
+    Each row is rescaled so that its `rank`-th smallest value equals the own row's,
+
+        p(j) = min_a p_a(j) s_0 / s_a,   s_a = rank-th smallest finite p_a over the pool
+
+    (the largest finite value when fewer; a row with no positive finite s_a keeps
+    its scale; `rank` 0: no rescaling).  A description seen from a metre aside may
+    lie close to many stored places at once (a generic view, e.g. a corridor seen
+    along its axis): the plain minimum lets all of them overtake the own
+    description's best, the rescaled one only the places that description ranks
+    unusually near.  Unitless, as p.
+
+    Returns:
+        ``(p, a)``: ``(n,)`` the combined distance and the row that gave it (the
+        first on ties).
+    """
+    d = np.atleast_2d(np.asarray(p, float))
+    if rank > 0 and d.shape[0] > 1 and d.shape[1] > 0:
+        fin = np.where(np.isfinite(d), d, np.inf)
+        kth = np.sort(fin, axis=1)[:, : min(rank, d.shape[1])]
+        kth = np.where(np.isfinite(kth), kth, -np.inf).max(axis=1)
+        ok = np.isfinite(kth) & (kth > 0)
+        if ok[0]:
+            factor = np.where(ok, kth[0] / np.where(ok, kth, 1.0), 1.0)
+            d = d * factor[:, None]
+    a = np.argmin(d, axis=0)
+    return d[a, np.arange(d.shape[1])], a.astype(np.intp)
+
+
 def viewpoint_sets(views: Mapping[str, ArrayLike] | None, stages: tuple[str, ...]
                    ) -> list[dict[str, Array]]:
     """A keyframe's viewpoint vectors ``{stage: (V, D)}`` as V query vector sets
@@ -196,5 +230,5 @@ def with_viewpoints(
             {s: np.where(use, raw_view[s], d) for s, d in raw_own.items()})
 
 
-__all__ = ["VIEWPOINTS", "ViewpointRows", "prefilter_vector", "screen_sets",
+__all__ = ["VIEWPOINTS", "ViewpointRows", "prefilter_vector", "rank_normalised", "screen_sets",
            "stacked_distances", "viewpoint_sets", "with_viewpoints"]
