@@ -134,27 +134,30 @@ class PrefilterIndex:
         `loopclosure.place_views.rank_normalised` over the pool (rank
         ``viewpoint_rank``).  The raw distances are the two own descriptions'
         when `scored` and not ``viewpoint_scores``, else those of the pair that
-        gave p (unscaled)."""
+        gave p (unscaled).  All query descriptions at once: one matrix product
+        per stage for the pool's own rows and one for their viewpoints'
+        (`VectorStore.set_distances`, float64)."""
         def combine(raw: Mapping[str, ArrayLike]) -> Any:
             return self.combine(raw, scales)
 
         pool = np.asarray(pool, np.intp)
-        per, raws = [], []
-        own_raw: dict[str, Array] = {}
-        for i, vectors in enumerate(self.query_vectors(q)):
-            raw = {s: self.stores[s].exact_distances(v, pool) for s, v in vectors.items()}
-            if i == 0:
-                own_raw = raw
-            cur = (combine(raw), raw)
-            if len(self.views):
-                cur = with_viewpoints(cur, self.views.exact(vectors, pool, combine))
-            per.append(cur[0])
-            raws.append(cur[1])
-        p, which = rank_normalised(np.vstack(per), self.config.viewpoint_rank)
-        if scored and not self.config.viewpoint_scores:
-            return p, own_raw
+        sets = self.query_vectors(q)
+        own_raw = {s: self.stores[s].set_distances(
+            np.stack([np.asarray(v[s], float) for v in sets]), pool) for s in self.stages}
+        per = np.asarray(combine(own_raw), float)
+        best_raw = own_raw
+        want_raw = not scored or self.config.viewpoint_scores
+        if len(self.views):
+            p_view, raw_view = self.views.exact_sets(sets, pool, combine, want_raw)
+            use = p_view < per
+            per = np.where(use, p_view, per)
+            if want_raw:
+                best_raw = {s: np.where(use, raw_view[s], d) for s, d in own_raw.items()}
+        p, which = rank_normalised(per, self.config.viewpoint_rank)
+        if not want_raw:
+            return p, {s: d[0] for s, d in own_raw.items()}
         cols = np.arange(len(pool))
-        return p, {s: np.vstack([r[s] for r in raws])[which, cols] for s in self.stages}
+        return p, {s: d[which, cols] for s, d in best_raw.items()}
 
     def reranked_all(self, q: Descriptors, own: Array, scales: Array) -> Array:
         """``(M,)`` the order a ``"rerank"`` query ranks by: `own` (p of the own

@@ -136,6 +136,45 @@ class ViewpointRows:
         return p, raw
 
 
+    def exact_sets(
+        self, queries: list[Mapping[str, ArrayLike]], rows: NDArray[np.intp],
+        combine: Callable[[dict[str, Array]], Array], with_raw: bool = True,
+    ) -> tuple[Array, dict[str, Array]]:
+        """`exact` for A query vector sets at once (`VectorStore.set_distances`: one
+        matrix product per stage): ``(p, raw)``, ``p`` ``(A, len(rows))`` each
+        row's smallest combined distance over its viewpoints (inf: none) and
+        ``raw`` stage -> ``(A, len(rows))`` that viewpoint's distances (inf: none;
+        left empty unless `with_raw`)."""
+        rows = np.asarray(rows, np.intp)
+        shape = (len(queries), len(rows))
+        p = np.full(shape, np.inf)
+        raw: dict[str, Array] = {}
+        if with_raw:
+            raw = {s: np.full(shape, np.inf) for s in self.stages}
+        if self._size == 0 or len(rows) == 0:
+            return p, raw
+        first, count = self._span.data[rows, 0], self._span.data[rows, 1]
+        has = np.flatnonzero(count > 0)
+        if len(has) == 0:
+            return p, raw
+        n = count[has]
+        start = np.cumsum(n) - n  # each row's first column among the viewpoint columns
+        idx = np.repeat(first[has], n) + (np.arange(int(n.sum())) - np.repeat(start, n))
+        dist = {s: self._stores[s].set_distances(np.stack([np.asarray(q[s], float)
+                                                           for q in queries]), idx)
+                for s in self.stages}
+        pv = np.asarray(combine(dist), float)
+        p[:, has] = np.minimum.reduceat(pv, start, axis=1)
+        if with_raw:
+            group = np.repeat(np.arange(len(has)), n)
+            for a in range(len(queries)):
+                order = np.lexsort((pv[a], group))
+                lead = order[np.r_[True, group[order][1:] != group[order][:-1]]]
+                for s in self.stages:
+                    raw[s][a, has] = dist[s][a, lead]
+        return p, raw
+
+
 def stacked_distances(store: VectorStore, queries: ArrayLike) -> NDArray[np.float32]:
     """``(Q, M)`` float32 Euclidean distances of Q queries ``(Q, D)`` to every row of
     `store`, from one pass over its rows (``|x|^2 - 2 x.q + |q|^2``, as

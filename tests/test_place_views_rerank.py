@@ -112,3 +112,31 @@ def test_rerank_sees_stored_viewpoints_in_the_pool() -> None:
     np.testing.assert_allclose(c.prefilter, [0.0, 0.2], atol=1e-6)
     with pytest.raises(UserError):
         PlaceDatabase(prefilter=("pairs",), verifiers=(), viewpoint_pool=0)
+
+
+def test_set_distances_match_the_exact_ones() -> None:
+    from loopclosure.matchers.vector_search import VectorStore
+
+    store = VectorStore(2)
+    store.extend(np.array([[1.0, 0.0], [4.0, 4.0], [0.0, 3.0]]))
+    got = store.set_distances(np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([2, 0]))
+    np.testing.assert_allclose(got, [[3.0, 1.0], [np.sqrt(10.0), 0.0]], atol=1e-6)
+
+
+def test_exact_sets_take_each_rows_nearest_viewpoint_per_query() -> None:
+    from loopclosure.place_views import ViewpointRows
+
+    views = ViewpointRows(("pairs",))
+    views.append({"pairs": np.array([[0.0, 1.0], [0.0, 5.0]])})  # row 0: two viewpoints
+    views.append(None)                                           # row 1: none
+    views.append({"pairs": np.array([[3.0, 0.0]])})              # row 2: one
+    queries = [{"pairs": np.zeros(2)}, {"pairs": np.array([0.0, 4.0])}]
+    p, raw = views.exact_sets(queries, np.array([2, 1, 0]), lambda d: 2.0 * d["pairs"])
+    np.testing.assert_allclose(p, [[6.0, np.inf, 2.0], [10.0, np.inf, 2.0]], atol=1e-6)
+    np.testing.assert_allclose(raw["pairs"], [[3.0, np.inf, 1.0], [5.0, np.inf, 1.0]],
+                               atol=1e-6)
+    # the same as `exact`, one query set at a time
+    for a, qv in enumerate(queries):
+        one, one_raw = views.exact(qv, np.array([2, 1, 0]), lambda d: 2.0 * d["pairs"])
+        np.testing.assert_allclose(p[a], one, atol=1e-6)
+        np.testing.assert_allclose(raw["pairs"][a], one_raw["pairs"], atol=1e-6)
