@@ -21,7 +21,10 @@ the own descriptions' P nearest), ``rerank-P-R`` (`loopclosure.place_views.
 rank_normalised` over the pool of the own descriptions' P nearest, rank R: the
 database's ``"rerank"``), and with ``--full-rank`` ``norm-R`` (rank-normalised over
 every eligible keyframe, no pool).  ``--side`` keeps only the viewpoints beside the
-path (offset mostly along the keyframe's y axis).  ``--queries`` prints, per
+path (offset mostly along the keyframe's y axis); ``--no-cross`` compares the
+query's viewpoints with the stored own descriptions only (the query's own
+description still with the stored viewpoints: no pair of two viewpoints; the
+database's ``viewpoint_cross=false``).  ``--queries`` prints, per
 variant, the rank of the first true place of those query keyframes and the queries
 whose recall@10 a variant changes against the default.
 """
@@ -140,9 +143,11 @@ def variants(pools: list[int], ranks: list[int], full_rank: bool) -> dict:
     return out
 
 
-def ranks_of(data: dict, d: dict, fns: dict, side: bool) -> dict[str, np.ndarray]:
+def ranks_of(data: dict, d: dict, fns: dict, side: bool, own_only: bool = False
+             ) -> dict[str, np.ndarray]:
     """Per variant and revisit query, the 0-based interleaved rank of the first true
-    place (`pm.BIG`: none)."""
+    place (`pm.BIG`: none); `own_only`: the query's viewpoints are compared with the
+    stored own descriptions only (no pair of two viewpoints)."""
     keys = data["keys"]
     own, wide = d["own"], d["wide"]
     vecs, owner = d["vecs"], d["owner"]
@@ -166,7 +171,9 @@ def ranks_of(data: dict, d: dict, fns: dict, side: bool) -> dict[str, np.ndarray
         qrow = int(np.searchsorted(keys, k))
         Q = np.vstack([own[k][None], vecs[owner == qrow]])
         D = np.sqrt(np.maximum((Q ** 2).sum(1)[:, None] + s_sq[None] - 2 * Q @ stored.T, 0))
-        P = np.array([per_key_min(D[a], s_owner, len(keys)) for a in range(len(Q))])
+        P = np.array([per_key_min(D[a] if a == 0 or not own_only else D[a, : len(keys)],
+                                  s_owner if a == 0 or not own_only else s_owner[: len(keys)],
+                                  len(keys)) for a in range(len(Q))])
         d0 = D[0, : len(keys)].copy()
         d0[~has_own] = np.inf
         P[:, ~has_own] = np.inf
@@ -191,6 +198,8 @@ def main() -> None:
     ap.add_argument("--ranks", default="30")
     ap.add_argument("--side", action="store_true")
     ap.add_argument("--full-rank", action="store_true")
+    ap.add_argument("--no-cross", action="store_true",
+                    help="query viewpoints against stored own descriptions only")
     ap.add_argument("--queries", default="")
     args = ap.parse_args()
     config = PipelineConfig()
@@ -201,7 +210,7 @@ def main() -> None:
         t = time.perf_counter()
         data = pm.mapped(spec, config, args.cache)
         d = described(data, config, args.cache, args.radius, args.count)
-        r = ranks_of(data, d, fns, args.side)
+        r = ranks_of(data, d, fns, args.side, args.no_cross)
         ks = np.array([q["k"] for q in data["queries"]])
         print(f"{data['name']}: {len(ks)} revisits, {len(d['vecs'])} viewpoints "
               f"({time.perf_counter() - t:.0f} s)", flush=True)

@@ -255,13 +255,17 @@ class VectorStore:
     def set_distances(self, queries: ArrayLike, rows: NDArray[np.intp]) -> Array:
         """``(A, len(rows))`` float64 Euclidean distances of A queries ``(A, D)`` to the
         stored rows `rows`: the float32 rows and the queries rounded like them
-        (`relative`), then ``|x|^2 - 2 x.q + |q|^2`` in float64, one matrix product for
-        all queries (a few rows asked by several query vectors).  Absolute error
+        (`relative`), then ``|x|^2 - 2 x.q + |q|^2`` in float64, the rows gathered once
+        for all queries (a few rows asked by several query vectors; one
+        matrix-vector `np.einsum` per query, as `_matvec`: a BLAS matrix product's
+        threads cost more than they save on so small a product).  Absolute error
         about 1e-8 times the norm of the rows relative to `reference` (a stored
         vector is at distance below that, not exactly 0: `exact_distances` is)."""
         q = self.relative(np.atleast_2d(np.asarray(queries, float))).astype(np.float64)
         x = self._rows[np.asarray(rows, np.intp)].astype(np.float64)
-        d2 = q @ (-2.0 * x.T)
+        d2 = np.empty((len(q), len(x)))
+        for a, qa in enumerate(q):  # per query vector (a few), not per row
+            np.einsum("ij,j->i", x, -2.0 * qa, out=d2[a])
         d2 += np.einsum("ij,ij->i", x, x)[None, :]
         d2 += np.einsum("ij,ij->i", q, q)[:, None]
         np.maximum(d2, 0.0, out=d2)
