@@ -17,7 +17,9 @@ description and its offset viewpoints, and over the query's viewpoints with
 ``query_viewpoints``; with ``viewpoint_order="interleave"`` these are kept as
 separate lists (`loopclosure.place_shortlist.rank_interleave` orders them); with
 ``viewpoint_order="rerank"`` the own descriptions alone screen the database and the
-viewpoints rank only the pool of its smallest p again (`reranked`).
+viewpoints rank only the pool of its smallest p again (`reranked`; `exact` still
+gives the plain smallest p over every pair, the distances
+`PlaceDatabase.prefilter_distances` reports and the vote's extra candidates carry).
 `shortlist` picks the rows a query chooses its candidates from: the n smallest
 screened p, recomputed exactly and re-sorted (`loopclosure.place_shortlist`).
 """
