@@ -53,7 +53,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
             verbose: bool = True, viewpoints: int = 0,
             query_viewpoints: bool = False, stored_viewpoints: bool = True,
-            viewpoint_order: str = "min") -> dict[int, float]:
+            viewpoint_order: str = "min", viewpoint_pool: int = 128) -> dict[int, float]:
     """CPU ms per query for every database size (module docstring), with the code
     on ``sys.path``."""
     import numpy as np
@@ -98,7 +98,8 @@ def measure(data: Path, n_scans: int, sizes: list[int], n_queries: int,
     for m in sizes:
         db = PlaceDatabase(PlaceDatabaseConfig(query_viewpoints=query_viewpoints,
                                                stored_viewpoints=stored_viewpoints,
-                                               viewpoint_order=viewpoint_order))
+                                               viewpoint_order=viewpoint_order,
+                                               viewpoint_pool=viewpoint_pool))
         for key in range(m):
             db.add_descriptors(key, with_views(described[key % n], key), stamp=float(key))
         db.query(asked[0], headings=False)  # warm-up: scales, stacks, compiled kernels

@@ -8,11 +8,12 @@ Run from the repository root::
 
 The measurement of `place_query_scaling.measure` (Intel places, the default
 `PlaceDatabaseConfig`, `PlaceDatabase.query` without headings, CPU ms per query) for
-three configurations, R times each, interleaved in this one process so that the
+four configurations, R times each, interleaved in this one process so that the
 machine's load falls on all of them alike: no viewpoints; V stored viewpoints per
 entry and V on the query's side screened over every pair (``viewpoint_order="min"``,
 ``query_viewpoints``); the same viewpoints ranking only the pool of the own
-descriptions' smallest distances again (``viewpoint_order="rerank"``).  Printed per
+descriptions' smallest distances again (``viewpoint_order="rerank"``, the pool
+of 128 and of 256).  Printed per
 size: the best of the R runs of each and its ratio to the one without viewpoints.
 """
 
@@ -32,6 +33,7 @@ CONFIGS = {
     "none": dict(viewpoints=0),
     "both min": dict(query_viewpoints=True, viewpoint_order="min"),
     "both rerank": dict(query_viewpoints=True, viewpoint_order="rerank"),
+    "both rerank 256": dict(query_viewpoints=True, viewpoint_order="rerank", viewpoint_pool=256),
 }
 
 
