@@ -306,6 +306,54 @@ def test_icp2d_kidnap_noise_odometry(run) -> None:
         Icp2dConfig(kidnap_noise="loose")
 
 
+def test_icp2d_jump_agreement_gate_by_hand() -> None:
+    """``_agrees``: ``e^T C^-1 e <= k^2`` with ``e = between(u, d)``; u = 1 m straight,
+    C = diag(0.1^2, 0.05^2, 0.05^2), k = 3: 0.2 m along is 2 sigma (agrees), 0.35 m
+    is 3.5 sigma, 0.16 m across 3.2 sigma, 0.16 rad 3.2 sigma (do not); k = 0: never."""
+    cov = np.diag([0.01, 0.0025, 0.0025])
+    u, prev = np.array([1.0, 0.0, 0.0]), np.array([2.0, -1.0, np.pi / 2])
+    odo = Icp2dOdometry(Icp2dConfig(jump_agreement=3.0))
+
+    def agrees(d: list[float], o: Icp2dOdometry = odo) -> bool:
+        return o._agrees(prev, se2.compose(prev, np.array(d)), u, cov)
+
+    assert agrees([1.2, 0.0, 0.0]) and agrees([1.0, 0.0, 0.0])
+    assert agrees([1.0, 0.14, 0.0]) and agrees([1.0, 0.0, -0.14])
+    assert not agrees([1.35, 0.0, 0.0])
+    assert not agrees([1.0, 0.16, 0.0]) and not agrees([1.0, 0.0, 0.16])
+    assert not agrees([1.0, 0.0, 0.0], Icp2dOdometry())
+    with pytest.raises(UserError, match="jump_agreement"):
+        Icp2dConfig(jump_agreement=-1.0)
+
+
+def test_icp2d_jump_agreement_confirms_a_step_both_sensors_agree_on(run) -> None:
+    """Twelve scans left out: a 1.7 m odometry jump.  With a fitness test no match
+    passes (`jump_fitness_ratio` 2) the default makes it a kidnap (pose from the
+    odometry); with ``jump_agreement=3`` the good match, which agrees with the
+    odometry, gives the pose (closer to the truth than the odometry).  An odometry
+    glitch (3 m, 90 degrees off, the robot did not move so) still does not agree."""
+    scans = list(run.scans[:40]) + list(run.scans[52:60])
+    truth = se2.between(run.ground_truth.xytheta()[39], run.ground_truth.xytheta()[52])
+    fixed = Icp2dOdometry(Icp2dConfig(jump_fitness_ratio=2.0))
+    agree = Icp2dOdometry(Icp2dConfig(jump_fitness_ratio=2.0, jump_agreement=3.0))
+    ea, eb = [fixed.process(s) for s in scans], [agree.process(s) for s in scans]
+    assert ea[40].extra["kidnap"] is True and "agreed" not in ea[40].extra
+    assert eb[40].status == "odometry_jump" and eb[40].extra["kidnap"] is False
+    assert eb[40].extra["agreed"] is True
+    err_a, err_b = se2.between(truth, ea[40].delta), se2.between(truth, eb[40].delta)
+    assert np.hypot(err_b[0], err_b[1]) < 0.01 < np.hypot(err_a[0], err_a[1])
+    for e in eb:
+        check_estimate(e)
+    glitch = [dataclasses.replace(s) for s in run.scans[:45]]
+    offset = np.array([3.0, -2.0, np.pi / 2])
+    for s in glitch[40:]:
+        s.odom = se2.compose(offset, s.odom)
+    gate = Icp2dOdometry(Icp2dConfig(jump_fitness_ratio=2.0, jump_agreement=3.0))
+    eg = [gate.process(s) for s in glitch[:41]]
+    assert eg[40].extra["kidnap"] is True and "agreed" not in eg[40].extra
+    assert "rejected_fitness" in eg[40].extra  # a good match, off the odometry
+
+
 def test_icp2d_on_an_intel_slice() -> None:
     """First 600 scans of Intel: the relations inside beat wheel odometry by far."""
     from data.carmen import CarmenLog

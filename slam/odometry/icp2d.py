@@ -84,7 +84,14 @@ Graceful handling (status of `OdometryEstimate`)
   from the previous pose (zero motion), then the search.  A match that is good and has at least
   `jump_fitness_ratio` times the median fitness of the last `jump_history`
   registered scans (a jump needs more evidence than a step) gives the pose
-  (``extra["kidnap"] = False``).  Otherwise the robot was carried away
+  (``extra["kidnap"] = False``).  With `jump_agreement` ``k > 0`` a good match that
+  fails that fitness test still gives the pose when its increment ``d`` agrees with
+  the odometry's ``u``: ``e^T C^-1 e <= k^2`` with ``e = between(u, d)`` (right
+  perturbation) and ``C`` the odometry model's covariance of ``u``
+  (`odometry_noise`); ``extra["agreed"] = True``.  Two independent sensors that
+  place the scan at the same pose are evidence the robot was not carried away; the
+  fitness test only doubts the match because a step over a metre sees less of the
+  map than the turns on the spot that set the recent median.  Otherwise the robot was carried away
   (``extra["kidnap"] = True``): the pose follows the odometry, the covariance is
   ``diag(kidnap_sigma^2)`` (the increment is as good as unknown) and the map
   restarts from this scan.  With ``kidnap_noise="odometry"`` the covariance is
@@ -220,6 +227,9 @@ class Icp2dConfig:
         jump_history: number of recent increments (and fitness values) of the medians.
         jump_fitness_ratio: a match after a jump needs this fraction of the median
             recent fitness.
+        jump_agreement: or, when positive, a registered increment within this
+            Mahalanobis distance [sigma] of the odometry increment under the
+            odometry model's covariance (module docstring); 0: off.
         kidnap_sigma: standard deviations of a kidnapped increment (x [m], y [m],
             theta [rad]) with ``kidnap_noise="fixed"``.
         kidnap_noise: covariance of a kidnapped increment: ``"fixed"``,
@@ -289,6 +299,7 @@ class Icp2dConfig:
     jump_scale: str = "median"
     jump_history: int = 20
     jump_fitness_ratio: float = 0.75
+    jump_agreement: float = 0.0
     kidnap_sigma: tuple[float, float, float] = (10.0, 10.0, np.pi)
     kidnap_noise: str = "fixed"
     search: bool = True
@@ -333,6 +344,8 @@ class Icp2dConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise UserError(f"icp2d {name} must be positive, got {value}")
+        if not (np.isfinite(self.jump_agreement) and self.jump_agreement >= 0):
+            raise UserError(f"icp2d jump_agreement must be >= 0, got {self.jump_agreement}")
         if self.kidnap_noise not in ("fixed", "odometry"):
             raise UserError(f"icp2d kidnap_noise must be fixed or odometry, "
                             f"got {self.kidnap_noise!r}")
@@ -520,8 +533,11 @@ class Icp2dOdometry:
             # A jump needs a match as good as the recent ones, not just a passable one.
             usual = float(statistics.median(self._recent_fitness))
             if res.fitness < cfg.jump_fitness_ratio * usual:
-                extra["rejected_fitness"] = res.fitness
-                return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
+                if self._agrees(prev, res.pose, u, u_cov):
+                    extra["agreed"] = True
+                else:
+                    extra["rejected_fitness"] = res.fitness
+                    return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
         if not self._good(res):
             if jump:
                 return self._kidnap(scan, pred, u, u_cov, points, extra, t0)
@@ -715,6 +731,17 @@ class Icp2dOdometry:
         sig = self.config.search_sigma
         m2 = (np.hypot(dev[0], dev[1]) / sig[0]) ** 2 + (dev[2] / sig[1]) ** 2
         return float(res.fitness * np.exp(-0.5 * m2))
+
+    def _agrees(self, prev: Array, pose: Array, u: Array, u_cov: Array) -> bool:
+        """Whether the registered increment ``d = between(prev, pose)`` lies within
+        `jump_agreement` sigmas of the odometry increment `u`: ``e^T u_cov^-1 e <= k^2``,
+        ``e = between(u, d)`` (x [m], y [m], theta [rad], right perturbation); always
+        False when `jump_agreement` is 0."""
+        k = self.config.jump_agreement
+        if k <= 0:
+            return False
+        e = se2.between(np.asarray(u, dtype=float), np.array(_between(prev, pose)))
+        return bool(e @ np.linalg.solve(u_cov, e) <= k * k)
 
     def _good(self, res: IcpResult) -> bool:
         cfg = self.config
