@@ -4,6 +4,7 @@ Run from the repository root::
 
     python benchmarks/kidnap_causes.py [--data DIR] [--logs belgioioso,intel-corrected]
         [--variant NAME:key=value,...]
+    python benchmarks/kidnap_causes.py --resolve OUT [OUT ...]
 
 Each log is read as ``loopclosure bench slam LOG --odometry-noise 0
 --reference-from-log`` reads it (`evaluation.slam_input.load_input`, seed 0) and the
@@ -23,6 +24,13 @@ scan the jump rule flagged (``extra["odometry_step"]``) one line:
   (``icp-ref``: [m], [deg]) and from the odometry's (``icp-odo``, also in sigmas of
   the odometry model, the `jump_agreement` gate's measure);
 * the odometry's own difference from the reference (``odo-ref``).
+
+``--resolve OUT``: a ``bench slam --out`` folder's saved graph (``session.npz``: the
+odometry factors and the loops the final GNC kept) re-solved (LM, Gaussian factors,
+first pose fixed) as saved and with the loops the GNC rejected (``loops.csv``, their
+measured ``dx, dy, dtheta``) added at the loop check's covariance floor (0.02 m,
+0.5 deg): keyframe ATE [m] against the logged poses (rigid alignment) and each
+rejected loop's chi-square at the solution with all loops.
 """
 
 from __future__ import annotations
@@ -65,13 +73,67 @@ def sigmas(u, d, cov) -> float:
     return float(np.sqrt(e @ np.linalg.solve(cov, e)))
 
 
+def resolve(out: Path) -> None:
+    """Print the ``--resolve`` figures of one ``bench slam --out`` folder (docstring)."""
+    import csv
+
+    import gtsam
+
+    sess = dict(np.load(out / "pipeline" / "session.npz"))
+    d = np.loadtxt(out / "reference_logged.tum")
+    ref = np.c_[d[:, 1], d[:, 2], 2.0 * np.arctan2(d[:, 6], d[:, 7])][sess["kf_scan_index"]]
+    rows = [r for r in csv.DictReader(open(out / "pipeline" / "loops.csv"))
+            if r["rejected_by_gnc"] == "1"]
+    floor = np.linalg.inv(np.diag([0.02**2, 0.02**2, np.radians(0.5) ** 2]))
+    extra = [((int(r["keyframe_a"]), int(r["keyframe_b"])),
+              np.array([float(r["dx"]), float(r["dy"]), float(r["dtheta"])])) for r in rows]
+
+    def solve(loops):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for k, p in enumerate(sess["kf_pose"]):
+            values.insert(k, gtsam.Pose2(*p))
+        graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*sess["kf_pose"][0]),
+                                         gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-4))))
+        factors = [*zip(sess["odom_ij"], sess["odom_z"], sess["odom_info"], strict=True),
+                   *zip(sess["loop_ij"], sess["loop_z"], sess["loop_info"], strict=True),
+                   *[(ij, z, floor) for ij, z in loops]]
+        for (i, j), z, info in factors:
+            graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z),
+                                               gtsam.noiseModel.Gaussian.Information(info)))
+        res = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+        return np.array([[res.atPose2(k).x(), res.atPose2(k).y(), res.atPose2(k).theta()]
+                         for k in range(len(sess["kf_pose"]))])
+
+    def ate(est):
+        a, b = est[:, :2], ref[:, :2]
+        ma, mb = a.mean(0), b.mean(0)
+        u, _, vt = np.linalg.svd((a - ma).T @ (b - mb))
+        rot = vt.T @ np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
+        return float(np.sqrt(np.mean(np.sum(((a - ma) @ rot.T + mb - b) ** 2, axis=1))))
+
+    kept, every = solve([]), solve(extra)
+    free = sum(np.linalg.inv(m)[0, 0] > 1.0 for m in sess["odom_info"])
+    print(f"== {out}: {len(sess['loop_ij'])} loops kept, {len(extra)} rejected by GNC, "
+          f"{free} free odometry joints; keyframe ATE as saved {ate(kept):.4f} m, "
+          f"with the rejected loops {ate(every):.4f} m")
+    for (i, j), z in extra:
+        e = np.array(se2.between(se2.between(every[i], every[j]), z))
+        print(f"    rejected kf {i}-{j}: chi2 at the all-loops solution "
+              f"{e @ floor @ e:.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", default="../shared/data")
     ap.add_argument("--logs", default="belgioioso,intel-corrected")
     ap.add_argument("--variant", action="append", default=[],
                     help="NAME:key=value,key=value (repeatable)")
+    ap.add_argument("--resolve", nargs="+", type=Path, help="bench slam --out folders")
     args = ap.parse_args()
+    if args.resolve:
+        for out in args.resolve:
+            resolve(out)
+        return
     Icp2dOdometry._describe = staticmethod(_describe_with_pose)
     for log in args.logs.split(","):
         name = log if log.endswith("-corrected") else f"{log}-corrected"
