@@ -58,10 +58,28 @@ def overlap_bound(source: ArrayLike, grid: GridTarget, guesses: ArrayLike,
 
 
 @numba.njit(cache=True)
+def _screen_point(px, py, gate, reach, ox, oy, cell, nx, ny, start, pts, kind, params,
+                  normals, anchors):
+    """One moved source point's share of both screens: ``(hit, term)``, ``hit`` 1
+    when its nearest map point lies within `reach`, ``term`` ``1 - (d / gate)^2``
+    when that point lies within `gate` and is matchable (its normal resolved here
+    when still lazy), 0 otherwise."""
+    j, d = _nearest(px, py, max(gate, reach), ox, oy, cell, nx, ny, start, pts)
+    if j < 0:
+        return 0, 0.0
+    hit = 1 if d <= reach else 0
+    if d < gate and kind[j] < 0:
+        resolve_point(j, pts, ox, oy, cell, nx, ny, start, params, normals, anchors, kind)
+    if d < gate and kind[j] != KIND_NONE:
+        u = d / gate
+        return hit, 1.0 - u * u
+    return hit, 0.0
+
+
+@numba.njit(cache=True)
 def _screen_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start, pts, kind,
                    params, normals, anchors, scores, bounds):
     n = src.shape[0]
-    radius = max(gate, reach)
     for g in range(guesses.shape[0]):
         c, s = np.cos(guesses[g, 2]), np.sin(guesses[g, 2])
         score = 0.0
@@ -69,17 +87,10 @@ def _screen_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start, pts, 
         for i in range(n):
             px = c * src[i, 0] - s * src[i, 1] + guesses[g, 0]
             py = s * src[i, 0] + c * src[i, 1] + guesses[g, 1]
-            j, d = _nearest(px, py, radius, ox, oy, cell, nx, ny, start, pts)
-            if j < 0:
-                continue
-            if d <= reach:
-                hits += 1
-            if d < gate and kind[j] < 0:
-                resolve_point(j, pts, ox, oy, cell, nx, ny, start, params, normals, anchors,
-                              kind)
-            if d < gate and kind[j] != KIND_NONE:
-                u = d / gate
-                score += 1.0 - u * u
+            hit, term = _screen_point(px, py, gate, reach, ox, oy, cell, nx, ny, start, pts,
+                                      kind, params, normals, anchors)
+            hits += hit
+            score += term
         scores[g] = score / n
         bounds[g] = hits / n
 

@@ -29,8 +29,8 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from loopclosure.grid_nearest import _nearest
-from loopclosure.grid_target import KIND_NONE, GridTarget, resolve_point
+from loopclosure.grid_overlap import _screen_point
+from loopclosure.grid_target import GridTarget
 from loopclosure.icp_types import as_points
 from loopclosure.kernel_cache import drop_stale
 
@@ -45,7 +45,6 @@ def _screen_until_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start,
     bound)``, the maxima (lower bounds when stopped early; the full maxima, starting
     from 0, otherwise)."""
     n = src.shape[0]
-    radius = max(gate, reach)
     best_score = 0.0
     best_bound = 0.0
     if best_score >= min_score and best_bound >= min_bound:
@@ -57,17 +56,10 @@ def _screen_until_kernel(src, guesses, gate, reach, ox, oy, cell, nx, ny, start,
         for i in range(n):
             px = c * src[i, 0] - s * src[i, 1] + guesses[g, 0]
             py = s * src[i, 0] + c * src[i, 1] + guesses[g, 1]
-            j, d = _nearest(px, py, radius, ox, oy, cell, nx, ny, start, pts)
-            if j < 0:
-                continue
-            if d <= reach:
-                hits += 1
-            if d < gate and kind[j] < 0:
-                resolve_point(j, pts, ox, oy, cell, nx, ny, start, params, normals, anchors,
-                              kind)
-            if d < gate and kind[j] != KIND_NONE:
-                u = d / gate
-                score += 1.0 - u * u
+            hit, term = _screen_point(px, py, gate, reach, ox, oy, cell, nx, ny, start, pts,
+                                      kind, params, normals, anchors)
+            hits += hit
+            score += term
             if (max(best_score, score / n) >= min_score
                     and max(best_bound, hits / n) >= min_bound):
                 return True, max(best_score, score / n), max(best_bound, hits / n)
@@ -101,7 +93,8 @@ def screen_passes(source: ArrayLike, grid: GridTarget, guesses: ArrayLike, gate:
 
 
 # numba's cache does not see edits of the callees' files (`loopclosure.kernel_cache`).
-drop_stale(__name__, ("loopclosure.grid_nearest", "loopclosure.grid_target"))
+drop_stale(__name__, ("loopclosure.grid_nearest", "loopclosure.grid_target",
+                      "loopclosure.grid_overlap"))
 
 
 __all__ = ["screen_passes"]
