@@ -34,8 +34,10 @@ CONFIGS = {
 }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def main(configs: dict[str, dict] = CONFIGS, doc: str = __doc__) -> None:
+    """Time every configuration of `configs` (the first is the one the ratios divide
+    by), interleaved, and print the best of each per database size."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--scans", type=int, default=1000)
     ap.add_argument("--sizes", default="2000,10000")
@@ -44,20 +46,20 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
-    best: dict[str, dict[int, float]] = {name: {} for name in CONFIGS}
+    best: dict[str, dict[int, float]] = {name: {} for name in configs}
     for r in range(args.repeat):
-        names = list(CONFIGS) if r % 2 == 0 else list(CONFIGS)[::-1]
+        names = list(configs) if r % 2 == 0 else list(configs)[::-1]
         for name in names:
-            kw = {"viewpoints": args.viewpoints, **CONFIGS[name]}
+            kw = {"viewpoints": args.viewpoints, **configs[name]}
             got = measure(args.data, args.scans, sizes, args.queries, verbose=False, **kw)
             for m, ms in got.items():
                 best[name][m] = min(best[name].get(m, float("inf")), ms)
             print(f"run {r} {name}: " + ", ".join(f"{m} {ms:.2f} ms" for m, ms in got.items()),
                   flush=True)
     for m in sizes:
-        base = best["none"][m]
+        base = best[next(iter(configs))][m]
         print(f"database {m:6d} entries, best of {args.repeat}: " + "; ".join(
-            f"{name} {best[name][m]:.2f} ms (x{best[name][m] / base:.2f})" for name in CONFIGS))
+            f"{name} {best[name][m]:.2f} ms (x{best[name][m] / base:.2f})" for name in configs))
 
 
 if __name__ == "__main__":

@@ -19,7 +19,6 @@ size: the best of the R runs of each and its ratio to the one without viewpoints
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -27,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from place_query_scaling import measure  # noqa: E402
+import viewpoint_query_cost  # noqa: E402
 
 CONFIGS = {
     "none": dict(viewpoints=0),
@@ -37,31 +36,5 @@ CONFIGS = {
 }
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
-    ap.add_argument("--scans", type=int, default=1000)
-    ap.add_argument("--sizes", default="2000,10000")
-    ap.add_argument("--queries", type=int, default=50)
-    ap.add_argument("--viewpoints", type=int, default=4)
-    ap.add_argument("--repeat", type=int, default=3)
-    args = ap.parse_args()
-    sizes = [int(s) for s in args.sizes.split(",")]
-    best: dict[str, dict[int, float]] = {name: {} for name in CONFIGS}
-    for r in range(args.repeat):
-        names = list(CONFIGS) if r % 2 == 0 else list(CONFIGS)[::-1]
-        for name in names:
-            kw = {"viewpoints": args.viewpoints, **CONFIGS[name]}
-            got = measure(args.data, args.scans, sizes, args.queries, verbose=False, **kw)
-            for m, ms in got.items():
-                best[name][m] = min(best[name].get(m, float("inf")), ms)
-            print(f"run {r} {name}: " + ", ".join(f"{m} {ms:.2f} ms" for m, ms in got.items()),
-                  flush=True)
-    for m in sizes:
-        base = best["none"][m]
-        print(f"database {m:6d} entries, best of {args.repeat}: " + "; ".join(
-            f"{name} {best[name][m]:.2f} ms (x{best[name][m] / base:.2f})" for name in CONFIGS))
-
-
 if __name__ == "__main__":
-    main()
+    viewpoint_query_cost.main(CONFIGS, __doc__)
