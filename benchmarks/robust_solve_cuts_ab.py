@@ -14,13 +14,17 @@ False), ``adopt-off`` (a loop turned back by the nonlinear check is taken out of
 pass's iSAM2 and solved again rather than adopting its leave-one-out copy,
 `slam.admission.ADOPT_LEAVE_ONE_OUT` False), ``fork-off`` (no snapshot kept where the
 calibrated pass forks, `slam.admission.FORK_SNAPSHOT` False), ``snap-N``
-(`slam.admission.SNAPSHOTS = N`), ``relin-X`` (`slam.isam_prefix.RELINEARIZE = X`); ``old`` is
+(`slam.admission.SNAPSHOTS = N`), ``relin-X`` (`slam.isam_prefix.RELINEARIZE = X`),
+``ladder-stop`` (`slam.consistency.LADDER_STOP`), ``bar-agree``
+(`slam.consistency.BAR_AGREE`); ``old`` is
 ``share-off+adopt-off+fork-off+snap-2`` (the code before these cuts).  One line per run: ATE
 against the outlier-free optimum [m], false loops obeyed (of them consistent with the
 outlier-free graph), true loops rejected, CPU seconds (``time.process_time``), iSAM2
 prefix solves (`IsamPrefix.solve` calls) and batch solves (`StickySolver` solves, memo
 hits apart), peak resident memory so far [MB]; each run after the first is compared with
-the first (same loops, largest position difference [m], CPU ratio).  An untimed warm-up
+the first (same loops, largest position difference [m], CPU ratio); ``--cap S`` stops a
+run after S seconds of its CPU (`benchmarks.robust_cell.cpu_cap`), reported unfinished.
+An untimed warm-up
 on the graph's first 200 poses loads numba's kernels first.
 """
 
@@ -35,15 +39,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import slam.admission as admission
 import slam.admission_undo as admission_undo
+import slam.consistency as consistency
 import slam.isam_prefix as isam_prefix
 import slam.least_squares as least_squares
-from benchmarks.robust_cell import cell_outcome, cell_parser, read_cell
+from benchmarks.robust_cell import CpuCapped, cell_outcome, cell_parser, cpu_cap, read_cell
 from benchmarks.robust_confirm_ab import _head, versus
 from slam.optimize import optimize
 
-NAMES = ("share", "adopt", "fork", "snapshots", "relinearize")
+NAMES = ("share", "adopt", "fork", "snapshots", "relinearize", "ladder_stop", "bar_agree")
 DEFAULTS = (admission_undo.SHARE_FIRST_SOLVE, admission.ADOPT_LEAVE_ONE_OUT,
-            admission.FORK_SNAPSHOT, admission.SNAPSHOTS, isam_prefix.RELINEARIZE)
+            admission.FORK_SNAPSHOT, admission.SNAPSHOTS, isam_prefix.RELINEARIZE,
+            consistency.LADDER_STOP, consistency.BAR_AGREE)
 COUNTS = {"isam": 0, "batch": 0}
 _solve = isam_prefix.IsamPrefix.solve
 _inner = least_squares.StickySolver._solve
@@ -71,6 +77,10 @@ def settings(run: str) -> dict[str, object]:
             chosen["fork"] = False
         elif part.startswith("snap-"):
             chosen["snapshots"] = int(part[len("snap-"):])
+        elif part == "ladder-stop":
+            chosen["ladder_stop"] = True
+        elif part == "bar-agree":
+            chosen["bar_agree"] = True
         elif part.startswith("relin-"):
             chosen["relinearize"] = float(part[len("relin-"):])
         elif part != "default":
@@ -84,12 +94,15 @@ def apply(chosen: dict[str, object]) -> None:
     admission.FORK_SNAPSHOT = chosen["fork"]
     admission.SNAPSHOTS = chosen["snapshots"]
     isam_prefix.RELINEARIZE = chosen["relinearize"]
+    consistency.LADDER_STOP = chosen["ladder_stop"]
+    consistency.BAR_AGREE = chosen["bar_agree"]
 
 
 def main() -> None:
     parser = cell_parser(__doc__.split("\n")[0])
     parser.add_argument("--runs", default="old,default")
     parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--cap", type=float, default=0.0)
     args = parser.parse_args()
     graph, reference, corrupted, is_false = read_cell(args)
     name = f"{args.graph} x{args.scale:g} {args.policy} {args.ratio:g}% seed {args.seed}"
@@ -102,8 +115,14 @@ def main() -> None:
         COUNTS.update(isam=0, batch=0)
         cpu = time.process_time()
         try:
-            result = optimize(corrupted, "none", "gnc", init="odometry",
-                              gnc_start="incremental")
+            with cpu_cap(args.cap):
+                result = optimize(corrupted, "none", "gnc", init="odometry",
+                                  gnc_start="incremental")
+        except CpuCapped:
+            print(f"{name} {run}: not finished in {args.cap:g} s CPU "
+                  f"({COUNTS['isam']} iSAM2 solves, {COUNTS['batch']} batch solves so far)",
+                  flush=True)
+            continue
         finally:
             cpu = time.process_time() - cpu
             apply(dict(zip(NAMES, DEFAULTS, strict=True)))

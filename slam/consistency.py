@@ -159,6 +159,9 @@ REGROUP = False
 # `incremental_tls` climbs its odometry ladder no further once a rung's finished pass,
 # refined, decides every loop as a finished pass of the rung below did (False: every rung).
 LADDER_STOP = False
+# `incremental_tls` skips its bar search when a finished pass decided on another rung's
+# graph, refined, keeps exactly the winner's loops (False: the bar search always runs).
+BAR_AGREE = False
 
 
 def needs_qr(graph: PoseGraph, values: gtsam.Values) -> bool:
@@ -468,7 +471,7 @@ def incremental_tls(
         regrouped = redecide(graph, best, values, probability=probability, solver=solver,
                              factors=stated)
         best = regrouped.admission
-    if tries:
+    if tries and not (BAR_AGREE and _other_rung_agrees(best, decided, finished)):
         best = bar_search(graph, decided, values, best, probability=probability, block=block,
                           tries=tries, solver=solver, prefix_solver=prefix_solver, unit=unit,
                           factors=stated, gate=_gate_of(best), source=source,
@@ -505,6 +508,22 @@ def _rung_agrees(
             if np.array_equal(kept, refined(decide_below, run_below)[1] > 0.5):
                 return True
     return False
+
+
+def _other_rung_agrees(
+    best: Admission, decided: PoseGraph,
+    finished: Sequence[tuple[Admission, PoseGraph, AdmissionPass]],
+) -> bool:
+    """True when a finished candidate decided on another graph than `decided` (another
+    rung of the odometry ladder) keeps exactly the loops of `best` (weights above 0.5).
+
+    Why the bar search may be skipped then: it looks for an early false loop that folded
+    the winner's prefix beyond what the residual rule recovers; a fold comes from a prefix
+    too floppy for the false loop's pull, and a pass on odometry ten times stiffer that
+    ends with the same loops was not bent by it.  A measured rule, not a proof."""
+    kept = best.weights > 0.5
+    return any(graph is not decided and np.array_equal(kept, admission.weights > 0.5)
+               for admission, graph, _ in finished)
 
 
 def polish(
