@@ -304,7 +304,9 @@ def incremental_tls(
     is mostly capped and it repeats the stated run), and the decisions are refined by
     `refine_tls` on the graph *as stated*; the run with the lowest stated `tls_cost`
     is returned (the module docstring's local search, over ``len(ladder) + 1`` starts;
-    every rung is run, since the costs along the ladder need not be monotone).
+    every rung is run, since the costs along the ladder need not be monotone; with
+    `LADDER_STOP` the climb ends after a rung whose finished pass, refined, keeps exactly
+    the loops of a finished pass of the rung below, `_rung_agrees`).
 
     Why: the TLS objective under the stated covariances is the criterion, but deciding
     loops under odometry covariances that are far more pessimistic than the data
@@ -316,7 +318,8 @@ def incremental_tls(
     (`AdmissionPass`) stops at the fold and is finished after the others only if the
     part it has decided is still cheaper than the best finished run's on the same
     part.  The best run is then improved by `bar_search` with `tries` trials (0: none),
-    which repeats the winning run's graph and gate.
+    which repeats the winning run's graph and gate (with `BAR_AGREE`, not when a
+    candidate of another rung keeps exactly the winner's loops, `_other_rung_agrees`).
 
     `defer` (`DEFER_MODES`): ``"bounded"``: every run defers the loops whose
     innovation test has no power (`slam.deferral`), for `BOUNDED_WAIT` loop-bearing blocks:
