@@ -505,12 +505,11 @@ def _rung_agrees(
     by the prefix's floppiness, and a stiffer rung would only reject true loops that the
     stated refinement then re-admits (at 0% outliers every rung ends at the plain
     optimum).  A measured rule, not a proof: the stiffer rung is not run to check it."""
-    for decide, run in rung:
-        kept = refined(decide, run)[1] > 0.5
-        for decide_below, run_below in below:
-            if np.array_equal(kept, refined(decide_below, run_below)[1] > 0.5):
-                return True
-    return False
+    # the rung below refined first: the refinements run in the order they would without
+    # the test (`refine_tls`'s warm starts are the solutions refined before)
+    kept_below = [refined(decide, run)[1] > 0.5 for decide, run in below]
+    return any(any(np.array_equal(refined(decide, run)[1] > 0.5, kept) for kept in kept_below)
+               for decide, run in rung)
 
 
 def _other_rung_agrees(
