@@ -119,6 +119,15 @@ def main() -> None:
         screened.extend(result.screened)
         return result
 
+    predict = regroup.predicted_cost
+    predicted: list = []  # the screen's predicted drop of every hypothesis, in order
+
+    def predicting(graph, values, weights, factors, probability=0.99):  # type: ignore[no-untyped-def]
+        cost = predict(graph, values, weights, factors, probability)
+        predicted.append(tls_cost(graph, values, probability, factors) - cost)
+        return cost
+
+    regroup.predicted_cost = predicting
     regroup.regroup = recorded
     consistency.redecide = recorded  # the name incremental_tls calls
     first = None  # the poses of this process' first run
@@ -132,6 +141,7 @@ def main() -> None:
         trials.clear()
         screened.clear()
         inside[0] = 0.0
+        predicted.clear()
         cpu = time.process_time()
         try:
             with cpu_cap(args.cap):
@@ -146,6 +156,8 @@ def main() -> None:
         first = result.poses if first is None else first
         idle_on = idle_on or (run == "on" and not trials)
         show_trials(trials, screened)
+        print(f"  predicted drops, in the order screened: "
+              f"{', '.join(f'{d:+.2f}' for d in predicted)}", flush=True)
         show(run, cell, result.poses)
 
 
