@@ -10,7 +10,7 @@ from slam.consistency import Admission, incremental_tls, refine_tls, tls_cost
 from slam.least_squares import StickySolver
 from slam.optimize import initial_guess
 from slam.pairwise_consistency import loop_cycles
-from slam.pose_graph import RobustKernel
+from slam.pose_graph import PoseGraph, RobustKernel
 from slam.regroup import (
     agrees,
     hypotheses,
@@ -162,3 +162,29 @@ def test_a_screened_hypothesis_is_not_solved(monkeypatch) -> None:
     assert out.trials == [] and out.admission is admission
     (tried, against, drop), = out.screened
     assert sorted(tried) == group and against == [bad] and drop == pytest.approx(-1.0)
+
+
+def test_a_3d_admission_is_returned_unchanged() -> None:
+    # A corridor of 30 poses 1 m apart (4x4 poses) with a rejected group of three loops
+    # back to the start and one admitted lone loop: the grouping would find the group,
+    # but the pairwise cycle test is planar, so nothing is tested on a 3D graph.
+    graph = PoseGraph(dim=3)
+    step = np.eye(4)
+    step[0, 3] = 1.0
+    info = np.eye(6) * 100.0
+    for k in range(30):
+        pose = np.eye(4)
+        pose[0, 3] = float(k)
+        graph.add_pose(k, pose)
+        if k:
+            graph.add_odometry(k - 1, k, step, info)
+    for i, j in ((0, 25), (1, 26), (2, 27), (10, 20)):
+        back = np.eye(4)
+        back[0, 3] = float(j - i)
+        graph.add_loop(i, j, back, info)
+    weights = np.array([0.0, 0.0, 0.0, 1.0])
+    assert [g.tolist() for g in rejected_groups(graph, weights)] == [[0, 1, 2]]
+    values = graph.gtsam_values()
+    admission = Admission(values, weights, tls_cost(graph, values), 0, "stated")
+    out = regroup(graph, admission, values)
+    assert out.admission is admission and out.trials == [] and out.screened == []
