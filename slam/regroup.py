@@ -32,16 +32,20 @@ loop that locked them out is typically *lone*: no other admitted loop lies withi
    and the step shows it);
 6. a hypothesis replaces the admission only when the stated TLS objective
    (`slam.consistency.tls_cost`, ``sum min(e_k, c)`` over every loop at the solution) is
-   lower: the search never raises the objective.  After a kept one the returns are
-   found again from the new decisions.
+   lower, and the calibrated choice between the two (`slam.calibrated_choice`: each
+   judged under odometry calibrated by the loops it keeps) picks the hypothesis too: the
+   search never raises the stated objective, and where the stated odometry is loose
+   enough for a group of agreeing false loops to lower it by bending the map, the
+   bent map's larger odometry variance factor gives it away.  After a kept one the
+   returns are found again from the new decisions.
 
 A return without suspects is tried as well: its loops, forced in, can move a map that
 false loops had bent into a basin where the residual rule alone does not re-admit them.
 
 Cost: the grouping only, when no agreeing group of rejected loops exists; per hypothesis
 one linear solve (the screen), and for one that passes it two solves and `refine_tls`'s
-rounds.  2D only (the pairwise test); 3D admissions are
-returned unchanged.
+rounds (and the calibrated choice's solves when it lowers the stated objective).  2D
+only (the pairwise test); 3D admissions are returned unchanged.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam.admission import Admission, StatedFactors, tls_cost
+from slam.calibrated_choice import calibrated_choice
 from slam.group_recheck import GROUP_WINDOW, loop_groups
 from slam.innovation import tls_threshold
 from slam.least_squares import StickySolver
@@ -226,7 +231,10 @@ def regroup(
             refined, new = refine_tls(graph, start, w, probability=probability, solver=solve,
                                       solved=True, factors=stated)
             cost = tls_cost(graph, refined, probability, stated)
-            keep = bool(cost < best.tls_cost * (1.0 - 1e-9))
+            keep = bool(cost < best.tls_cost * (1.0 - 1e-9)) and calibrated_choice(
+                graph, [(best.values, best.weights, best.tls_cost), (refined, new, cost)],
+                probability=probability, solver=solve,
+                unit=[stated[0].at(k) for k in stated[1]]) == 1
             out.trials.append(([int(k) for k in run], [int(k) for k in suspects],
                                best.tls_cost - cost, keep))
             if keep:

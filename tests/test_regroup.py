@@ -188,3 +188,26 @@ def test_a_3d_admission_is_returned_unchanged() -> None:
     admission = Admission(values, weights, tls_cost(graph, values), 0, "stated")
     out = regroup(graph, admission, values)
     assert out.admission is admission and out.trials == [] and out.screened == []
+
+
+def test_a_hypothesis_the_calibrated_choice_refuses_is_not_kept(monkeypatch) -> None:
+    # The swap lowers the stated objective (the test above); when the calibrated choice
+    # between the current admission (index 0) and the hypothesis (1) picks the current
+    # one, the admission stays.
+    graph, bad, group, admission = _wrong_admission()
+    chain = graph.gtsam_values(initial_guess(graph, "odometry"))
+    from slam import regroup as module
+
+    seen: list[list[float]] = []
+
+    def choose_current(graph, candidates, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append([cost for _, _, cost in candidates])
+        return 0
+
+    monkeypatch.setattr(module, "calibrated_choice", choose_current)
+    out = regroup(graph, admission, chain)
+    assert out.admission is admission
+    (tried, against, drop, kept), = out.trials
+    assert sorted(tried) == group and against == [bad] and drop > 10.0 and not kept
+    (current, hypothesis), = seen
+    assert current == admission.tls_cost and hypothesis == pytest.approx(current - drop)
