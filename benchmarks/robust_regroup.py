@@ -79,6 +79,8 @@ def main() -> None:
     parser.add_argument("--cap", type=float, default=0.0, help="CPU seconds per run (0: none)")
     parser.add_argument("--save-stage", type=Path, default=None)
     parser.add_argument("--stage", type=Path, default=None)
+    parser.add_argument("--no-screen", action="store_true",
+                        help="with --stage: solve every hypothesis (regroup(screen=False))")
     parser.add_argument("--lazy-off", action="store_true",
                         help="skip an off run after an on run that solved no hypothesis")
     args = parser.parse_args()
@@ -101,7 +103,7 @@ def main() -> None:
         adm = Admission(values, np.asarray(weights, float), tls_cost(corrupted, values), 0, gate)
         show("before", cell, poses)
         cpu = time.process_time()
-        out = regroup.regroup(corrupted, adm, chain)
+        out = regroup.regroup(corrupted, adm, chain, screen=not args.no_screen)
         print(f"regroup: {time.process_time() - cpu:.1f} s CPU", flush=True)
         show_trials(out.trials, out.screened)
         show("after", cell, poses_from_values(out.admission.values, corrupted.dim))
