@@ -25,7 +25,7 @@ from evaluation.robustness import (
 )
 from slam.consistency import ODOMETRY_LADDER, tls_cost
 from slam.innovation import tls_threshold
-from slam.optimize import default_outlier_residual, initial_guess
+from slam.optimize import default_outlier_residual, initial_guess, optimize
 from slam.pose_graph import RobustKernel, whitened_residual
 from slam.variance_components import with_information_scaled
 
@@ -119,3 +119,15 @@ def cpu_cap(seconds: float):
         yield
     finally:
         signal.setitimer(signal.ITIMER_PROF, 0)
+
+
+def capped_gnc(corrupted, cap: float, **options):  # type: ignore[no-untyped-def]
+    """The default robust mode on `corrupted` (``optimize(..., "none", "gnc",
+    init="odometry", gnc_start="incremental", **options)``) within `cap` seconds of
+    process CPU (`cpu_cap`): its result, or None when the cap was reached."""
+    try:
+        with cpu_cap(cap):
+            return optimize(corrupted, "none", "gnc", init="odometry",
+                            gnc_start="incremental", **options)
+    except CpuCapped:
+        return None
